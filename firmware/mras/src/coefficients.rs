@@ -1,0 +1,108 @@
+//! Plain snapshots for persistence and streaming: coefficients and convergence.
+
+use crate::complex::Cplx;
+use crate::config::{PathKind, MAX_PATHS};
+
+/// One path's coefficient in the paper's named form.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PaperForm {
+    /// Offset decoupling vector (eq. 6-7).
+    Offset { xo: f32, yo: f32 },
+    /// X-only amplitude/quadrature term C·cos θs + D·sin θs (eq. 9-11, 14-15).
+    AmplitudeQuadrature { c: f32, d: f32 },
+    /// Harmonic h: E + jF with decoupling `-(E - jF)·e^{j h θs}` (eq. 16-20).
+    Harmonic { h: i8, e: f32, f: f32 },
+}
+
+/// The adaptive coefficients of every path, in configuration order.
+///
+/// Values are in scaled sensor units (nominal amplitude 1): offset `Xo + jYo`,
+/// C/D path `C + jD`, harmonic path `d_h` with decoupling term `d_h·e^{j h θ̂s}`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Coefficients {
+    pub(crate) kinds: [PathKind; MAX_PATHS],
+    pub(crate) values: [Cplx; MAX_PATHS],
+    pub(crate) len: u8,
+}
+
+impl Coefficients {
+    /// All-zero coefficients for a path list (at most [`MAX_PATHS`] are kept).
+    pub fn zeros(paths: &[PathKind]) -> Self {
+        let mut kinds = [PathKind::Offset; MAX_PATHS];
+        let len = paths.len().min(MAX_PATHS);
+        kinds[..len].copy_from_slice(&paths[..len]);
+        Self {
+            kinds,
+            values: [Cplx::ZERO; MAX_PATHS],
+            len: len as u8,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.len as usize
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    pub fn iter(&self) -> impl Iterator<Item = (PathKind, Cplx)> + '_ {
+        self.kinds[..self.len()]
+            .iter()
+            .copied()
+            .zip(self.values[..self.len()].iter().copied())
+    }
+
+    pub fn get(&self, kind: PathKind) -> Option<Cplx> {
+        self.iter().find(|(k, _)| *k == kind).map(|(_, v)| v)
+    }
+
+    /// Set one path's value; false if the path is not in this snapshot.
+    pub fn set(&mut self, kind: PathKind, value: Cplx) -> bool {
+        match self.kinds[..self.len()].iter().position(|k| *k == kind) {
+            Some(i) => {
+                self.values[i] = value;
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// A path's value in the paper's named form.
+    pub fn paper_form(&self, kind: PathKind) -> Option<PaperForm> {
+        self.get(kind).map(|v| match kind {
+            PathKind::Offset => PaperForm::Offset { xo: v.re, yo: v.im },
+            PathKind::AmplitudeQuadrature => PaperForm::AmplitudeQuadrature { c: v.re, d: v.im },
+            // -(E - jF) = d_h  ⇒  E = -Re d_h, F = Im d_h.
+            PathKind::Harmonic(h) => PaperForm::Harmonic {
+                h,
+                e: -v.re,
+                f: v.im,
+            },
+        })
+    }
+}
+
+/// Why a coefficient snapshot was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CoefficientsError {
+    /// The snapshot's paths differ from the configuration's (count, kind or order).
+    PathMismatch,
+    /// A value is NaN/inf or beyond `health.coefficient_limit · health.amplitude_max`.
+    OutOfRange,
+}
+
+/// Convergence measures, one entry per path (configuration order).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Convergence {
+    /// |angle-averaged error phasor| still seen by each path (rad, sensor electrical).
+    pub residual_rad: [f32; MAX_PATHS],
+    /// |coefficient change| over the last revolution of adaptation, relative to |Z|.
+    pub change_per_rev: [f32; MAX_PATHS],
+    pub len: u8,
+    /// Mechanical revolutions of adaptation so far.
+    pub revs_adapted: u32,
+    /// `revs_adapted >= min_revs` and every residual and change below its threshold
+    /// (`ConvergenceConfig`).
+    pub converged: bool,
+}

@@ -1,0 +1,35 @@
+//! Decoupling vector-tracking motion observer with MRAS self-commissioning of a
+//! vector-based angle sensor (Secrest et al., IEEE TIA 2015), as a portable core.
+//!
+//! `no_std`, no allocation, no panics in [`Tracker::step`], `f32` arithmetic.
+//! The theory as implemented, with the paper's equation numbers, is in `docs/theory.md`.
+//!
+//! ```
+//! use mras::{Config, Tracker};
+//! let mut t = Tracker::new(Config::default()).unwrap();
+//! let est = t.step(1.0, 0.0, 0.0).unwrap();
+//! assert!(est.theta_rad.abs() < 1e-6);
+//! ```
+#![no_std]
+#![deny(unsafe_code)]
+
+pub mod closed_form;
+mod coefficients;
+mod complex;
+pub mod config;
+mod decoupler;
+mod health;
+pub mod observer;
+pub mod sim;
+mod tracker;
+mod trig;
+
+pub use coefficients::{Coefficients, CoefficientsError, Convergence, PaperForm};
+pub use complex::Cplx;
+pub use config::{
+    AdaptationLaw, Config, ConfigError, ConvergenceConfig, Gates, HealthConfig, InputScaling,
+    ObserverConfig, PathKind, MAX_PATHS,
+};
+pub use health::{Fault, Faults};
+pub use tracker::{Estimate, Tracker};
+pub use trig::{LibmTrig, Trig};

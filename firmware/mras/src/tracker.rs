@@ -1,0 +1,365 @@
+//! The core's one entry point: one [`Tracker::step`] per control period.
+
+use crate::coefficients::{CoefficientsError, Convergence};
+use crate::complex::Cplx;
+use crate::config::{Config, ConfigError, MAX_HARMONIC};
+use crate::decoupler::{PathBank, StepContext};
+use crate::health::{Fault, Faults};
+use crate::observer::{ObserverGains, ObserverState};
+use crate::trig::{LibmTrig, Trig};
+use crate::{Coefficients, MAX_PATHS};
+use core::f32::consts::TAU;
+
+/// Powers of the reference unit vector the bank may need (|h| + 1).
+const MAX_ORDER: usize = MAX_HARMONIC as usize + 1;
+/// Speed and amplitude used by the adaptation are smoothed over this much sensor
+/// electrical angle per stage (two stages). Their raw values ripple with the very sensor
+/// error being estimated; weighting the correlation with that ripple biases the
+/// equilibrium, badly so where |H| is small (docs/theory.md §3).
+const SMOOTH_WINDOW_RAD: f32 = TAU;
+/// ... but never slower than this in time, so that a reversal is followed near ω = 0.
+const SMOOTH_MAX_TAU_S: f32 = 0.1;
+
+/// What the observer knows after one sample.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Estimate {
+    /// θ̂rm, mechanical angle in [0, 2π), at the instant of this sample.
+    pub theta_rad: f32,
+    /// Whole mechanical turns (θ̂ continuous = turns·2π + theta_rad).
+    pub turns: i32,
+    /// θ̂s, sensor electrical angle in [0, 2π).
+    pub theta_e_rad: f32,
+    /// ω̂rm (rad/s).
+    pub omega_rad_s: f32,
+    /// Disturbance torque estimate K_iso∫ε (N·m).
+    pub disturbance_nm: f32,
+    /// |Zd| of the decoupled vector at this sample (scaled units).
+    pub amplitude: f32,
+    /// ε: angle between the decoupled vector and the reference (rad, sensor electrical).
+    pub epsilon_rad: f32,
+    /// Whether any path adapted on this sample.
+    pub adapting: bool,
+}
+
+impl Estimate {
+    /// Continuous mechanical angle (f64: exact for any realistic turn count).
+    pub fn theta_unwrapped_rad(&self) -> f64 {
+        self.turns as f64 * core::f64::consts::TAU + self.theta_rad as f64
+    }
+}
+
+/// Observer + MRAS decoupler + health monitor.
+#[derive(Clone, Debug)]
+pub struct Tracker<T: Trig = LibmTrig> {
+    cfg: Config,
+    trig: T,
+    gains: ObserverGains,
+    obs: ObserverState,
+    bank: PathBank,
+    /// Tracked |Zd|: raw, and smoothed for adaptation.
+    amplitude: f32,
+    smooth: Smoothed,
+    acquired: bool,
+    frozen: bool,
+    faults: Faults,
+    last: Estimate,
+    max_order: usize,
+    cos_lock: f32,
+}
+
+/// Two-stage angle-domain low-pass of ω̂ and |Zd| (see [`SMOOTH_WINDOW_RAD`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Smoothed {
+    omega1_rad_s: f32,
+    omega_rad_s: f32,
+    amplitude1: f32,
+    amplitude: f32,
+}
+
+impl Smoothed {
+    fn reset(omega_rad_s: f32, amplitude: f32) -> Self {
+        Self {
+            omega1_rad_s: omega_rad_s,
+            omega_rad_s,
+            amplitude1: amplitude,
+            amplitude,
+        }
+    }
+
+    #[must_use]
+    fn updated(&self, omega_rad_s: f32, amplitude: f32, alpha: f32) -> Self {
+        let omega1_rad_s = self.omega1_rad_s + (omega_rad_s - self.omega1_rad_s) * alpha;
+        let amplitude1 = self.amplitude1 + (amplitude - self.amplitude1) * alpha;
+        Self {
+            omega1_rad_s,
+            omega_rad_s: self.omega_rad_s + (omega1_rad_s - self.omega_rad_s) * alpha,
+            amplitude1,
+            amplitude: self.amplitude + (amplitude1 - self.amplitude) * alpha,
+        }
+    }
+}
+
+impl Tracker<LibmTrig> {
+    /// A tracker with the portable trigonometry.
+    pub fn new(cfg: Config) -> Result<Self, ConfigError> {
+        Self::with_trig(cfg, LibmTrig)
+    }
+}
+
+impl<T: Trig> Tracker<T> {
+    /// A tracker with a given trigonometry implementation (e.g. the CORDIC).
+    pub fn with_trig(cfg: Config, trig: T) -> Result<Self, ConfigError> {
+        cfg.validate()?;
+        Ok(Self {
+            gains: ObserverGains::from_eigenvalues(
+                cfg.observer.eigenvalues_hz,
+                cfg.observer.inertia_kg_m2,
+            ),
+            obs: ObserverState::default(),
+            bank: PathBank::new(&cfg),
+            amplitude: 1.0,
+            smooth: Smoothed::reset(0.0, 1.0),
+            acquired: false,
+            frozen: false,
+            faults: Faults::default(),
+            last: Estimate::default(),
+            max_order: cfg.max_order(),
+            cos_lock: libm::cosf(cfg.health.lock_threshold_rad),
+            cfg,
+            trig,
+        })
+    }
+
+    pub fn config(&self) -> &Config {
+        &self.cfg
+    }
+
+    pub fn gains(&self) -> &ObserverGains {
+        &self.gains
+    }
+
+    /// One control period: raw ADC values and the torque feedforward T* (N·m).
+    ///
+    /// On `Err` for bad input (non-finite, |Z| out of band, railed ADC) nothing but the
+    /// latched fault set changes. On `Err(LossOfLock)` the observer has still advanced
+    /// (so that it can re-acquire) but adaptation is suspended until [`Self::clear_faults`].
+    pub fn step(&mut self, x_raw: f32, y_raw: f32, torque_ff_nm: f32) -> Result<Estimate, Fault> {
+        if !(x_raw.is_finite() && y_raw.is_finite() && torque_ff_nm.is_finite()) {
+            return self.reject(Fault::NonFiniteInput);
+        }
+        let inp = &self.cfg.input;
+        if libm::fabsf(x_raw) >= inp.raw_limit || libm::fabsf(y_raw) >= inp.raw_limit {
+            return self.reject(Fault::SensorSaturated);
+        }
+        let z = Cplx::new(
+            (x_raw - inp.offset_x) * inp.gain_x,
+            (y_raw - inp.offset_y) * inp.gain_y,
+        );
+        let z2 = z.norm_sqr();
+        let h = self.cfg.health;
+        if !z2.is_finite() || z2 > h.amplitude_max * h.amplitude_max {
+            return self.reject(Fault::SensorSaturated);
+        }
+        if z2 < h.amplitude_min * h.amplitude_min {
+            return self.reject(Fault::SensorLost);
+        }
+        if !self.acquired {
+            self.acquire(z);
+        }
+
+        // Reference unit vector and its powers at the prior estimate θ̂s.
+        let (s, c) = self.trig.sin_cos(self.obs.theta_e_rad);
+        let mut pw = [Cplx::ONE; MAX_ORDER + 1];
+        pw[1] = Cplx::new(c, s);
+        for i in 2..=self.max_order {
+            pw[i] = pw[i - 1] * pw[1];
+        }
+
+        // Decoupled vector and the cross-product error, normalised by |Zd|.
+        let zd = z + self.bank.decoupling_vector(&pw[..=self.max_order]);
+        let zd2 = zd.norm_sqr();
+        if zd2 < 0.25 * h.amplitude_min * h.amplitude_min {
+            // Coefficients plus input cancel the vector: nothing to track on.
+            return self.reject(Fault::SensorLost);
+        }
+        let inv_zd = 1.0 / libm::sqrtf(zd2);
+        let eps_e_rad = (zd.im * c - zd.re * s) * inv_zd;
+        let cos_err = (zd.re * c + zd.im * s) * inv_zd;
+        let lock_lost = cos_err < self.cos_lock;
+        if lock_lost {
+            self.faults.insert(Fault::LossOfLock);
+        }
+
+        let n = self.cfg.sensor_periods;
+        let next = self.obs.advanced(
+            &self.gains,
+            eps_e_rad / n as f32,
+            torque_ff_nm,
+            self.cfg.sample_period_s,
+            n,
+        );
+        if !next.is_finite() {
+            return self.reject(Fault::NumericalOverflow);
+        }
+        let amplitude = libm::sqrtf(zd2);
+        let o = &self.obs;
+        let t_s = self.cfg.sample_period_s;
+        let alpha = (n as f32 * libm::fabsf(o.omega_rad_s) * t_s / SMOOTH_WINDOW_RAD)
+            .max(t_s / SMOOTH_MAX_TAU_S)
+            .min(1.0);
+        let smooth = self.smooth.updated(o.omega_rad_s, amplitude, alpha);
+
+        let g = &self.cfg.gates;
+        let w_f = smooth.omega_rad_s;
+        let gates_open = !self.faults.contains(Fault::LossOfLock)
+            && libm::fabsf(w_f) >= g.min_speed_rad_s
+            && libm::fabsf(o.omega_rad_s - w_f) <= g.max_speed_deviation * libm::fabsf(w_f)
+            && libm::fabsf(o.disturbance_nm) <= g.max_disturbance_nm
+            && libm::fabsf(torque_ff_nm) <= g.max_accel_rad_s2 * self.gains.inertia_kg_m2;
+        let adapting = self.bank.step(
+            &self.cfg,
+            &self.gains,
+            &StepContext {
+                eps_e_rad,
+                pw: &pw[..=self.max_order],
+                omega_rad_s: o.omega_rad_s,
+                omega_smooth_rad_s: w_f,
+                amplitude: smooth.amplitude,
+                gates_open,
+                frozen: self.frozen,
+            },
+        );
+
+        let est = self.estimate_of(&self.obs, amplitude, eps_e_rad, adapting);
+        self.obs = next;
+        self.amplitude = amplitude;
+        self.smooth = smooth;
+        self.last = est;
+        if lock_lost {
+            Err(Fault::LossOfLock)
+        } else {
+            Ok(est)
+        }
+    }
+
+    fn reject(&mut self, f: Fault) -> Result<Estimate, Fault> {
+        self.faults.insert(f);
+        Err(f)
+    }
+
+    /// First good sample: start at the measured angle, at rest.
+    fn acquire(&mut self, z: Cplx) {
+        let mut th = libm::atan2f(z.im, z.re);
+        if th < 0.0 {
+            th += TAU;
+        }
+        if th >= TAU {
+            th = 0.0;
+        }
+        self.obs = ObserverState {
+            theta_e_rad: th,
+            ..Default::default()
+        };
+        self.amplitude = z.abs();
+        self.smooth = Smoothed::reset(0.0, self.amplitude);
+        self.acquired = true;
+    }
+
+    fn estimate_of(&self, o: &ObserverState, amplitude: f32, eps: f32, adapting: bool) -> Estimate {
+        let n = self.cfg.sensor_periods as i32;
+        let p = o.periods.rem_euclid(n);
+        Estimate {
+            theta_rad: (p as f32 * TAU + o.theta_e_rad) / n as f32,
+            turns: o.periods.div_euclid(n),
+            theta_e_rad: o.theta_e_rad,
+            omega_rad_s: o.omega_rad_s,
+            disturbance_nm: o.disturbance_nm,
+            amplitude,
+            epsilon_rad: eps,
+            adapting,
+        }
+    }
+
+    /// The estimate of the last accepted sample.
+    pub fn last_estimate(&self) -> Estimate {
+        self.last
+    }
+
+    /// The observer's internal state (for logging and state-held checks).
+    pub fn observer_state(&self) -> ObserverState {
+        self.obs
+    }
+
+    /// Forget the observer state; the next good sample re-acquires. Coefficients stay.
+    pub fn reset_observer(&mut self) {
+        self.acquired = false;
+        self.obs = ObserverState::default();
+    }
+
+    /// Stop (true) or resume (false) adaptation; residuals are still measured.
+    pub fn set_frozen(&mut self, frozen: bool) {
+        self.frozen = frozen;
+    }
+
+    pub fn is_frozen(&self) -> bool {
+        self.frozen
+    }
+
+    pub fn faults(&self) -> Faults {
+        self.faults
+    }
+
+    pub fn clear_faults(&mut self) {
+        self.faults = Faults::default();
+    }
+
+    /// Snapshot of the persistent coefficients (proportional parts excluded).
+    pub fn coefficients(&self) -> Coefficients {
+        let mut c = Coefficients::zeros(self.cfg.paths());
+        for (v, s) in c.values.iter_mut().zip(&self.bank.state[..self.bank.len]) {
+            *v = s.coef;
+        }
+        c
+    }
+
+    /// Load coefficients (e.g. from flash). Refused unless the paths match the
+    /// configuration exactly and every value is finite and within the coefficient limit.
+    pub fn set_coefficients(&mut self, c: &Coefficients) -> Result<(), CoefficientsError> {
+        if c.kinds[..c.len()] != *self.cfg.paths() {
+            return Err(CoefficientsError::PathMismatch);
+        }
+        let limit = self.cfg.health.coefficient_limit * self.cfg.health.amplitude_max;
+        if c.iter().any(|(_, v)| !v.is_finite() || v.abs() > limit) {
+            return Err(CoefficientsError::OutOfRange);
+        }
+        for (s, (_, v)) in self.bank.state.iter_mut().zip(c.iter()) {
+            *s = Default::default();
+            s.coef = v;
+            s.coef_at_rev_start = v;
+        }
+        self.bank.revs_adapted = 0;
+        self.bank.angle_this_rev_rad = 0.0;
+        Ok(())
+    }
+
+    /// Convergence measures and the `converged` judgement.
+    pub fn convergence(&self) -> Convergence {
+        let cc = &self.cfg.convergence;
+        let mut out = Convergence {
+            residual_rad: [0.0; MAX_PATHS],
+            change_per_rev: [0.0; MAX_PATHS],
+            len: self.bank.len as u8,
+            revs_adapted: self.bank.revs_adapted,
+            converged: false,
+        };
+        let mut all_small = true;
+        for (i, s) in self.bank.state[..self.bank.len].iter().enumerate() {
+            out.residual_rad[i] = s.residual.abs();
+            out.change_per_rev[i] = s.change_last_rev;
+            all_small &=
+                out.residual_rad[i] < cc.residual_rad && out.change_per_rev[i] < cc.change_per_rev;
+        }
+        out.converged = all_small && self.bank.revs_adapted >= cc.min_revs as u32;
+        out
+    }
+}

@@ -1,0 +1,104 @@
+//! Adaptation gates: speed, |H|, disturbance torque, acceleration, manual freeze.
+
+mod common;
+use common::*;
+use mras::sim::{Kinematic, Trajectory};
+use mras::{Config, Cplx, PathKind, Tracker};
+
+fn moved(t: &Tracker, kind: PathKind) -> bool {
+    t.coefficients().get(kind).unwrap() != Cplx::ZERO
+}
+
+#[test]
+fn frozen_tracker_measures_but_does_not_adapt() {
+    let mut t = Tracker::new(Config::default()).unwrap();
+    t.set_frozen(true);
+    run(extreme_sensor(), 20.0).run(&mut t, 5, no_noise(), |_, _| {});
+    assert_eq!(
+        t.coefficients(),
+        mras::Coefficients::zeros(Config::default().paths())
+    );
+    let c = t.convergence();
+    assert!(c.residual_rad[0] > 0.01, "residual still measured: {c:?}");
+    assert_eq!(c.revs_adapted, 0);
+    assert!(!c.converged);
+}
+
+#[test]
+fn minimum_speed_gate() {
+    let mut cfg = Config::default();
+    cfg.gates.min_speed_rad_s = 200.0; // above 20 rev/s = 126 rad/s
+    let (t, _, _) = commission(cfg, &run(extreme_sensor(), 20.0), 3, no_noise());
+    assert!(!moved(&t, PathKind::Offset));
+    cfg.gates.min_speed_rad_s = 100.0;
+    let (t, _, _) = commission(cfg, &run(extreme_sensor(), 20.0), 3, no_noise());
+    assert!(moved(&t, PathKind::Offset));
+}
+
+#[test]
+fn minimum_h_gate_is_per_path() {
+    // At 5 rev/s with EVs 100/10/1 Hz: |H| ≈ 0.07, 0.18, 0.28, 0.36 for m = 1..4.
+    let mut cfg = Config::default();
+    cfg.gates.min_h = 0.32;
+    let (t, _, _) = commission(cfg, &run(extreme_sensor(), 5.0), 3, no_noise());
+    for kind in [
+        PathKind::Offset,
+        PathKind::AmplitudeQuadrature,
+        PathKind::Harmonic(4),
+    ] {
+        assert!(!moved(&t, kind), "{kind:?} adapted below its |H| gate");
+    }
+    assert!(moved(&t, PathKind::Harmonic(5)));
+}
+
+/// Constant speed with a torque feedforward that is off by `bias_nm`: the observer's
+/// disturbance estimate settles at -bias.
+fn run_with_torque_bias(cfg: Config, bias_nm: f32) -> Tracker {
+    let mut t = Tracker::new(cfg).unwrap();
+    let sensor = extreme_sensor();
+    let w = 20.0 * std::f64::consts::TAU;
+    for k in 0..40_000u32 {
+        let th = w * k as f64 * T_S;
+        let (x, y) = sensor.vector(th);
+        // Start at speed: the first sample acquires the angle, ω̂ follows within ~0.2 s.
+        let _ = t.step(x as f32, y as f32, bias_nm);
+    }
+    t
+}
+
+#[test]
+fn disturbance_torque_gate() {
+    let mut cfg = Config::default();
+    cfg.gates.max_disturbance_nm = 0.005;
+    let t = run_with_torque_bias(cfg, 0.02);
+    assert!((t.last_estimate().disturbance_nm + 0.02).abs() < 1e-3);
+    assert!(!t.last_estimate().adapting);
+    let t = run_with_torque_bias(Config::default(), 0.02);
+    assert!(t.last_estimate().adapting);
+}
+
+#[test]
+fn acceleration_gate_on_the_sine_trajectory() {
+    let mut cfg = Config::default();
+    cfg.gates.max_accel_rad_s2 = 100.0; // the trajectory peaks at 628 rad/s²
+    let kin = Kinematic {
+        sensor: extreme_sensor(),
+        trajectory: Trajectory::Sine {
+            amplitude_rad_s: 100.0,
+            freq_hz: 1.0,
+        },
+        sample_period_s: T_S,
+        inertia_kg_m2: J_KG_M2,
+        adc: None,
+    };
+    let mut t = Tracker::new(cfg).unwrap();
+    let (mut adapting, mut during_accel) = (0u32, 0u32);
+    kin.run(&mut t, 0, 40_000, no_noise(), |_, rec| {
+        let accel = 100.0 * std::f64::consts::TAU * (std::f64::consts::TAU * rec.t_s).cos();
+        let est = rec.result.unwrap();
+        adapting += est.adapting as u32;
+        during_accel += (est.adapting && accel.abs() > 100.0 + 1e-3) as u32;
+    });
+    assert!(adapting > 1000, "never adapted");
+    assert_eq!(during_accel, 0);
+}
