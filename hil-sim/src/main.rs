@@ -1,1 +1,67 @@
-fn main() {}
+//! `hil-sim`: the portable core, step for step, against simulated sensors and drives.
+//!
+//! This first version drives the core kinematically (a rigid rotor that follows its
+//! trajectory exactly, perfect torque feedforward); the SPMSM drive model follows.
+
+mod commission;
+mod study;
+
+use clap::{Parser, Subcommand, ValueEnum};
+use mras::{AdaptationLaw, Config};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Self-commission the extreme sensor at constant speed and print the summary.
+    Commission(commission::Args),
+    /// Revolutions to a 10x error reduction, ours vs the paper-literal law, per speed
+    /// (the table in docs/theory.md).
+    CompareLaws(study::CompareArgs),
+    /// Revolutions to 10x over adaptation gain and speed: the stable gain range.
+    GainSweep(study::SweepArgs),
+}
+
+/// Which adaptation law to run.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum Law {
+    /// Compensated by H(j m N ω̂), integrated over angle (default).
+    Ours,
+    /// The paper: sign(ω̂), K1 = 50, K2 = 0.1 in time.
+    Paper,
+}
+
+impl Law {
+    pub fn config(self) -> Config {
+        Config {
+            law: match self {
+                Law::Ours => AdaptationLaw::DEFAULT_COMPENSATED,
+                Law::Paper => AdaptationLaw::PAPER_FIG8,
+            },
+            ..Config::default()
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        None => commission::run(&commission::Args::default()),
+        Some(Command::Commission(a)) => commission::run(&a),
+        Some(Command::CompareLaws(a)) => study::compare_laws(&a),
+        Some(Command::GainSweep(a)) => study::gain_sweep(&a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("hil-sim: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -393,15 +393,16 @@ impl Config {
                 proportional,
                 h_floor,
             } => {
-                // Above ~1/rad the adaptation outruns the observer (docs/theory.md, stable range).
-                if !(gain_per_rad.is_finite() && gain_per_rad > 0.0 && gain_per_rad <= 1.0) {
+                // Measured stable range 0.05..0.3 at 2-100 rev/s; 0.5 oscillates
+                // (docs/theory.md §5).
+                if !(gain_per_rad.is_finite() && gain_per_rad > 0.0 && gain_per_rad <= 0.4) {
                     return Err(ConfigError::new(
                         "law.gain_per_rad",
-                        "must be in (0, 1] per electrical radian",
+                        "must be in (0, 0.4] per electrical radian (stable range 0.05..0.3)",
                     ));
                 }
-                if !(proportional.is_finite() && (0.0..=1.0).contains(&proportional)) {
-                    return Err(ConfigError::new("law.proportional", "must be in [0, 1]"));
+                if !(proportional.is_finite() && (0.0..=0.5).contains(&proportional)) {
+                    return Err(ConfigError::new("law.proportional", "must be in [0, 0.5]"));
                 }
                 if !(h_floor.is_finite() && h_floor > 0.0 && h_floor <= 1.0) {
                     return Err(ConfigError::new("law.h_floor", "must be in (0, 1]"));

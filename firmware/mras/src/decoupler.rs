@@ -13,6 +13,10 @@ use core::f32::consts::TAU;
 
 /// |H| floor used for the residual measure when the law itself has none (paper-literal).
 const METRIC_H_FLOOR: f32 = 0.2;
+/// The error phasor estimate is low-passed over this much sensor-electrical angle before
+/// integration: its ripple (the other paths' harmonics, amplified by 1/|H|) would
+/// otherwise drive a limit cycle between paths at low speed (docs/theory.md §3).
+pub(crate) const G_WINDOW_RAD: f32 = core::f32::consts::PI;
 /// The residual measure averages over this much sensor-electrical angle (two periods).
 const RESIDUAL_WINDOW_RAD: f32 = 2.0 * TAU;
 
@@ -26,6 +30,8 @@ pub(crate) struct PathState {
     /// Angle-averaged estimate of the remaining error phasor G (rad, sensor electrical).
     pub residual: Cplx,
     pub coef_at_rev_start: Cplx,
+    /// G estimate low-passed over angle before it is integrated (see [`G_WINDOW_RAD`]).
+    pub g_filtered: Cplx,
     /// |Δcoef| over the last completed revolution of adaptation, relative to |Z|.
     pub change_last_rev: f32,
 }
@@ -111,6 +117,7 @@ impl PathBank {
         let d_theta_e = n * libm::fabsf(cx.omega_smooth_rad_s) * cfg.sample_period_s;
         let limit = cfg.health.coefficient_limit * cx.amplitude;
         let residual_alpha = (d_theta_e / RESIDUAL_WINDOW_RAD).min(1.0);
+        let g_alpha = (d_theta_e / G_WINDOW_RAD).min(1.0);
         let h_floor = match cfg.law {
             AdaptationLaw::Compensated { h_floor, .. } => h_floor,
             AdaptationLaw::PaperLiteral { .. } => METRIC_H_FLOOR,
@@ -134,6 +141,7 @@ impl PathBank {
                 Cplx::ZERO
             };
             if visible {
+                s.g_filtered = s.g_filtered + (g_est - s.g_filtered).scale(g_alpha);
                 s.residual = s.residual + (g_est - s.residual).scale(residual_alpha);
             }
             if !cx.gates_open || cx.frozen {
@@ -151,8 +159,9 @@ impl PathBank {
                         continue;
                     }
                     // Integrated over angle: gain per radian (docs/theory.md §3).
-                    s.coef += coef_delta(kind, g_est, gain_per_rad * cx.amplitude * d_theta_e);
-                    s.coef_p = coef_delta(kind, g_est, proportional * cx.amplitude);
+                    s.coef +=
+                        coef_delta(kind, s.g_filtered, gain_per_rad * cx.amplitude * d_theta_e);
+                    s.coef_p = coef_delta(kind, s.g_filtered, proportional * cx.amplitude);
                 }
                 AdaptationLaw::PaperLiteral { k1_per_s, k2 } => {
                     // CPMRE = ε_m · sign(ω̂) · e^{-j m θ̂s}, PI in time (Fig. 6).

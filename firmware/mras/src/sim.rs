@@ -62,6 +62,22 @@ impl SensorModel {
         }
     }
 
+    /// The combined extreme sensor of the core's acceptance tests (N = 2): offsets
+    /// 10 %/-8 %, 20 % amplitude imbalance, 6° quadrature, equal x/y harmonics
+    /// h = 2..5 at 3, 5, 2 and 4 %.
+    pub fn extreme() -> Self {
+        let mut s = Self::ideal(2);
+        s.ax = 0.10;
+        s.ay = -0.08;
+        s.bx1 = 1.2;
+        s.by1 = 1.0;
+        s.phi_x1_rad = 6.0 * PI / 180.0;
+        s.with_harmonic(SensorHarmonic::equal(2, 0.03, 0.5))
+            .with_harmonic(SensorHarmonic::equal(3, 0.05, -1.0))
+            .with_harmonic(SensorHarmonic::equal(4, 0.02, 2.0))
+            .with_harmonic(SensorHarmonic::equal(5, 0.04, 0.3))
+    }
+
     /// Add a harmonic; ignored beyond [`MAX_SENSOR_HARMONICS`] (returns false).
     pub fn push_harmonic(&mut self, h: SensorHarmonic) -> bool {
         if self.harmonic_count < MAX_SENSOR_HARMONICS {

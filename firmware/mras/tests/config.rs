@@ -54,7 +54,7 @@ fn each_bad_field_is_named() {
     assert!(c.set_paths(&[PathKind::Offset; 9]).is_err());
     c = d();
     c.law = AdaptationLaw::Compensated {
-        gain_per_rad: 5.0,
+        gain_per_rad: 0.5,
         proportional: 0.0,
         h_floor: 0.05,
     };

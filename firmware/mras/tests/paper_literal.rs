@@ -3,7 +3,7 @@
 mod common;
 use common::*;
 use mras::closed_form;
-use mras::sim::{revs_to_reduction, SensorModel};
+use mras::sim::SensorModel;
 use mras::{Config, PathKind};
 
 /// Pins the paper's sign convention: in the speed band where its structure works
@@ -32,12 +32,6 @@ fn paper_literal_sign_convention() {
         let size = (xo * xo + yo * yo).sqrt();
         assert!(err < 0.1 * size, "{speed}: {c:?} vs ({xo}, {yo})");
     }
-}
-
-/// Revolutions to a 10x reduction of the extreme sensor's error, 30 revolutions max.
-pub fn revs_to_10x(cfg: Config, speed_rev_s: f64) -> Option<usize> {
-    let (_, per_rev, raw) = commission(cfg, &run(extreme_sensor(), speed_rev_s), 30, no_noise());
-    revs_to_reduction(&per_rev, raw, 10.0)
 }
 
 /// docs/theory.md's comparison table: ours is faster at every speed and direction, and

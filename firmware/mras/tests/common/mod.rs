@@ -1,7 +1,7 @@
 //! Shared test driver pieces: sensors, noise, and a commissioning run at constant speed.
 #![allow(dead_code)]
 
-use mras::sim::{Adc, CommissioningRun, SensorHarmonic, SensorModel};
+use mras::sim::{revs_to_reduction, Adc, CommissioningRun, SensorModel};
 use mras::{AdaptationLaw, Config, Tracker};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -10,19 +10,9 @@ use rand_distr::{Distribution, Normal};
 pub const T_S: f64 = 50.0e-6;
 pub const J_KG_M2: f64 = 1.0e-4;
 
-/// The "combined extreme" sensor of issue 2: offsets ~10 %, 20 % amplitude imbalance,
-/// 6° quadrature, equal x/y harmonics h = 2..5 at 2-5 %.
+/// The "combined extreme" sensor of issue 2 (see `SensorModel::extreme`).
 pub fn extreme_sensor() -> SensorModel {
-    let mut s = SensorModel::ideal(2);
-    s.ax = 0.10;
-    s.ay = -0.08;
-    s.bx1 = 1.2;
-    s.by1 = 1.0;
-    s.phi_x1_rad = 6f64.to_radians();
-    s.with_harmonic(SensorHarmonic::equal(2, 0.03, 0.5))
-        .with_harmonic(SensorHarmonic::equal(3, 0.05, -1.0))
-        .with_harmonic(SensorHarmonic::equal(4, 0.02, 2.0))
-        .with_harmonic(SensorHarmonic::equal(5, 0.04, 0.3))
+    SensorModel::extreme()
 }
 
 /// 12-bit-class front end: σ = 0.3 mV-equivalent noise on a ±1.5 full scale, 12 bits.
@@ -79,4 +69,21 @@ pub fn commission(
     assert_eq!(spin_up_faults, 0);
     assert!(t.faults().is_empty(), "faults {:?}", t.faults());
     (t, per_rev, raw)
+}
+
+/// Revolutions to a 10x reduction of the extreme sensor's error, 30 revolutions max.
+pub fn revs_to_10x(cfg: Config, speed_rev_s: f64) -> Option<usize> {
+    let (_, per_rev, raw) = commission(cfg, &run(extreme_sensor(), speed_rev_s), 30, no_noise());
+    revs_to_reduction(&per_rev, raw, 10.0)
+}
+
+pub fn with_gain(gain: f32, proportional: f32) -> Config {
+    Config {
+        law: AdaptationLaw::Compensated {
+            gain_per_rad: gain,
+            proportional,
+            h_floor: 0.05,
+        },
+        ..Config::default()
+    }
 }
