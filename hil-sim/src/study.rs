@@ -75,7 +75,7 @@ pub fn compare_laws(a: &CompareArgs) -> Result<(), String> {
 }
 
 pub fn gain_sweep(a: &SweepArgs) -> Result<(), String> {
-    let gains = [0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 0.8, 1.0];
+    let gains = [0.05, 0.1, 0.15, 0.2, 0.3];
     println!(
         "Revolutions to 10x vs gain_per_rad (forward / reverse; `> {}`: not reached)\n",
         a.revs

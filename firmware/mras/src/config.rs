@@ -393,12 +393,12 @@ impl Config {
                 proportional,
                 h_floor,
             } => {
-                // Measured stable range 0.05..0.3 at 2-100 rev/s; 0.5 oscillates
+                // Measured stable range 0.05..0.3 at 2-100 rev/s; 0.4 oscillates
                 // (docs/theory.md §5).
-                if !(gain_per_rad.is_finite() && gain_per_rad > 0.0 && gain_per_rad <= 0.4) {
+                if !(gain_per_rad.is_finite() && gain_per_rad > 0.0 && gain_per_rad <= 0.3) {
                     return Err(ConfigError::new(
                         "law.gain_per_rad",
-                        "must be in (0, 0.4] per electrical radian (stable range 0.05..0.3)",
+                        "must be in (0, 0.3] per electrical radian (the measured stable range)",
                     ));
                 }
                 if !(proportional.is_finite() && (0.0..=0.5).contains(&proportional)) {
