@@ -1,15 +1,11 @@
 //! Constant-speed self-commissioning with a summary a drive engineer can check.
 
 use crate::Law;
-use mras::sim::{
-    revs_to_reduction, wrap_pi, Adc, CommissioningRun, Kinematic, SensorModel, SpatialError,
-    Trajectory,
-};
+use mras::sim::{revs_to_reduction, wrap_pi, Adc, CommissioningRun, SensorModel, SpatialError};
 use mras::{PaperForm, Tracker};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-use std::f64::consts::TAU;
 
 pub const SAMPLE_PERIOD_S: f64 = 50.0e-6;
 pub const INERTIA_KG_M2: f64 = 1.0e-4;
@@ -129,20 +125,8 @@ pub fn run(a: &Args) -> Result<(), String> {
 
     // Verification: two more revolutions, adaptation frozen, 360 bins.
     t.set_frozen(true);
-    let kin = Kinematic {
-        sensor,
-        trajectory: Trajectory::Ramp {
-            omega_rad_s: a.speed_rev_s * TAU,
-            accel_rad_s2: CommissioningRun::RAMP_ACCEL_RAD_S2,
-        },
-        sample_period_s: SAMPLE_PERIOD_S,
-        inertia_kg_m2: INERTIA_KG_M2,
-        adc: Some(ADC),
-    };
-    let steps_per_rev = (1.0 / (a.speed_rev_s.abs() * SAMPLE_PERIOD_S)).round() as u64;
-    let k0 = ((kin.trajectory.settle_time_s() + CommissioningRun::SETTLE_S) / SAMPLE_PERIOD_S)
-        as u64
-        + a.revs as u64 * steps_per_rev;
+    let (kin, k0) = (r.kinematic(), r.step_after(a.revs));
+    let steps_per_rev = r.steps_per_rev();
     let (mut est, mut raw) = (SpatialError::<360>::new(), SpatialError::<360>::new());
     let n = sensor.sensor_periods as f64;
     kin.run(

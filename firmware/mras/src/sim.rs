@@ -451,7 +451,8 @@ impl CommissioningRun {
     /// Settling time at speed before adaptation starts (s).
     pub const SETTLE_S: f64 = 0.2;
 
-    fn kinematic(&self) -> Kinematic {
+    /// The driver this run uses (to continue it, e.g. for a frozen verification).
+    pub fn kinematic(&self) -> Kinematic {
         Kinematic {
             sensor: self.sensor,
             trajectory: Trajectory::Ramp {
@@ -464,6 +465,22 @@ impl CommissioningRun {
         }
     }
 
+    /// Samples per revolution at the commissioning speed.
+    pub fn steps_per_rev(&self) -> u64 {
+        libm::round(1.0 / (libm::fabs(self.speed_rev_s) * self.sample_period_s)) as u64
+    }
+
+    /// Index of the first sample after `revs` revolutions of adaptation.
+    pub fn step_after(&self, revs: u32) -> u64 {
+        let settle = Trajectory::Ramp {
+            omega_rad_s: self.speed_rev_s * TAU,
+            accel_rad_s2: Self::RAMP_ACCEL_RAD_S2,
+        }
+        .settle_time_s();
+        ((settle + Self::SETTLE_S) / self.sample_period_s) as u64
+            + revs as u64 * self.steps_per_rev()
+    }
+
     /// Run `revs` revolutions of adaptation; `on_rev` sees each revolution's report.
     /// Returns the number of samples faulted during spin-up (should be 0).
     pub fn run<T: Trig>(
@@ -474,8 +491,7 @@ impl CommissioningRun {
         mut on_rev: impl FnMut(&mut Tracker<T>, &RevolutionReport),
     ) -> u32 {
         let kin = self.kinematic();
-        let t = self.sample_period_s;
-        let k_start = ((kin.trajectory.settle_time_s() + Self::SETTLE_S) / t) as u64;
+        let k_start = self.step_after(0);
         let n = self.sensor.sensor_periods as f64;
         let was_frozen = tracker.is_frozen();
         tracker.set_frozen(true);
@@ -484,7 +500,7 @@ impl CommissioningRun {
             spin_up_faults += r.result.is_err() as u32;
         });
         tracker.set_frozen(was_frozen);
-        let steps_per_rev = libm::round(1.0 / (libm::fabs(self.speed_rev_s) * t)) as u64;
+        let steps_per_rev = self.steps_per_rev();
         for rev in 1..=revs {
             let mut est = SpatialError::<64>::new();
             let mut raw = SpatialError::<64>::new();

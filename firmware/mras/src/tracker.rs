@@ -56,8 +56,7 @@ pub struct Tracker<T: Trig = LibmTrig> {
     gains: ObserverGains,
     obs: ObserverState,
     bank: PathBank,
-    /// Tracked |Zd|: raw, and smoothed for adaptation.
-    amplitude: f32,
+    /// ω̂ and |Zd| smoothed for the adaptation.
     smooth: Smoothed,
     acquired: bool,
     frozen: bool,
@@ -117,7 +116,6 @@ impl<T: Trig> Tracker<T> {
             ),
             obs: ObserverState::default(),
             bank: PathBank::new(&cfg),
-            amplitude: 1.0,
             smooth: Smoothed::reset(0.0, 1.0),
             acquired: false,
             frozen: false,
@@ -232,7 +230,6 @@ impl<T: Trig> Tracker<T> {
 
         let est = self.estimate_of(&self.obs, amplitude, eps_e_rad, adapting);
         self.obs = next;
-        self.amplitude = amplitude;
         self.smooth = smooth;
         self.last = est;
         if lock_lost {
@@ -260,8 +257,7 @@ impl<T: Trig> Tracker<T> {
             theta_e_rad: th,
             ..Default::default()
         };
-        self.amplitude = z.abs();
-        self.smooth = Smoothed::reset(0.0, self.amplitude);
+        self.smooth = Smoothed::reset(0.0, z.abs());
         self.acquired = true;
     }
 

@@ -3,7 +3,7 @@
 
 mod common;
 use common::*;
-use mras::sim::{wrap_pi, CommissioningRun, Kinematic, SpatialError, Trajectory};
+use mras::sim::{wrap_pi, CommissioningRun, SpatialError};
 use mras::{Config, Tracker};
 
 /// Spatial error of θ̂ and of atan2(raw) over revolutions 11..=20, binned (360 bins).
@@ -19,19 +19,8 @@ fn spatial_errors(speed_rev_s: f64, seed: u64) -> (f64, f64) {
     });
     assert_eq!(spin_up_faults, 0);
     // Next ten: measure, adaptation still running.
-    let kin = Kinematic {
-        sensor: r.sensor,
-        trajectory: Trajectory::Ramp {
-            omega_rad_s: speed_rev_s * std::f64::consts::TAU,
-            accel_rad_s2: CommissioningRun::RAMP_ACCEL_RAD_S2,
-        },
-        sample_period_s: T_S,
-        inertia_kg_m2: J_KG_M2,
-        adc: r.adc,
-    };
-    let steps_per_rev = (1.0 / (speed_rev_s.abs() * T_S)).round() as u64;
-    let k0 = ((kin.trajectory.settle_time_s() + CommissioningRun::SETTLE_S) / T_S) as u64
-        + 10 * steps_per_rev;
+    let steps_per_rev = r.steps_per_rev();
+    let (kin, k0) = (r.kinematic(), r.step_after(10));
     let mut est = SpatialError::<360>::new();
     let mut raw = SpatialError::<360>::new();
     kin.run(
@@ -69,16 +58,7 @@ fn extreme_sensor_error_falls_100x_at_5_and_50_rev_s_both_directions() {
 #[test]
 fn paper_sine_trajectory_keeps_lock_and_converges() {
     // Paper Fig. 8: EVs 100/10/1 Hz, 1 Hz 100 rad/s sine trajectory, for 10 s.
-    let kin = Kinematic {
-        sensor: extreme_sensor(),
-        trajectory: Trajectory::Sine {
-            amplitude_rad_s: 100.0,
-            freq_hz: 1.0,
-        },
-        sample_period_s: T_S,
-        inertia_kg_m2: J_KG_M2,
-        adc: Some(ADC_12BIT),
-    };
+    let kin = paper_sine(Some(ADC_12BIT));
     for cfg in [Config::default(), paper_config()] {
         let mut t = Tracker::new(cfg).unwrap();
         let steps = (10.0 / T_S) as u64;

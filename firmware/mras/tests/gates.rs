@@ -2,7 +2,6 @@
 
 mod common;
 use common::*;
-use mras::sim::{Kinematic, Trajectory};
 use mras::{Config, Cplx, PathKind, Tracker};
 
 fn moved(t: &Tracker, kind: PathKind) -> bool {
@@ -81,16 +80,7 @@ fn disturbance_torque_gate() {
 fn acceleration_gate_on_the_sine_trajectory() {
     let mut cfg = Config::default();
     cfg.gates.max_accel_rad_s2 = 100.0; // the trajectory peaks at 628 rad/s²
-    let kin = Kinematic {
-        sensor: extreme_sensor(),
-        trajectory: Trajectory::Sine {
-            amplitude_rad_s: 100.0,
-            freq_hz: 1.0,
-        },
-        sample_period_s: T_S,
-        inertia_kg_m2: J_KG_M2,
-        adc: None,
-    };
+    let kin = paper_sine(None);
     let mut t = Tracker::new(cfg).unwrap();
     let (mut adapting, mut during_accel) = (0u32, 0u32);
     kin.run(&mut t, 0, 40_000, no_noise(), |_, rec| {

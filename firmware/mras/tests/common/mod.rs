@@ -1,7 +1,7 @@
 //! Shared test driver pieces: sensors, noise, and a commissioning run at constant speed.
 #![allow(dead_code)]
 
-use mras::sim::{revs_to_reduction, Adc, CommissioningRun, SensorModel};
+use mras::sim::{revs_to_reduction, Adc, CommissioningRun, Kinematic, SensorModel, Trajectory};
 use mras::{AdaptationLaw, Config, Tracker};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -85,5 +85,19 @@ pub fn with_gain(gain: f32, proportional: f32) -> Config {
             h_floor: 0.05,
         },
         ..Config::default()
+    }
+}
+
+/// The paper's Fig. 8 motion: 1 Hz, 100 rad/s sine, extreme sensor, perfect feedforward.
+pub fn paper_sine(adc: Option<Adc>) -> Kinematic {
+    Kinematic {
+        sensor: extreme_sensor(),
+        trajectory: Trajectory::Sine {
+            amplitude_rad_s: 100.0,
+            freq_hz: 1.0,
+        },
+        sample_period_s: T_S,
+        inertia_kg_m2: J_KG_M2,
+        adc,
     }
 }
