@@ -3,11 +3,8 @@
 //! This first version drives the core kinematically (a rigid rotor that follows its
 //! trajectory exactly, perfect torque feedforward); the SPMSM drive model follows.
 
-mod commission;
-mod study;
-
-use clap::{Parser, Subcommand, ValueEnum};
-use mras::{AdaptationLaw, Config};
+use clap::{Parser, Subcommand};
+use hil_sim::{commission, replay, study};
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -26,27 +23,8 @@ enum Command {
     CompareLaws(study::CompareArgs),
     /// Revolutions to 10x over adaptation gain and speed: the stable gain range.
     GainSweep(study::SweepArgs),
-}
-
-/// Which adaptation law to run.
-#[derive(Clone, Copy, Debug, ValueEnum)]
-pub enum Law {
-    /// Compensated by H(j m N ω̂), integrated over angle (default).
-    Ours,
-    /// The paper: sign(ω̂), K1 = 50, K2 = 0.1 in time.
-    Paper,
-}
-
-impl Law {
-    pub fn config(self) -> Config {
-        Config {
-            law: match self {
-                Law::Ours => AdaptationLaw::DEFAULT_COMPENSATED,
-                Law::Paper => AdaptationLaw::PAPER_FIG8,
-            },
-            ..Config::default()
-        }
-    }
+    /// Run the core over recorded sensor data (CSV) and write its estimates.
+    Replay(replay::Args),
 }
 
 fn main() -> ExitCode {
@@ -56,6 +34,7 @@ fn main() -> ExitCode {
         Some(Command::Commission(a)) => commission::run(&a),
         Some(Command::CompareLaws(a)) => study::compare_laws(&a),
         Some(Command::GainSweep(a)) => study::gain_sweep(&a),
+        Some(Command::Replay(a)) => replay::run(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

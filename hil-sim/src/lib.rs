@@ -1,0 +1,32 @@
+//! `hil-sim` as a library: the simulated drive, scenarios, replay and plots, used by
+//! the `hil-sim` command and by the tests.
+
+pub mod commission;
+pub mod core_config;
+pub mod plots;
+pub mod replay;
+pub mod study;
+
+use clap::ValueEnum;
+use mras::{AdaptationLaw, Config};
+
+/// Which adaptation law to run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Law {
+    /// Compensated by H(j m N ω̂), integrated over angle (default).
+    Ours,
+    /// The paper: sign(ω̂), K1 = 50, K2 = 0.1 in time.
+    Paper,
+}
+
+impl Law {
+    pub fn config(self) -> Config {
+        Config {
+            law: match self {
+                Law::Ours => AdaptationLaw::DEFAULT_COMPENSATED,
+                Law::Paper => AdaptationLaw::PAPER_FIG8,
+            },
+            ..Config::default()
+        }
+    }
+}
