@@ -1,10 +1,15 @@
 //! `hil-sim` as a library: the simulated drive, scenarios, replay and plots, used by
 //! the `hil-sim` command and by the tests.
 
+pub mod cli;
 pub mod commission;
 pub mod core_config;
+pub mod drive;
 pub mod plots;
 pub mod replay;
+pub mod report;
+pub mod scenario;
+pub mod sensor;
 pub mod study;
 
 use clap::ValueEnum;

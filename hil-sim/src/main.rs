@@ -4,7 +4,7 @@
 //! trajectory exactly, perfect torque feedforward); the SPMSM drive model follows.
 
 use clap::{Parser, Subcommand};
-use hil_sim::{commission, replay, study};
+use hil_sim::{cli as cmd, commission, replay, study};
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -25,6 +25,11 @@ enum Command {
     GainSweep(study::SweepArgs),
     /// Run the core over recorded sensor data (CSV) and write its estimates.
     Replay(replay::Args),
+    /// Run a scenario (simulated SPMSM drive) by name; paper scenarios run the paper's
+    /// law and ours side by side and write CSV, JSON and plots.
+    Scenario(cmd::ScenarioArgs),
+    /// Simulated seconds per wall second of the full drive model.
+    Bench(cmd::BenchArgs),
 }
 
 fn main() -> ExitCode {
@@ -35,6 +40,8 @@ fn main() -> ExitCode {
         Some(Command::CompareLaws(a)) => study::compare_laws(&a),
         Some(Command::GainSweep(a)) => study::gain_sweep(&a),
         Some(Command::Replay(a)) => replay::run(&a),
+        Some(Command::Scenario(a)) => cmd::scenario(&a),
+        Some(Command::Bench(a)) => cmd::bench(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,21 +1,802 @@
-//! `hil-sim replay`: the core over recorded data. STUB: being written.
+//! `hil-sim replay`: the core, sample for sample, over a recorded sensor file.
+//!
+//! A published interface: the CSV column names, the report's keys and the flags below are
+//! what scripts and other tools rely on; change them only with a version note.
+//!
+//! The whole input is read and checked before anything is written, and the outputs are
+//! written to temporary files next to their destinations and renamed into place only
+//! when everything succeeded, so a failing run never leaves a partial OUT.csv behind nor
+//! destroys an existing one.
 
-use std::path::PathBuf;
+use crate::core_config::{line_of_field, path_toml_name, CoreConfigToml};
+use mras::sim::{wrap_pi, SpatialError};
+use mras::{Config, Fault, PathKind, Tracker};
+use serde::Serialize;
+use std::fmt::Write as _;
+use std::fs::{self, File, OpenOptions};
+use std::io::{BufWriter, Write as _};
+use std::path::{Path, PathBuf};
 
 #[derive(clap::Args, Clone, Debug)]
 pub struct Args {
+    /// Recorded CSV with a header; columns by name, any order: t_s (strictly increasing,
+    /// fixed period), x, y (raw sensor units), optional torque_nm (feedforward, 0 when
+    /// absent) and theta_rad (reference mechanical angle, for scoring). Others are ignored.
     #[arg(long)]
     pub input: PathBuf,
+    /// Estimates, one row per input row: t_s, theta_hat_rad (unwrapped),
+    /// omega_hat_rad_s, then <path>_re, <path>_im of every path coefficient.
     #[arg(long)]
     pub output: PathBuf,
+    /// Core configuration (TOML; every key optional, see
+    /// hil-sim/tests/data/core_config_full.toml). Without it: the core defaults (paths
+    /// offset, amplitude-quadrature, h4, h5) and input scaling estimated from the data.
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// Sensor periods per mechanical revolution N (a `sensor_periods` in --config wins).
     #[arg(long, default_value_t = 2)]
     pub sensor_periods: u16,
+    /// Also write a JSON report: faults, final coefficients, convergence, input scaling
+    /// and, with theta_rad, the raw and corrected spatial error.
     #[arg(long)]
     pub report: Option<PathBuf>,
 }
 
-pub fn run(_a: &Args) -> Result<(), String> {
-    Err("replay: not implemented yet".into())
+/// Rows above which progress is printed to stderr.
+const PROGRESS_ROWS: usize = 1_000_000;
+/// Largest deviation of one t_s step from the mean period (fraction of it).
+const MAX_PERIOD_DEVIATION: f64 = 0.10;
+/// Bins of reference angle for the spatial error (as in the core's tests).
+const ERROR_BINS: usize = 360;
+
+/// The recording, column by column (validated: finite, t_s strictly increasing).
+struct Recording {
+    name: String,
+    t_s: Vec<f64>,
+    x: Vec<f32>,
+    y: Vec<f32>,
+    /// Empty when the file has no `torque_nm` column (0 is fed).
+    torque_nm: Vec<f32>,
+    /// Empty when the file has no `theta_rad` column.
+    theta_rad: Vec<f64>,
+    /// File line of each row, for messages.
+    line: Vec<u64>,
+}
+
+impl Recording {
+    fn rows(&self) -> usize {
+        self.t_s.len()
+    }
+}
+
+/// One required or optional column of the input.
+fn column(name: &str, headers: &csv::StringRecord, col: &str) -> Result<Option<usize>, String> {
+    let mut found = headers.iter().enumerate().filter(|(_, h)| *h == col);
+    let first = found.next().map(|(i, _)| i);
+    if found.next().is_some() {
+        return Err(format!(
+            "{name}:1: column `{col}` appears twice in the header"
+        ));
+    }
+    Ok(first)
+}
+
+/// Parse one numeric field; `T` is f64 for time and angle, f32 for what the core takes
+/// (parsed directly as f32 so that a value written with f32 `Display` comes back bit-exact).
+fn field<T: std::str::FromStr + Copy>(
+    name: &str,
+    line: u64,
+    rec: &csv::StringRecord,
+    idx: usize,
+    col: &str,
+    finite: fn(T) -> bool,
+) -> Result<T, String> {
+    let raw = rec.get(idx).unwrap_or("");
+    if raw.is_empty() {
+        return Err(format!("{name}:{line}: field `{col}`: empty"));
+    }
+    let v: T = raw
+        .parse()
+        .map_err(|_| format!("{name}:{line}: field `{col}`: not a number: {raw:?}"))?;
+    if !finite(v) {
+        let why = if raw.parse::<f64>().is_ok_and(f64::is_finite) {
+            "beyond the f32 range"
+        } else {
+            "not finite"
+        };
+        return Err(format!("{name}:{line}: field `{col}`: {why}: {raw:?}"));
+    }
+    Ok(v)
+}
+
+fn csv_error(name: &str, e: csv::Error) -> String {
+    let line = e.position().map(|p| p.line());
+    let what = match e.kind() {
+        csv::ErrorKind::UnequalLengths {
+            expected_len, len, ..
+        } => format!("{len} fields, the header has {expected_len}"),
+        csv::ErrorKind::Utf8 { err, .. } => format!("not UTF-8 text ({err})"),
+        _ => e.to_string(),
+    };
+    match line {
+        Some(l) => format!("{name}:{l}: {what}"),
+        None => format!("{name}: {what}"),
+    }
+}
+
+/// Read and validate the whole input (nothing is written before this succeeds).
+fn read_recording(path: &Path) -> Result<Recording, String> {
+    let name = path.display().to_string();
+    let file = File::open(path).map_err(|e| format!("{name}: cannot open: {e}"))?;
+    let mut rdr = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .trim(csv::Trim::All)
+        .from_reader(file);
+    let headers = rdr.headers().map_err(|e| csv_error(&name, e))?.clone();
+    if headers.iter().all(str::is_empty) {
+        return Err(format!(
+            "{name}:1: empty file: expected a header naming t_s, x, y [, torque_nm, theta_rad]"
+        ));
+    }
+    let need = |col: &str| -> Result<usize, String> {
+        column(&name, &headers, col)?.ok_or_else(|| {
+            let have: Vec<&str> = headers.iter().collect();
+            format!(
+                "{name}:1: missing column `{col}` (the header has: {})",
+                have.join(", ")
+            )
+        })
+    };
+    let (i_t, i_x, i_y) = (need("t_s")?, need("x")?, need("y")?);
+    let i_tq = column(&name, &headers, "torque_nm")?;
+    let i_th = column(&name, &headers, "theta_rad")?;
+
+    let mut r = Recording {
+        name: name.clone(),
+        t_s: Vec::new(),
+        x: Vec::new(),
+        y: Vec::new(),
+        torque_nm: Vec::new(),
+        theta_rad: Vec::new(),
+        line: Vec::new(),
+    };
+    let mut rec = csv::StringRecord::new();
+    let mut prev: Option<(f64, u64)> = None;
+    let mut next_progress = PROGRESS_ROWS;
+    while rdr.read_record(&mut rec).map_err(|e| csv_error(&name, e))? {
+        let line = rec.position().map_or(0, |p| p.line());
+        let t: f64 = field(&name, line, &rec, i_t, "t_s", f64::is_finite)?;
+        if let Some((tp, lp)) = prev {
+            if t <= tp {
+                return Err(format!(
+                    "{name}:{line}: field `t_s`: not increasing ({t} after {tp} on line {lp})"
+                ));
+            }
+        }
+        prev = Some((t, line));
+        r.t_s.push(t);
+        r.x.push(field(&name, line, &rec, i_x, "x", f32::is_finite)?);
+        r.y.push(field(&name, line, &rec, i_y, "y", f32::is_finite)?);
+        if let Some(i) = i_tq {
+            r.torque_nm
+                .push(field(&name, line, &rec, i, "torque_nm", f32::is_finite)?);
+        }
+        if let Some(i) = i_th {
+            r.theta_rad
+                .push(field(&name, line, &rec, i, "theta_rad", f64::is_finite)?);
+        }
+        r.line.push(line);
+        if r.t_s.len() == next_progress {
+            next_progress += PROGRESS_ROWS;
+            eprintln!("replay: read {} rows of {name}", r.t_s.len());
+        }
+    }
+    if r.rows() < 2 {
+        return Err(format!(
+            "{name}: {} data row(s): at least 2 are needed to derive the control period",
+            r.rows()
+        ));
+    }
+    Ok(r)
+}
+
+/// The control period: the mean t_s step, computed as (t_last - t_first)/(n - 1) in f64
+/// (exact telescoping of the steps) and then rounded to the core's f32. Refused when any
+/// step is more than 10 % off: the core integrates with a fixed period.
+fn control_period_s(r: &Recording) -> Result<f64, String> {
+    let n = r.rows();
+    let mean = (r.t_s[n - 1] - r.t_s[0]) / (n - 1) as f64;
+    for k in 1..n {
+        let step = r.t_s[k] - r.t_s[k - 1];
+        if (step - mean).abs() > MAX_PERIOD_DEVIATION * mean {
+            return Err(format!(
+                "{}:{}: field `t_s`: step {step} s is {:+.1} % off the mean period {mean} s \
+                 (limit ±10 %): the core needs a fixed control period (gap or jitter in the recording?)",
+                r.name,
+                r.line[k],
+                (step / mean - 1.0) * 100.0
+            ));
+        }
+    }
+    Ok(mean)
+}
+
+/// Input scaling from the extremes of each channel: offset = (max + min)/2,
+/// gain = 2/(max - min).
+///
+/// Not a least-squares ellipse fit, and it need not be: it only sets the core's starting
+/// point. The offset and amplitude error it leaves (the harmonics shift the extremes by a
+/// few %) is what the offset and amplitude-quadrature paths remove, and the health band
+/// (|Z| in [0.25, 2] by default) is far wider than that residual. It needs the recording
+/// to sweep at least one full sensor period.
+///
+/// Known limit (measured on `SensorModel::extreme()`): separate x/y gains also rescale
+/// the harmonics, so harmonics equal on x and y become unequal, i.e. grow k = -h
+/// components at m = 5, 6 that the default paths do not cover; the reduction stops near
+/// 50x instead of ~3 500x with one common gain. Give `[input]` in a --config file when
+/// that matters.
+fn estimate_scaling(r: &Recording) -> Result<[f32; 4], String> {
+    let mut out = [0.0f32; 4];
+    for (i, (col, v)) in [("x", &r.x), ("y", &r.y)].into_iter().enumerate() {
+        let (lo, hi) = v
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &s| {
+                (l.min(s as f64), h.max(s as f64))
+            });
+        let span = hi - lo;
+        let gain = 2.0 / span;
+        if !(span > 0.0 && gain.is_finite() && (gain as f32).is_normal()) {
+            return Err(format!(
+                "{}: column `{col}` spans [{lo}, {hi}]: cannot estimate its scaling; give \
+                 [input] offset_{col} and gain_{col} in a --config file",
+                r.name
+            ));
+        }
+        out[2 * i] = (0.5 * (hi + lo)) as f32;
+        out[2 * i + 1] = gain as f32;
+    }
+    Ok(out)
+}
+
+/// The core configuration: `--config` (or the defaults), N from the file or the flag,
+/// input scaling from the file or estimated. Returns it and whether scaling was estimated.
+fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<(Config, bool), String> {
+    let (mut toml_cfg, origin, text) = match &a.config {
+        Some(p) => {
+            let origin = p.display().to_string();
+            let text = fs::read_to_string(p).map_err(|e| format!("{origin}: cannot read: {e}"))?;
+            (CoreConfigToml::from_toml_str(&text, &origin)?, origin, text)
+        }
+        None => (
+            CoreConfigToml::default(),
+            "default configuration".to_string(),
+            String::new(),
+        ),
+    };
+    if toml_cfg.sensor_periods.is_none() {
+        if a.sensor_periods == 0 {
+            return Err("--sensor-periods must be at least 1".into());
+        }
+        toml_cfg.sensor_periods = Some(a.sensor_periods);
+    }
+    let estimated = !toml_cfg.input_given();
+    if estimated {
+        let [ox, gx, oy, gy] = estimate_scaling(r)?;
+        let i = &mut toml_cfg.input;
+        (i.offset_x, i.gain_x, i.offset_y, i.gain_y) = (Some(ox), Some(gx), Some(oy), Some(gy));
+    }
+    let cfg = toml_cfg.build(period_s as f32).map_err(|e| {
+        let at = match line_of_field(&text, &e.field) {
+            Some(line) => format!("{origin}:{line}"),
+            None => origin.clone(),
+        };
+        let why = match e.field.as_str() {
+            "observer.eigenvalues_hz" | "sample_period_s" => format!(
+                " (control period {:.3} µs derived from {}; set [observer] eigenvalues_hz \
+                 in a --config file)",
+                period_s * 1e6,
+                r.name
+            ),
+            f if f.starts_with("input.") && estimated => {
+                format!(" (scaling estimated from {})", r.name)
+            }
+            _ => String::new(),
+        };
+        format!("{at}: {e}{why}")
+    })?;
+    Ok((cfg, estimated))
+}
+
+/// An output written under a temporary name in its destination's directory and renamed
+/// into place by [`Pending::commit`]; dropped uncommitted, it removes itself.
+struct Pending {
+    tmp: PathBuf,
+    dest: PathBuf,
+    committed: bool,
+}
+
+impl Pending {
+    fn create(dest: &Path) -> Result<(Self, File), String> {
+        let dir = match dest.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let file_name = dest
+            .file_name()
+            .ok_or_else(|| format!("{}: not a file name", dest.display()))?;
+        let tmp = dir.join(format!(
+            ".{}.{}.tmp",
+            file_name.to_string_lossy(),
+            std::process::id()
+        ));
+        let f = OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)
+            .map_err(|e| format!("{}: cannot create {}: {e}", dest.display(), tmp.display()))?;
+        Ok((
+            Self {
+                tmp,
+                dest: dest.to_path_buf(),
+                committed: false,
+            },
+            f,
+        ))
+    }
+
+    fn commit(mut self) -> Result<(), String> {
+        fs::rename(&self.tmp, &self.dest)
+            .map_err(|e| format!("{}: cannot write: {e}", self.dest.display()))?;
+        self.committed = true;
+        Ok(())
+    }
+}
+
+impl Drop for Pending {
+    fn drop(&mut self) {
+        if !self.committed {
+            let _ = fs::remove_file(&self.tmp);
+        }
+    }
+}
+
+/// Column name of a path in OUT.csv: `offset`, `amplitude_quadrature`, `h4`, `h-2`.
+pub fn path_column_name(kind: PathKind) -> String {
+    match kind {
+        PathKind::AmplitudeQuadrature => "amplitude_quadrature".into(),
+        k => path_toml_name(k),
+    }
+}
+
+/// Samples the core refused, per fault kind (report keys).
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct FaultCounts {
+    pub non_finite_input: u64,
+    pub sensor_lost: u64,
+    pub sensor_saturated: u64,
+    pub loss_of_lock: u64,
+    pub numerical_overflow: u64,
+}
+
+impl FaultCounts {
+    fn count(&mut self, f: Fault) {
+        *match f {
+            Fault::NonFiniteInput => &mut self.non_finite_input,
+            Fault::SensorLost => &mut self.sensor_lost,
+            Fault::SensorSaturated => &mut self.sensor_saturated,
+            Fault::LossOfLock => &mut self.loss_of_lock,
+            Fault::NumericalOverflow => &mut self.numerical_overflow,
+        } += 1;
+    }
+
+    fn total(&self) -> u64 {
+        self.non_finite_input
+            + self.sensor_lost
+            + self.sensor_saturated
+            + self.loss_of_lock
+            + self.numerical_overflow
+    }
+
+    fn summary(&self) -> String {
+        let parts: Vec<String> = [
+            ("non_finite_input", self.non_finite_input),
+            ("sensor_lost", self.sensor_lost),
+            ("sensor_saturated", self.sensor_saturated),
+            ("loss_of_lock", self.loss_of_lock),
+            ("numerical_overflow", self.numerical_overflow),
+        ]
+        .iter()
+        .filter(|(_, n)| *n > 0)
+        .map(|(k, n)| format!("{k} {n}"))
+        .collect();
+        if parts.is_empty() {
+            "none".into()
+        } else {
+            parts.join(", ")
+        }
+    }
+}
+
+#[derive(Serialize)]
+struct InputScalingReport {
+    /// "config" or "estimated from min/max".
+    source: &'static str,
+    offset_x: f32,
+    offset_y: f32,
+    gain_x: f32,
+    gain_y: f32,
+}
+
+#[derive(Serialize)]
+struct CoefficientReport {
+    path: String,
+    re: f32,
+    im: f32,
+}
+
+#[derive(Serialize)]
+struct ConvergenceReport {
+    revs_adapted: u32,
+    converged: bool,
+    /// Per path, configuration order (rad, sensor electrical).
+    residual_rad: Vec<f32>,
+    /// Per path, relative to |Z|.
+    change_per_rev: Vec<f32>,
+}
+
+#[derive(Clone, Copy, Serialize)]
+pub struct ErrorStats {
+    pub pk_pk_rad: f64,
+    pub rms_rad: f64,
+    pub pk_pk_mrad: f64,
+    pub rms_mrad: f64,
+}
+
+impl ErrorStats {
+    fn of<const B: usize>(e: &SpatialError<B>) -> Self {
+        let (pp, rms) = (e.pk_pk_rad(), e.rms_rad());
+        Self {
+            pk_pk_rad: pp,
+            rms_rad: rms,
+            pk_pk_mrad: pp * 1e3,
+            rms_mrad: rms * 1e3,
+        }
+    }
+}
+
+#[derive(Serialize)]
+pub struct SpatialErrorReport {
+    /// How and where the error was measured.
+    pub method: String,
+    /// First and last data row (1-based) of the measured window.
+    pub first_row: usize,
+    pub last_row: usize,
+    /// Rows in the window the core accepted (refused samples are not scored).
+    pub scored_rows: usize,
+    pub filled_bins: usize,
+    pub raw: ErrorStats,
+    pub corrected: ErrorStats,
+    /// raw pk-pk / corrected pk-pk.
+    pub reduction: f64,
+}
+
+#[derive(Serialize)]
+struct Report {
+    input: String,
+    output: String,
+    config: Option<String>,
+    rows: usize,
+    sample_period_s: f32,
+    sensor_periods: u16,
+    paths: Vec<String>,
+    input_scaling: InputScalingReport,
+    faults: FaultCounts,
+    faults_total: u64,
+    /// Line of the first loss of lock (adaptation is suspended from there on).
+    first_loss_of_lock_line: Option<u64>,
+    final_coefficients: Vec<CoefficientReport>,
+    convergence: ConvergenceReport,
+    /// Null without a theta_rad column (see `spatial_error_note`).
+    spatial_error: Option<SpatialErrorReport>,
+    spatial_error_note: Option<String>,
+}
+
+/// Raw and corrected spatial error over `window`, both against theta_rad with their
+/// constant offsets removed.
+///
+/// Each constant is first taken out as a circular mean (raw: sensor electrical, so an
+/// arbitrary sensor-to-reference zero works; corrected: mechanical, so a wrapped or
+/// offset reference works) and the rest wrapped to (-π, π]: that handles the sensor's
+/// electrical wrap without assuming where the reference's zero is.
+fn spatial_error(
+    r: &Recording,
+    cfg: &Config,
+    window: std::ops::Range<usize>,
+    theta_hat_rad: &[f64],
+    accepted: &[bool],
+) -> SpatialErrorReport {
+    let n = cfg.sensor_periods as f64;
+    let inp = &cfg.input;
+    let raw_e = |k: usize| {
+        let xs = (r.x[k] as f64 - inp.offset_x as f64) * inp.gain_x as f64;
+        let ys = (r.y[k] as f64 - inp.offset_y as f64) * inp.gain_y as f64;
+        ys.atan2(xs) - n * r.theta_rad[k]
+    };
+    let hat_e = |k: usize| theta_hat_rad[k - window.start] - r.theta_rad[k];
+    let scored = || window.clone().filter(|k| accepted[k - window.start]);
+    let circular_mean = |f: &dyn Fn(usize) -> f64| {
+        let (s, c) = scored().fold((0.0, 0.0), |(s, c), k| {
+            let e = f(k);
+            (s + e.sin(), c + e.cos())
+        });
+        f64::atan2(s, c)
+    };
+    let (raw_c, hat_c) = (circular_mean(&raw_e), circular_mean(&hat_e));
+    let mut raw = SpatialError::<ERROR_BINS>::new();
+    let mut hat = SpatialError::<ERROR_BINS>::new();
+    for k in scored() {
+        raw.add(r.theta_rad[k], wrap_pi(raw_e(k) - raw_c) / n);
+        hat.add(r.theta_rad[k], wrap_pi(hat_e(k) - hat_c));
+    }
+    let (raw_s, hat_s) = (ErrorStats::of(&raw), ErrorStats::of(&hat));
+    SpatialErrorReport {
+        method: format!(
+            "second half of the file (rows {}..{}, after commissioning); error vs theta_rad \
+             binned in {ERROR_BINS} bins of reference angle, constant offset removed; raw = \
+             atan2 of the scaled input vector / N, corrected = theta_hat",
+            window.start + 1,
+            window.end
+        ),
+        first_row: window.start + 1,
+        last_row: window.end,
+        scored_rows: scored().count(),
+        filled_bins: hat.filled_bins(),
+        raw: raw_s,
+        corrected: hat_s,
+        reduction: raw_s.pk_pk_rad / hat_s.pk_pk_rad,
+    }
+}
+
+/// Append a number's shortest round-trip form (`Display`) as one CSV field.
+fn put<W: std::io::Write>(
+    w: &mut csv::Writer<W>,
+    buf: &mut String,
+    v: impl std::fmt::Display,
+) -> csv::Result<()> {
+    buf.clear();
+    let _ = write!(buf, "{v}");
+    w.write_field(buf.as_bytes())
+}
+
+pub fn run(a: &Args) -> Result<(), String> {
+    let rec = read_recording(&a.input)?;
+    let same_as_input = |p: &Path| match (fs::canonicalize(&a.input), fs::canonicalize(p)) {
+        (Ok(i), Ok(o)) => i == o,
+        _ => false,
+    };
+    for (flag, p) in [
+        ("--output", Some(&a.output)),
+        ("--report", a.report.as_ref()),
+    ] {
+        if let Some(p) = p {
+            if same_as_input(p) {
+                return Err(format!("{flag} {} would overwrite the input", p.display()));
+            }
+        }
+    }
+    if a.report.as_ref().is_some_and(|r| *r == a.output) {
+        return Err("--report and --output name the same file".into());
+    }
+    let period_s = control_period_s(&rec)?;
+    let (cfg, estimated) = build_config(a, &rec, period_s)?;
+    let mut tracker = Tracker::new(cfg).map_err(|e| e.to_string())?;
+    let paths: Vec<PathKind> = cfg.paths().to_vec();
+    let rows = rec.rows();
+    let has_theta = !rec.theta_rad.is_empty();
+    let window = rows / 2..rows;
+
+    let (out_pending, out_file) = Pending::create(&a.output)?;
+    let out_name = a.output.display().to_string();
+    let io_err = |e: csv::Error| format!("{out_name}: {e}");
+    let mut w = csv::Writer::from_writer(BufWriter::new(out_file));
+    let mut header = vec![
+        "t_s".to_string(),
+        "theta_hat_rad".into(),
+        "omega_hat_rad_s".into(),
+    ];
+    for p in &paths {
+        let c = path_column_name(*p);
+        header.push(format!("{c}_re"));
+        header.push(format!("{c}_im"));
+    }
+    w.write_record(&header).map_err(io_err)?;
+
+    let mut faults = FaultCounts::default();
+    let mut first_lock_loss = None;
+    let mut theta_hat_rad = Vec::with_capacity(if has_theta { window.len() } else { 0 });
+    let mut accepted = Vec::with_capacity(theta_hat_rad.capacity());
+    let mut buf = String::new();
+    let mut next_tenth = 1;
+    for k in 0..rows {
+        let tq = rec.torque_nm.get(k).copied().unwrap_or(0.0);
+        let result = tracker.step(rec.x[k], rec.y[k], tq);
+        if let Err(f) = result {
+            faults.count(f);
+            if f == Fault::LossOfLock && first_lock_loss.is_none() {
+                first_lock_loss = Some(rec.line[k]);
+            }
+        }
+        // The held estimate on a refused sample; on loss of lock the observer has run.
+        let est = result.unwrap_or_else(|_| tracker.last_estimate());
+        if has_theta && k >= window.start {
+            theta_hat_rad.push(est.theta_unwrapped_rad());
+            accepted.push(matches!(result, Ok(_) | Err(Fault::LossOfLock)));
+        }
+        put(&mut w, &mut buf, rec.t_s[k]).map_err(io_err)?;
+        put(&mut w, &mut buf, est.theta_unwrapped_rad()).map_err(io_err)?;
+        put(&mut w, &mut buf, est.omega_rad_s).map_err(io_err)?;
+        for (_, c) in tracker.coefficients().iter() {
+            put(&mut w, &mut buf, c.re).map_err(io_err)?;
+            put(&mut w, &mut buf, c.im).map_err(io_err)?;
+        }
+        w.write_record(None::<&[u8]>).map_err(io_err)?;
+        if rows > PROGRESS_ROWS && (k + 1) * 10 >= next_tenth * rows {
+            eprintln!("replay: {} % ({} of {rows} rows)", next_tenth * 10, k + 1);
+            next_tenth += 1;
+        }
+    }
+    let buffered = w
+        .into_inner()
+        .map_err(|e| format!("{out_name}: {}", e.error()))?;
+    buffered
+        .into_inner()
+        .map_err(|e| format!("{out_name}: {}", e.error()))?
+        .sync_all()
+        .map_err(|e| format!("{out_name}: {e}"))?;
+
+    let spatial = has_theta.then(|| spatial_error(&rec, &cfg, window, &theta_hat_rad, &accepted));
+    let conv = tracker.convergence();
+    let coefs = tracker.coefficients();
+    let n_paths = paths.len();
+    let report = Report {
+        input: rec.name.clone(),
+        output: out_name.clone(),
+        config: a.config.as_ref().map(|p| p.display().to_string()),
+        rows,
+        sample_period_s: cfg.sample_period_s,
+        sensor_periods: cfg.sensor_periods,
+        paths: paths.iter().map(|p| path_toml_name(*p)).collect(),
+        input_scaling: InputScalingReport {
+            source: if estimated {
+                "estimated from min/max"
+            } else {
+                "config"
+            },
+            offset_x: cfg.input.offset_x,
+            offset_y: cfg.input.offset_y,
+            gain_x: cfg.input.gain_x,
+            gain_y: cfg.input.gain_y,
+        },
+        faults,
+        faults_total: faults.total(),
+        first_loss_of_lock_line: first_lock_loss,
+        final_coefficients: coefs
+            .iter()
+            .map(|(k, v)| CoefficientReport {
+                path: path_toml_name(k),
+                re: v.re,
+                im: v.im,
+            })
+            .collect(),
+        convergence: ConvergenceReport {
+            revs_adapted: conv.revs_adapted,
+            converged: conv.converged,
+            residual_rad: conv.residual_rad[..n_paths].to_vec(),
+            change_per_rev: conv.change_per_rev[..n_paths].to_vec(),
+        },
+        spatial_error: spatial,
+        spatial_error_note: (!has_theta).then(|| {
+            format!(
+                "{} has no theta_rad column: without a reference angle the error is not measured",
+                rec.name
+            )
+        }),
+    };
+
+    let report_pending = match &a.report {
+        Some(p) => {
+            let (pending, f) = Pending::create(p)?;
+            let name = p.display();
+            let json = serde_json::to_string_pretty(&report).map_err(|e| format!("{name}: {e}"))?;
+            let mut f = BufWriter::new(f);
+            f.write_all(json.as_bytes())
+                .and_then(|_| f.write_all(b"\n"))
+                .and_then(|_| f.flush())
+                .map_err(|e| format!("{name}: {e}"))?;
+            Some(pending)
+        }
+        None => None,
+    };
+    out_pending.commit()?;
+    if let Some(p) = report_pending {
+        p.commit()?;
+    }
+    print_summary(a, &report, period_s);
+    Ok(())
+}
+
+fn print_summary(a: &Args, r: &Report, period_s: f64) {
+    println!("hil-sim replay: {} -> {}", r.input, r.output);
+    println!(
+        "  {} rows, control period {:.3} µs ({:.1} Hz, mean t_s step), N = {}",
+        r.rows,
+        period_s * 1e6,
+        1.0 / period_s,
+        r.sensor_periods
+    );
+    let s = &r.input_scaling;
+    println!(
+        "  input scaling ({}): x = (raw - {}) * {}, y = (raw - {}) * {}",
+        s.source, s.offset_x, s.gain_x, s.offset_y, s.gain_y
+    );
+    println!("  paths: {}", r.paths.join(", "));
+    println!("  faults: {}", r.faults.summary());
+    if let Some(line) = r.first_loss_of_lock_line {
+        println!(
+            "  note: the core latched loss of lock at line {line}; adaptation stays suspended \
+             from there on (a drive clears it after a safe restart)"
+        );
+    }
+    println!(
+        "  convergence: {} revolutions adapted, converged: {}",
+        r.convergence.revs_adapted,
+        if r.convergence.converged { "yes" } else { "no" }
+    );
+    match &r.spatial_error {
+        Some(e) => {
+            println!(
+                "  spatial error over rows {}..{} (second half, after commissioning), constant removed:",
+                e.first_row, e.last_row
+            );
+            println!(
+                "    raw sensor : {:.3} mrad pk-pk, {:.3} mrad rms",
+                e.raw.pk_pk_mrad, e.raw.rms_mrad
+            );
+            println!(
+                "    corrected  : {:.4} mrad pk-pk, {:.4} mrad rms  ({:.0}x)",
+                e.corrected.pk_pk_mrad, e.corrected.rms_mrad, e.reduction
+            );
+        }
+        None => println!(
+            "  spatial error: not measured ({})",
+            r.spatial_error_note.as_deref().unwrap_or("")
+        ),
+    }
+    println!("  final coefficients (scaled units):");
+    for c in &r.final_coefficients {
+        println!("    {:<22} {:+.6} {:+.6}j", c.path, c.re, c.im);
+    }
+    match &a.report {
+        Some(p) => println!("  wrote {} and {}", r.output, p.display()),
+        None => println!("  wrote {}", r.output),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn path_column_names() {
+        let names: Vec<String> = [
+            PathKind::Offset,
+            PathKind::AmplitudeQuadrature,
+            PathKind::Harmonic(4),
+            PathKind::Harmonic(-2),
+        ]
+        .into_iter()
+        .map(path_column_name)
+        .collect();
+        assert_eq!(names, ["offset", "amplitude_quadrature", "h4", "h-2"]);
+    }
 }

@@ -347,6 +347,33 @@ impl<const B: usize> SpatialError<B> {
         }
     }
 
+    /// (bin centre angle, mean error) of every filled bin, constant offset removed.
+    pub fn bin_means(&self) -> impl Iterator<Item = (f64, f64)> + '_ {
+        let off = self.offset_rad();
+        self.sum
+            .iter()
+            .zip(&self.count)
+            .enumerate()
+            .filter(|(_, (_, c))| **c > 0)
+            .map(move |(i, (s, c))| (TAU * (i as f64 + 0.5) / B as f64, s / *c as f64 - off))
+    }
+
+    /// Amplitude of the k-th spatial harmonic of the binned error (rad), by a DFT over
+    /// the filled bins (exact when all bins are filled).
+    pub fn harmonic_amplitude_rad(&self, k: u32) -> f64 {
+        let (mut re, mut im, mut n) = (0.0, 0.0, 0usize);
+        for (th, e) in self.bin_means() {
+            re += e * libm::cos(k as f64 * th);
+            im += e * libm::sin(k as f64 * th);
+            n += 1;
+        }
+        if n == 0 {
+            0.0
+        } else {
+            2.0 * libm::sqrt(re * re + im * im) / n as f64
+        }
+    }
+
     pub fn filled_bins(&self) -> usize {
         self.count.iter().filter(|c| **c > 0).count()
     }
@@ -394,6 +421,8 @@ mod tests {
         assert!((e.offset_rad() - 0.5).abs() < 1e-4);
         assert!((e.pk_pk_rad() - 0.02).abs() < 1e-3);
         assert!((e.rms_rad() - 0.01 / libm::sqrt(2.0)).abs() < 1e-3);
+        assert!((e.harmonic_amplitude_rad(2) - 0.01).abs() < 1e-4);
+        assert!(e.harmonic_amplitude_rad(3) < 1e-4);
     }
 
     #[test]

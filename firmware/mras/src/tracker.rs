@@ -39,6 +39,9 @@ pub struct Estimate {
     pub epsilon_rad: f32,
     /// Whether any path adapted on this sample.
     pub adapting: bool,
+    /// The decoupled vector Zd = Z + D(θ̂s) (scaled units), for plots of the corrected
+    /// sensor image (paper Fig. 8a).
+    pub decoupled: Cplx,
 }
 
 impl Estimate {
@@ -228,7 +231,8 @@ impl<T: Trig> Tracker<T> {
             },
         );
 
-        let est = self.estimate_of(&self.obs, amplitude, eps_e_rad, adapting);
+        let mut est = self.estimate_of(&self.obs, amplitude, eps_e_rad, adapting);
+        est.decoupled = zd;
         self.obs = next;
         self.smooth = smooth;
         self.last = est;
@@ -273,6 +277,7 @@ impl<T: Trig> Tracker<T> {
             amplitude,
             epsilon_rad: eps,
             adapting,
+            decoupled: Cplx::ZERO,
         }
     }
 

@@ -1,0 +1,139 @@
+//! The `scenario` and `bench` commands.
+
+use crate::report;
+use crate::scenario::{self, RunOutcome, Scenario, Variant};
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(clap::Args, Clone, Debug)]
+pub struct ScenarioArgs {
+    /// Scenario name (see --list) or path to a scenario .toml.
+    pub name: Option<String>,
+    /// List the shipped scenarios.
+    #[arg(long)]
+    pub list: bool,
+    /// Run the reduced-length CI variant.
+    #[arg(long)]
+    pub ci: bool,
+    /// Output directory (default: hil-sim/out/<scenario>).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Skip the PNG/SVG plots.
+    #[arg(long)]
+    pub no_plots: bool,
+}
+
+fn out_dir(a: &ScenarioArgs, name: &str) -> PathBuf {
+    a.out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("out").join(name))
+}
+
+pub fn scenario(a: &ScenarioArgs) -> Result<(), String> {
+    if a.list || a.name.is_none() {
+        for name in scenario::list() {
+            let desc = Scenario::load(&name).map_or_else(|e| e, |s| s.file.description);
+            println!("{name:<16} {desc}");
+        }
+        return Ok(());
+    }
+    let sc = Scenario::load(a.name.as_deref().unwrap_or_default())?;
+    let f = &sc.file;
+    let duration = if a.ci {
+        f.ci_duration_s.unwrap_or(f.duration_s)
+    } else {
+        f.duration_s
+    };
+    let dir = out_dir(a, &f.name);
+    if !f.cases.is_empty() {
+        return table1(&sc, duration);
+    }
+    let mut variants = vec![];
+    if f.paper.is_some() {
+        variants.push(Variant::Paper);
+    }
+    variants.push(Variant::Ours);
+    let started = Instant::now();
+    let outcomes: Vec<RunOutcome> = std::thread::scope(|s| {
+        let handles: Vec<_> = variants
+            .iter()
+            .map(|v| {
+                let sc = &sc;
+                s.spawn(move || scenario::run(sc, *v, duration, true))
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().map_err(|_| "a simulation thread panicked".to_string())?)
+            .collect::<Result<_, _>>()
+    })?;
+    let summaries: Vec<_> = outcomes.iter().map(|o| &o.summary).collect();
+    let text = report::summary_text(&sc, &summaries);
+    print!("{text}");
+    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    std::fs::write(dir.join("summary.txt"), &text)
+        .map_err(|e| format!("{}: {e}", dir.display()))?;
+    for o in &outcomes {
+        report::write_run(&dir.join(o.summary.variant.label()), o, !a.no_plots)?;
+    }
+    println!(
+        "  output: {} (timeseries.csv, summary.json{} per run) in {:.1} s wall",
+        dir.display(),
+        if a.no_plots { "" } else { ", PNG and SVG plots" },
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+fn table1(sc: &Scenario, duration: f64) -> Result<(), String> {
+    println!("scenario {}: {}", sc.file.name, sc.file.description);
+    println!(
+        "  {:<22} {:>9} {:>9}   largest spatial harmonics of the raw error (mrad)",
+        "error", "Table I", "measured"
+    );
+    for (name, expect, got, spec) in scenario::run_table1(sc, duration)? {
+        let mut top: Vec<(usize, f64)> = spec.iter().copied().enumerate().collect();
+        top.sort_by(|a, b| b.1.total_cmp(&a.1));
+        let shown: Vec<String> = top
+            .iter()
+            .take(3)
+            .map(|(i, v)| format!("{}: {v:.2}", i + 1))
+            .collect();
+        println!(
+            "  {name:<22} {expect:>9} {got:>9}   {}{}",
+            shown.join(", "),
+            if expect == got { "" } else { "   MISMATCH" }
+        );
+    }
+    Ok(())
+}
+
+#[derive(clap::Args, Clone, Debug)]
+pub struct BenchArgs {
+    /// Scenario whose drive model is timed.
+    #[arg(long, default_value = "paper-fig9")]
+    pub scenario: String,
+    /// Simulated seconds.
+    #[arg(long, default_value_t = 10.0)]
+    pub seconds: f64,
+}
+
+/// Simulated seconds per wall second of the full drive model plus the core, one thread.
+pub fn bench(a: &BenchArgs) -> Result<(), String> {
+    let sc = Scenario::load(&a.scenario)?;
+    let started = Instant::now();
+    let out = scenario::run(&sc, Variant::Ours, a.seconds, false)?;
+    let wall = started.elapsed().as_secs_f64();
+    let steps = a.seconds * sc.file.sample_rate_hz;
+    println!(
+        "bench {}: {:.1} s simulated at {:.0} kHz in {:.3} s wall on one thread: {:.0}x real time ({:.0} ns per control period, {} recorded rows)",
+        sc.file.name,
+        a.seconds,
+        sc.file.sample_rate_hz / 1e3,
+        wall,
+        a.seconds / wall,
+        wall / steps * 1e9,
+        out.rows.len()
+    );
+    Ok(())
+}

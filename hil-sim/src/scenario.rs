@@ -1,0 +1,738 @@
+//! Scenarios: one TOML file per case (`hil-sim/scenarios/`), run by name. A paper
+//! scenario runs twice, the paper-literal law and ours, on the same drive and sensor.
+
+use crate::core_config::CoreConfigToml;
+use crate::drive::{
+    Cogging, ControlParams, Drive, DriveSample, LoadStep, LoopMode, MotorParams, Reference,
+};
+use crate::sensor::{Drift, SensorParams, SensorSim};
+use mras::sim::{wrap_pi, Adc, SensorHarmonic, SensorModel, SpatialError};
+use mras::{AdaptationLaw, Coefficients, Tracker};
+use serde::{Deserialize, Serialize};
+use std::f64::consts::TAU;
+use std::path::{Path, PathBuf};
+
+/// Where the scenario files live.
+pub fn scenario_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios")
+}
+
+/// Names of the scenarios shipped in [`scenario_dir`].
+pub fn list() -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(scenario_dir())
+        .map(|d| {
+            d.filter_map(|e| e.ok())
+                .filter_map(|e| {
+                    let p = e.path();
+                    (p.extension()? == "toml").then(|| p.file_stem()?.to_str().map(String::from))?
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    names.sort();
+    names
+}
+
+// ---- the file format ----
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScenarioFile {
+    pub name: String,
+    pub description: String,
+    /// Simulated time of the full run and of the reduced CI variant.
+    pub duration_s: f64,
+    pub ci_duration_s: Option<f64>,
+    #[serde(default = "default_rate")]
+    pub sample_rate_hz: f64,
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    /// Adaptation is frozen before this time (the paper's Fig. 9: 1 s).
+    #[serde(default)]
+    pub mras_enable_s: f64,
+    /// Ĵ used by the observer and the motion controller, relative to J (Fig. 11: 0.66).
+    #[serde(default = "one")]
+    pub inertia_estimate_ratio: f64,
+    #[serde(default)]
+    pub sensor: SensorToml,
+    #[serde(default)]
+    pub motor: MotorToml,
+    pub control: ControlToml,
+    #[serde(default)]
+    pub core: CoreConfigToml,
+    /// The paper-literal gains for this scenario; when present the scenario also runs
+    /// the paper's law side by side with ours.
+    pub paper: Option<PaperToml>,
+    /// Table I: each error alone (no adaptation), spectrum of the raw error.
+    #[serde(default)]
+    pub cases: Vec<CaseToml>,
+}
+
+fn default_rate() -> f64 {
+    20_000.0
+}
+fn default_seed() -> u64 {
+    1
+}
+fn one() -> f64 {
+    1.0
+}
+
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PaperToml {
+    pub k1_per_s: f32,
+    pub k2: f32,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CaseToml {
+    pub name: String,
+    /// Table I: the spatial harmonic of θrm the error must show.
+    pub expect_harmonic: u32,
+    pub sensor: SensorToml,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SensorToml {
+    pub sensor_periods: u16,
+    pub ax: f64,
+    pub ay: f64,
+    pub bx1: f64,
+    pub by1: f64,
+    pub phi_x1_deg: f64,
+    pub harmonics: Vec<HarmonicToml>,
+    pub noise_std: f64,
+    /// 0: no quantisation.
+    pub adc_bits: u8,
+    pub adc_full_scale: f64,
+    pub skew_s: f64,
+    pub drift: DriftToml,
+    pub eccentricity_rad: f64,
+    pub eccentricity_phase_deg: f64,
+}
+
+impl Default for SensorToml {
+    fn default() -> Self {
+        Self {
+            sensor_periods: 2,
+            ax: 0.0,
+            ay: 0.0,
+            bx1: 1.0,
+            by1: 1.0,
+            phi_x1_deg: 0.0,
+            harmonics: Vec::new(),
+            noise_std: 3.0e-4,
+            adc_bits: 12,
+            adc_full_scale: 1.5,
+            skew_s: 0.0,
+            drift: DriftToml::default(),
+            eccentricity_rad: 0.0,
+            eccentricity_phase_deg: 0.0,
+        }
+    }
+}
+
+/// A harmonic `h`: either equal on X and Y (`b`, `phi_deg`) or per channel.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct HarmonicToml {
+    pub h: i32,
+    pub b: Option<f64>,
+    pub phi_deg: Option<f64>,
+    pub bx: f64,
+    pub phi_x_deg: f64,
+    pub by: f64,
+    pub phi_y_deg: f64,
+}
+
+#[derive(Clone, Copy, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DriftToml {
+    pub ax_per_s: f64,
+    pub ay_per_s: f64,
+    pub gain_per_s: f64,
+}
+
+impl SensorToml {
+    pub fn to_params(&self) -> Result<SensorParams, String> {
+        let mut m = SensorModel::ideal(self.sensor_periods);
+        m.ax = self.ax;
+        m.ay = self.ay;
+        m.bx1 = self.bx1;
+        m.by1 = self.by1;
+        m.phi_x1_rad = self.phi_x1_deg.to_radians();
+        for h in &self.harmonics {
+            let hm = match (h.b, h.phi_deg) {
+                (Some(b), phi) => SensorHarmonic::equal(h.h, b, phi.unwrap_or(0.0).to_radians()),
+                (None, _) => SensorHarmonic {
+                    h: h.h,
+                    bx: h.bx,
+                    phi_x_rad: h.phi_x_deg.to_radians(),
+                    by: h.by,
+                    phi_y_rad: h.phi_y_deg.to_radians(),
+                },
+            };
+            if !m.push_harmonic(hm) {
+                return Err(format!(
+                    "`sensor.harmonics`: at most {} harmonics",
+                    mras::sim::MAX_SENSOR_HARMONICS
+                ));
+            }
+        }
+        let p = SensorParams {
+            model: m,
+            noise_std: self.noise_std,
+            adc: (self.adc_bits > 0).then_some(Adc {
+                bits: self.adc_bits,
+                full_scale: self.adc_full_scale,
+            }),
+            skew_s: self.skew_s,
+            drift: Drift {
+                ax_per_s: self.drift.ax_per_s,
+                ay_per_s: self.drift.ay_per_s,
+                gain_per_s: self.drift.gain_per_s,
+            },
+            eccentricity_rad: self.eccentricity_rad,
+            eccentricity_phase_rad: self.eccentricity_phase_deg.to_radians(),
+        };
+        p.validate()?;
+        Ok(p)
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MotorToml {
+    pub pole_pairs: u32,
+    pub r_ohm: f64,
+    pub l_h: f64,
+    pub flux_wb: f64,
+    pub j_kg_m2: f64,
+    pub vdc_v: f64,
+    pub i_max_a: f64,
+    /// Coulomb friction as a fraction of rated torque (Fig. 11: 0.5 p.u.).
+    pub coulomb_pu: f64,
+    pub viscous_nm_s_rad: f64,
+    pub cogging: Vec<CoggingToml>,
+    pub load_steps: Vec<LoadStepToml>,
+    pub current_offset_a: [f64; 2],
+    pub current_gain_error: [f64; 2],
+}
+
+impl Default for MotorToml {
+    fn default() -> Self {
+        let d = MotorParams::default();
+        Self {
+            pole_pairs: d.pole_pairs,
+            r_ohm: d.r_ohm,
+            l_h: d.l_h,
+            flux_wb: d.flux_wb,
+            j_kg_m2: d.j_kg_m2,
+            vdc_v: d.vdc_v,
+            i_max_a: d.i_max_a,
+            coulomb_pu: 0.0,
+            viscous_nm_s_rad: d.viscous_nm_s_rad,
+            cogging: Vec::new(),
+            load_steps: Vec::new(),
+            current_offset_a: [0.0; 2],
+            current_gain_error: [0.0; 2],
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CoggingToml {
+    pub harmonic: u32,
+    pub amplitude_nm: f64,
+    #[serde(default)]
+    pub phase_deg: f64,
+}
+
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LoadStepToml {
+    pub t_s: f64,
+    pub torque_nm: f64,
+}
+
+impl MotorToml {
+    pub fn to_params(&self) -> Result<MotorParams, String> {
+        let mut m = MotorParams {
+            pole_pairs: self.pole_pairs,
+            r_ohm: self.r_ohm,
+            l_h: self.l_h,
+            flux_wb: self.flux_wb,
+            j_kg_m2: self.j_kg_m2,
+            vdc_v: self.vdc_v,
+            i_max_a: self.i_max_a,
+            coulomb_nm: 0.0,
+            viscous_nm_s_rad: self.viscous_nm_s_rad,
+            cogging: self
+                .cogging
+                .iter()
+                .map(|c| Cogging {
+                    harmonic: c.harmonic,
+                    amplitude_nm: c.amplitude_nm,
+                    phase_rad: c.phase_deg.to_radians(),
+                })
+                .collect(),
+            load_steps: self
+                .load_steps
+                .iter()
+                .map(|s| LoadStep {
+                    t_s: s.t_s,
+                    torque_nm: s.torque_nm,
+                })
+                .collect(),
+            current_offset_a: self.current_offset_a,
+            current_gain_error: self.current_gain_error,
+        };
+        m.coulomb_nm = self.coulomb_pu * m.rated_torque_nm();
+        m.validate()?;
+        Ok(m)
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControlToml {
+    /// "position" or "velocity".
+    pub mode: String,
+    pub bandwidth_hz: f64,
+    #[serde(default = "default_current_bw")]
+    pub current_bandwidth_hz: f64,
+    pub reference: ReferenceToml,
+}
+
+fn default_current_bw() -> f64 {
+    1000.0
+}
+
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum ReferenceToml {
+    Ramp {
+        speed_rev_s: f64,
+        #[serde(default = "default_accel")]
+        accel_rad_s2: f64,
+    },
+    Sine {
+        amplitude_rad_s: f64,
+        freq_hz: f64,
+    },
+}
+
+fn default_accel() -> f64 {
+    200.0
+}
+
+impl ControlToml {
+    pub fn to_params(&self) -> Result<ControlParams, String> {
+        let mode = match self.mode.as_str() {
+            "position" => LoopMode::Position,
+            "velocity" => LoopMode::Velocity,
+            other => {
+                return Err(format!(
+                    "`control.mode` = \"{other}\": must be \"position\" or \"velocity\""
+                ))
+            }
+        };
+        let reference = match self.reference {
+            ReferenceToml::Ramp {
+                speed_rev_s,
+                accel_rad_s2,
+            } => {
+                if !(accel_rad_s2 > 0.0) {
+                    return Err("`control.reference.accel_rad_s2` must be > 0".into());
+                }
+                Reference::Ramp {
+                    speed_rev_s,
+                    accel_rad_s2,
+                }
+            }
+            ReferenceToml::Sine {
+                amplitude_rad_s,
+                freq_hz,
+            } => Reference::Sine {
+                amplitude_rad_s,
+                freq_hz,
+            },
+        };
+        Ok(ControlParams {
+            mode,
+            bandwidth_hz: self.bandwidth_hz,
+            current_bandwidth_hz: self.current_bandwidth_hz,
+            reference,
+        })
+    }
+}
+
+/// A parsed, validated scenario.
+#[derive(Clone, Debug)]
+pub struct Scenario {
+    pub file: ScenarioFile,
+    pub origin: String,
+}
+
+impl Scenario {
+    /// Load `name` from [`scenario_dir`], or a path to a `.toml` file.
+    pub fn load(name_or_path: &str) -> Result<Self, String> {
+        let path = if name_or_path.ends_with(".toml") {
+            PathBuf::from(name_or_path)
+        } else {
+            scenario_dir().join(format!("{name_or_path}.toml"))
+        };
+        let text = std::fs::read_to_string(&path).map_err(|e| {
+            format!(
+                "cannot read scenario {}: {e} (available: {})",
+                path.display(),
+                list().join(", ")
+            )
+        })?;
+        Self::parse(&text, &path.display().to_string())
+    }
+
+    pub fn parse(text: &str, origin: &str) -> Result<Self, String> {
+        let file: ScenarioFile = toml::from_str(text).map_err(|e| {
+            let line = e
+                .span()
+                .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+            match line {
+                Some(l) => format!("{origin}:{l}: {}", e.message()),
+                None => format!("{origin}: {}", e.message()),
+            }
+        })?;
+        let sc = Self {
+            file,
+            origin: origin.to_string(),
+        };
+        sc.validate()?;
+        Ok(sc)
+    }
+
+    fn validate(&self) -> Result<(), String> {
+        let f = &self.file;
+        let err = |m: String| format!("{}: {m}", self.origin);
+        if !(f.duration_s > 0.0 && f.duration_s <= 600.0) {
+            return Err(err(format!("`duration_s` = {}: must be in (0, 600]", f.duration_s)));
+        }
+        if !(f.sample_rate_hz >= 1000.0 && f.sample_rate_hz <= 200_000.0) {
+            return Err(err(format!(
+                "`sample_rate_hz` = {}: must be in [1 kHz, 200 kHz]",
+                f.sample_rate_hz
+            )));
+        }
+        if !(f.inertia_estimate_ratio > 0.05 && f.inertia_estimate_ratio < 20.0) {
+            return Err(err("`inertia_estimate_ratio` must be in (0.05, 20)".into()));
+        }
+        f.sensor.to_params().map_err(err)?;
+        f.motor.to_params().map_err(err)?;
+        f.control.to_params().map_err(err)?;
+        self.core_config(None).map_err(err)?;
+        for c in &f.cases {
+            c.sensor.to_params().map_err(err)?;
+        }
+        Ok(())
+    }
+
+    pub fn sample_period_s(&self) -> f64 {
+        1.0 / self.file.sample_rate_hz
+    }
+
+    /// The core configuration: the `[core]` table, with Ĵ from the motor and the
+    /// scenario's inertia ratio, and the law replaced by the paper's when asked.
+    pub fn core_config(&self, paper: Option<PaperToml>) -> Result<mras::Config, String> {
+        let f = &self.file;
+        let mut cfg = f.core.to_config(self.sample_period_s() as f32)?;
+        cfg.sensor_periods = f.sensor.sensor_periods;
+        cfg.observer.inertia_kg_m2 = (f.motor.j_kg_m2 * f.inertia_estimate_ratio) as f32;
+        if let Some(p) = paper {
+            cfg.law = AdaptationLaw::PaperLiteral {
+                k1_per_s: p.k1_per_s,
+                k2: p.k2,
+            };
+        }
+        cfg.validate().map_err(|e| e.to_string())?;
+        Ok(cfg)
+    }
+}
+
+// ---- running ----
+
+/// Which law a run uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum Variant {
+    Paper,
+    Ours,
+}
+
+impl Variant {
+    pub fn label(self) -> &'static str {
+        match self {
+            Variant::Paper => "paper",
+            Variant::Ours => "ours",
+        }
+    }
+}
+
+/// One recorded (decimated) row of a run.
+#[derive(Clone, Debug)]
+pub struct Row {
+    pub t_s: f64,
+    pub theta_rad: f64,
+    pub theta_hat_rad: f64,
+    pub omega_rad_s: f64,
+    pub omega_hat_rad_s: f64,
+    pub tracking_error_rad: f64,
+    pub torque_cmd_nm: f64,
+    pub x: f32,
+    pub y: f32,
+    pub zd_x: f32,
+    pub zd_y: f32,
+    pub coefficients: Coefficients,
+}
+
+/// Spatial error (binned by true angle) of the raw sensor and of θ̂ over a window.
+#[derive(Clone, Debug, Serialize)]
+pub struct WindowStats {
+    pub from_s: f64,
+    pub to_s: f64,
+    pub raw_pk_pk_mrad: f64,
+    pub raw_rms_mrad: f64,
+    pub estimate_pk_pk_mrad: f64,
+    pub estimate_rms_mrad: f64,
+    /// Position loop command tracking error θ* - θ̂, pk-pk.
+    pub tracking_pk_pk_mrad: f64,
+    /// Spatial harmonics 1..=16 of θrm (mrad), raw and estimate.
+    #[serde(skip)]
+    pub raw_spectrum_mrad: Vec<f64>,
+    #[serde(skip)]
+    pub estimate_spectrum_mrad: Vec<f64>,
+    #[serde(skip)]
+    pub estimate_by_angle: Vec<(f64, f64)>,
+    #[serde(skip)]
+    pub raw_by_angle: Vec<(f64, f64)>,
+}
+
+pub const SPECTRUM_HARMONICS: u32 = 16;
+
+#[derive(Clone, Debug)]
+struct Window {
+    from_s: f64,
+    to_s: f64,
+    raw: SpatialError<360>,
+    est: SpatialError<360>,
+    track_min: f64,
+    track_max: f64,
+}
+
+impl Window {
+    fn new(from_s: f64, to_s: f64) -> Self {
+        Self {
+            from_s,
+            to_s,
+            raw: SpatialError::new(),
+            est: SpatialError::new(),
+            track_min: f64::INFINITY,
+            track_max: f64::NEG_INFINITY,
+        }
+    }
+
+    fn add(&mut self, s: &DriveSample, n: f64) {
+        if s.t_s < self.from_s || s.t_s >= self.to_s {
+            return;
+        }
+        let raw = wrap_pi((s.y as f64).atan2(s.x as f64) - n * s.theta_rad) / n;
+        self.raw.add(s.theta_rad, raw);
+        self.est.add(s.theta_rad, s.estimation_error_rad());
+        let e = s.tracking_error_rad();
+        self.track_min = self.track_min.min(e);
+        self.track_max = self.track_max.max(e);
+    }
+
+    fn stats(&self) -> WindowStats {
+        let spec = |e: &SpatialError<360>| {
+            (1..=SPECTRUM_HARMONICS)
+                .map(|k| e.harmonic_amplitude_rad(k) * 1e3)
+                .collect()
+        };
+        WindowStats {
+            from_s: self.from_s,
+            to_s: self.to_s,
+            raw_pk_pk_mrad: self.raw.pk_pk_rad() * 1e3,
+            raw_rms_mrad: self.raw.rms_rad() * 1e3,
+            estimate_pk_pk_mrad: self.est.pk_pk_rad() * 1e3,
+            estimate_rms_mrad: self.est.rms_rad() * 1e3,
+            tracking_pk_pk_mrad: (self.track_max - self.track_min).max(0.0) * 1e3,
+            raw_spectrum_mrad: spec(&self.raw),
+            estimate_spectrum_mrad: spec(&self.est),
+            estimate_by_angle: self.est.bin_means().collect(),
+            raw_by_angle: self.raw.bin_means().collect(),
+        }
+    }
+}
+
+/// What one run measured.
+#[derive(Clone, Debug, Serialize)]
+pub struct RunSummary {
+    pub scenario: String,
+    pub variant: Variant,
+    pub duration_s: f64,
+    pub mras_enable_s: f64,
+    /// Before adaptation (absent when it runs from the start).
+    pub before: Option<WindowStats>,
+    /// The last 20 % of the run.
+    pub after: WindowStats,
+    /// Time and revolutions from enabling the MRAS to its `converged` flag.
+    pub converged_after_s: Option<f64>,
+    pub converged_after_revs: Option<f64>,
+    pub faults: u32,
+    pub coefficients: Vec<(String, f32, f32)>,
+}
+
+/// A run's summary and its decimated record.
+pub struct RunOutcome {
+    pub summary: RunSummary,
+    pub rows: Vec<Row>,
+}
+
+/// Rows kept for CSV and plots.
+const MAX_ROWS: u64 = 20_000;
+
+pub fn path_name(kind: mras::PathKind) -> String {
+    match kind {
+        mras::PathKind::Offset => "offset".into(),
+        mras::PathKind::AmplitudeQuadrature => "amplitude_quadrature".into(),
+        mras::PathKind::Harmonic(h) => format!("h{h}"),
+    }
+}
+
+/// Run one variant for `duration_s`; `progress` prints to stderr every 10 %.
+pub fn run(
+    sc: &Scenario,
+    variant: Variant,
+    duration_s: f64,
+    progress: bool,
+) -> Result<RunOutcome, String> {
+    let f = &sc.file;
+    let paper = match variant {
+        Variant::Paper => Some(f.paper.ok_or_else(|| {
+            format!("{}: no [paper] table, so no paper-literal run", sc.origin)
+        })?),
+        Variant::Ours => None,
+    };
+    let cfg = sc.core_config(paper)?;
+    let mut tracker = Tracker::new(cfg).map_err(|e| e.to_string())?;
+    let t_s = sc.sample_period_s();
+    let sensor = SensorSim::new(f.sensor.to_params()?, f.seed)?;
+    let motor = f.motor.to_params()?;
+    let j_hat = motor.j_kg_m2 * f.inertia_estimate_ratio;
+    let mut drive = Drive::new(motor, f.control.to_params()?, sensor, t_s, j_hat)?;
+    let n = f.sensor.sensor_periods as f64;
+
+    let steps = (duration_s / t_s).round() as u64;
+    let decim = (steps / MAX_ROWS).max(1);
+    let enable_s = f.mras_enable_s.min(duration_s);
+    let before_from = (enable_s - 1.0).max(enable_s / 2.0);
+    let mut before = (enable_s > 0.2).then(|| Window::new(before_from, enable_s));
+    let mut after = Window::new(0.8 * duration_s, duration_s + t_s);
+    let mut rows = Vec::with_capacity((steps / decim + 1) as usize);
+    let (mut faults, mut converged_at, mut theta_at_enable) = (0u32, None, None);
+    tracker.set_frozen(enable_s > 0.0);
+    for k in 0..steps {
+        let t = k as f64 * t_s;
+        if tracker.is_frozen() && t >= enable_s {
+            tracker.set_frozen(false);
+        }
+        let s = drive.step(&mut tracker);
+        faults += s.result.is_err() as u32;
+        if let Some(w) = before.as_mut() {
+            w.add(&s, n);
+        }
+        after.add(&s, n);
+        if t >= enable_s {
+            let th0 = *theta_at_enable.get_or_insert(s.theta_rad);
+            if converged_at.is_none() && k % 64 == 0 && tracker.convergence().converged {
+                converged_at = Some((t - enable_s, (s.theta_rad - th0).abs() / TAU));
+            }
+        }
+        if k % decim == 0 {
+            rows.push(Row {
+                t_s: t,
+                theta_rad: s.theta_rad,
+                theta_hat_rad: s.estimate.theta_unwrapped_rad(),
+                omega_rad_s: s.omega_rad_s,
+                omega_hat_rad_s: s.estimate.omega_rad_s as f64,
+                tracking_error_rad: s.tracking_error_rad(),
+                torque_cmd_nm: s.torque_cmd_nm,
+                x: s.x,
+                y: s.y,
+                zd_x: s.estimate.decoupled.re,
+                zd_y: s.estimate.decoupled.im,
+                coefficients: tracker.coefficients(),
+            });
+        }
+        if progress && steps >= 200_000 && k % (steps / 10) == 0 && k > 0 {
+            eprintln!(
+                "  [{} {}] {:3.0} % ({:.1} of {:.1} s simulated)",
+                f.name,
+                variant.label(),
+                100.0 * k as f64 / steps as f64,
+                t,
+                duration_s
+            );
+        }
+    }
+    let coefficients = tracker
+        .coefficients()
+        .iter()
+        .map(|(k, v)| (path_name(k), v.re, v.im))
+        .collect();
+    Ok(RunOutcome {
+        summary: RunSummary {
+            scenario: f.name.clone(),
+            variant,
+            duration_s,
+            mras_enable_s: enable_s,
+            before: before.map(|w| w.stats()),
+            after: after.stats(),
+            converged_after_s: converged_at.map(|c| c.0),
+            converged_after_revs: converged_at.map(|c| c.1),
+            faults,
+            coefficients,
+        },
+        rows,
+    })
+}
+
+/// Table I: each case's raw spatial error spectrum; returns (case, expected, dominant,
+/// spectrum in mrad for harmonics 1..=16).
+pub fn run_table1(
+    sc: &Scenario,
+    duration_s: f64,
+) -> Result<Vec<(String, u32, u32, Vec<f64>)>, String> {
+    let mut out = Vec::new();
+    for case in &sc.file.cases {
+        let mut file = sc.file.clone();
+        file.sensor = case.sensor.clone();
+        file.cases.clear();
+        file.mras_enable_s = duration_s; // frozen throughout
+        let one = Scenario {
+            file,
+            origin: format!("{} case {}", sc.origin, case.name),
+        };
+        let r = run(&one, Variant::Ours, duration_s, false)?;
+        let spec = r.summary.after.raw_spectrum_mrad.clone();
+        let dominant = spec
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .map_or(0, |(i, _)| i as u32 + 1);
+        out.push((case.name.clone(), case.expect_harmonic, dominant, spec));
+    }
+    Ok(out)
+}

@@ -1,0 +1,416 @@
+//! `hil-sim replay`: the published recorded-data interface. The replayed estimate is the
+//! live one bit for bit, the report scores it, and bad input stops with file, line and
+//! field named and without touching the output.
+
+use hil_sim::core_config::CoreConfigToml;
+use mras::sim::{Adc, Kinematic, SensorModel, Trajectory};
+use mras::{Config, Tracker};
+use std::fmt::Write as _;
+use std::path::Path;
+use std::process::{Command, Output};
+
+const SAMPLE_PERIOD_S: f64 = 50.0e-6;
+const INERTIA_KG_M2: f64 = 1.0e-4;
+const ADC: Adc = Adc {
+    bits: 12,
+    full_scale: 1.5,
+};
+/// Identity input scaling, so that the live tracker and replay agree on every field
+/// (without [input] replay would estimate the scaling from the data).
+const IDENTITY_CONFIG: &str = "\
+sensor_periods = 2
+[input]
+offset_x = 0.0
+offset_y = 0.0
+gain_x = 1.0
+gain_y = 1.0
+";
+
+/// One simulated control period: what the core was fed and what it answered.
+struct Row {
+    t_s: f64,
+    x: f32,
+    y: f32,
+    torque_nm: f32,
+    theta_rad: f64,
+    theta_hat_rad: f64,
+}
+
+/// The extreme sensor through a 12-bit ADC on a ramp to 20 rev/s with the torque
+/// feedforward, with a live tracker on `cfg`.
+fn simulate(cfg: Config, duration_s: f64) -> Vec<Row> {
+    let kin = Kinematic {
+        sensor: SensorModel::extreme(),
+        trajectory: Trajectory::Ramp {
+            omega_rad_s: 20.0 * std::f64::consts::TAU,
+            accel_rad_s2: 2000.0,
+        },
+        sample_period_s: SAMPLE_PERIOD_S,
+        inertia_kg_m2: INERTIA_KG_M2,
+        adc: Some(ADC),
+    };
+    let mut tracker = Tracker::new(cfg).expect("valid config");
+    let mut rows = Vec::new();
+    let steps = (duration_s / SAMPLE_PERIOD_S) as u64;
+    kin.run(
+        &mut tracker,
+        0,
+        steps,
+        || (0.0, 0.0),
+        |t, r| {
+            let est = r.result.unwrap_or_else(|_| t.last_estimate());
+            rows.push(Row {
+                t_s: r.t_s,
+                x: r.x,
+                y: r.y,
+                torque_nm: r.torque_nm,
+                theta_rad: r.theta_rad,
+                theta_hat_rad: est.theta_unwrapped_rad(),
+            });
+        },
+    );
+    rows
+}
+
+fn hil_sim(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_hil-sim"))
+        .args(args)
+        .output()
+        .expect("hil-sim runs")
+}
+
+fn path_str(p: &Path) -> &str {
+    p.to_str().expect("temp paths are UTF-8")
+}
+
+fn report(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).expect("report written"))
+        .expect("report is JSON")
+}
+
+#[test]
+fn replay_reproduces_the_live_estimate_bit_exactly() {
+    let cfg_toml = CoreConfigToml::from_toml_str(IDENTITY_CONFIG, "identity").unwrap();
+    let cfg = cfg_toml.to_config(SAMPLE_PERIOD_S as f32).unwrap();
+    let rows = simulate(cfg, 0.6);
+
+    let dir = tempfile::tempdir().unwrap();
+    let (input, output, config, report_path) = (
+        dir.path().join("IN.csv"),
+        dir.path().join("OUT.csv"),
+        dir.path().join("CFG.toml"),
+        dir.path().join("REPORT.json"),
+    );
+    // Columns in a shuffled order with an ignored extra column. f32 and f64 `Display`
+    // print the shortest string that parses back to the same value, so replay sees
+    // exactly the samples the live tracker saw.
+    let mut text = String::from("theta_rad,t_s,note,y,x,torque_nm\n");
+    for r in &rows {
+        writeln!(
+            text,
+            "{},{},sim,{},{},{}",
+            r.theta_rad, r.t_s, r.y, r.x, r.torque_nm
+        )
+        .unwrap();
+    }
+    std::fs::write(&input, text).unwrap();
+    std::fs::write(&config, IDENTITY_CONFIG).unwrap();
+
+    let out = hil_sim(&[
+        "replay",
+        "--input",
+        path_str(&input),
+        "--output",
+        path_str(&output),
+        "--config",
+        path_str(&config),
+        "--report",
+        path_str(&report_path),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("corrected"), "{stdout}");
+
+    let rep = report(&report_path);
+    // t_s = k·T exactly; replay's (t_last - t_first)/(n - 1) in f64 is within an ulp or
+    // two of T, which rounds to the same f32: the same control period as the live core.
+    assert_eq!(
+        rep["sample_period_s"].as_f64().unwrap() as f32,
+        cfg.sample_period_s
+    );
+    assert_eq!(rep["rows"], rows.len());
+    assert_eq!(rep["input_scaling"]["source"], "config");
+    assert_eq!(rep["faults_total"], 0);
+
+    let mut rdr = csv::Reader::from_path(&output).unwrap();
+    let header: Vec<String> = rdr.headers().unwrap().iter().map(String::from).collect();
+    assert_eq!(
+        header,
+        [
+            "t_s",
+            "theta_hat_rad",
+            "omega_hat_rad_s",
+            "offset_re",
+            "offset_im",
+            "amplitude_quadrature_re",
+            "amplitude_quadrature_im",
+            "h4_re",
+            "h4_im",
+            "h5_re",
+            "h5_im"
+        ]
+    );
+    let mut n = 0;
+    for (k, rec) in rdr.records().enumerate() {
+        let rec = rec.unwrap();
+        let t: f64 = rec[0].parse().unwrap();
+        let theta_hat: f64 = rec[1].parse().unwrap();
+        assert_eq!(t, rows[k].t_s, "row {k}");
+        // Same core code on the same f32 inputs and period: no tolerance needed (Rust
+        // does not reassociate or contract float arithmetic, and libm is pure Rust).
+        assert_eq!(
+            theta_hat.to_bits(),
+            rows[k].theta_hat_rad.to_bits(),
+            "row {k}: replay {theta_hat} vs live {}",
+            rows[k].theta_hat_rad
+        );
+        n += 1;
+    }
+    assert_eq!(n, rows.len());
+
+    let e = &rep["spatial_error"];
+    let raw = e["raw"]["pk_pk_mrad"].as_f64().unwrap();
+    let corrected = e["corrected"]["pk_pk_mrad"].as_f64().unwrap();
+    assert!(raw > 150.0, "raw {raw} mrad");
+    assert!(
+        raw / corrected > 200.0,
+        "raw {raw} vs corrected {corrected} mrad"
+    );
+    assert!(e["method"].as_str().unwrap().contains("second half"));
+    assert_eq!(e["filled_bins"], 360);
+}
+
+#[test]
+fn default_config_commissions_a_recording_in_adc_counts() {
+    let rows = simulate(Config::default(), 0.8);
+    let lsb = 2.0 * ADC.full_scale / 4096.0;
+    let counts = |v: f32| (v as f64 / lsb).round() + 2048.0;
+    let mut text = String::from("t_s,x,y,torque_nm,theta_rad\n");
+    for r in &rows {
+        writeln!(
+            text,
+            "{},{},{},{},{}",
+            r.t_s,
+            counts(r.x),
+            counts(r.y),
+            r.torque_nm,
+            r.theta_rad
+        )
+        .unwrap();
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (input, output, report_path) = (
+        dir.path().join("IN.csv"),
+        dir.path().join("OUT.csv"),
+        dir.path().join("REPORT.json"),
+    );
+    std::fs::write(&input, text).unwrap();
+    let out = hil_sim(&[
+        "replay",
+        "--input",
+        path_str(&input),
+        "--output",
+        path_str(&output),
+        "--report",
+        path_str(&report_path),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let rep = report(&report_path);
+    assert_eq!(rep["input_scaling"]["source"], "estimated from min/max");
+    assert_eq!(rep["sensor_periods"], 2);
+    let coefs = rep["final_coefficients"].as_array().unwrap();
+    assert_eq!(coefs.len(), 4);
+    for c in coefs {
+        let mag = c["re"].as_f64().unwrap().hypot(c["im"].as_f64().unwrap());
+        assert!(mag > 1e-3, "{c}");
+    }
+    let e = &rep["spatial_error"];
+    let reduction = e["reduction"].as_f64().unwrap();
+    assert!(
+        rep["convergence"]["converged"] == true || reduction >= 20.0,
+        "{stdout}"
+    );
+    assert!(reduction >= 20.0, "{stdout}");
+}
+
+#[test]
+fn without_reference_angle_the_report_says_why() {
+    let dir = tempfile::tempdir().unwrap();
+    let (input, output, report_path) = (
+        dir.path().join("IN.csv"),
+        dir.path().join("OUT.csv"),
+        dir.path().join("REPORT.json"),
+    );
+    let mut text = String::from("t_s,x,y\n");
+    for k in 0..2000 {
+        let th = 2.0 * k as f64 * 1e-3; // 2 rad/s·... a slow electrical rotation
+        writeln!(text, "{},{},{}", k as f64 * 1e-4, th.cos(), th.sin()).unwrap();
+    }
+    std::fs::write(&input, text).unwrap();
+    let out = hil_sim(&[
+        "replay",
+        "--input",
+        path_str(&input),
+        "--output",
+        path_str(&output),
+        "--report",
+        path_str(&report_path),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}");
+    assert!(stdout.contains("no theta_rad column"), "{stdout}");
+    let rep = report(&report_path);
+    assert!(rep["spatial_error"].is_null());
+    assert!(rep["spatial_error_note"]
+        .as_str()
+        .unwrap()
+        .contains("theta_rad"));
+    let n = csv::Reader::from_path(&output).unwrap().records().count();
+    assert_eq!(n, 2000);
+}
+
+/// A clean recording: one revolution of an ideal sensor at 20 kHz.
+fn good_csv(rows: usize) -> String {
+    let mut s = String::from("t_s,x,y\n");
+    for k in 0..rows {
+        let th = std::f64::consts::TAU * k as f64 / rows as f64;
+        writeln!(
+            s,
+            "{},{},{}",
+            k as f64 * SAMPLE_PERIOD_S,
+            th.cos(),
+            th.sin()
+        )
+        .unwrap();
+    }
+    s
+}
+
+/// `text` with its 1-based line `line` replaced.
+fn with_line(text: &str, line: usize, new: &str) -> String {
+    let mut lines: Vec<&str> = text.lines().collect();
+    lines[line - 1] = new;
+    lines.join("\n") + "\n"
+}
+
+/// Run replay on `input_text` (and `config_text`) twice, without and with a pre-existing
+/// OUT.csv: it must fail with every `expected` fragment in its message, create nothing
+/// and leave the existing output untouched.
+fn assert_refused(input_text: &str, config_text: Option<&str>, expected: &[&str]) {
+    for pre_existing in [false, true] {
+        let dir = tempfile::tempdir().unwrap();
+        let (input, output, config, report_path) = (
+            dir.path().join("IN.csv"),
+            dir.path().join("OUT.csv"),
+            dir.path().join("CFG.toml"),
+            dir.path().join("REPORT.json"),
+        );
+        std::fs::write(&input, input_text).unwrap();
+        let mut args = vec![
+            "replay",
+            "--input",
+            path_str(&input),
+            "--output",
+            path_str(&output),
+            "--report",
+            path_str(&report_path),
+        ];
+        if let Some(c) = config_text {
+            std::fs::write(&config, c).unwrap();
+            args.extend(["--config", path_str(&config)]);
+        }
+        if pre_existing {
+            std::fs::write(&output, "precious\n").unwrap();
+        }
+        let out = hil_sim(&args);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "accepted; stderr: {stderr}");
+        for e in expected {
+            assert!(stderr.contains(e), "`{e}` not in: {stderr}");
+        }
+        let mut left: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        let mut want = vec!["IN.csv".to_string()];
+        if config_text.is_some() {
+            want.insert(0, "CFG.toml".into());
+        }
+        if pre_existing {
+            want.push("OUT.csv".into());
+            assert_eq!(std::fs::read_to_string(&output).unwrap(), "precious\n");
+        }
+        assert_eq!(left, want, "files left behind; stderr: {stderr}");
+    }
+}
+
+#[test]
+fn missing_column_is_named() {
+    assert_refused(
+        "t_s,x\n0,1\n0.00005,1\n",
+        None,
+        &["IN.csv:1:", "column `y`"],
+    );
+}
+
+#[test]
+fn non_numeric_field_is_named_with_its_line() {
+    let text = with_line(&good_csv(400), 4, "0.00015,abc,0.1");
+    assert_refused(&text, None, &["IN.csv:4: field `x`: not a number: \"abc\""]);
+}
+
+#[test]
+fn non_increasing_time_is_named_with_its_line() {
+    let text = with_line(&good_csv(400), 5, "0.0001,0.99,0.1");
+    assert_refused(&text, None, &["IN.csv:5: field `t_s`: not increasing"]);
+}
+
+#[test]
+fn irregular_period_is_refused() {
+    let text = with_line(&good_csv(400), 5, "0.000162,0.99,0.1");
+    assert_refused(
+        &text,
+        None,
+        &["IN.csv:5: field `t_s`", "fixed control period"],
+    );
+}
+
+#[test]
+fn nan_field_is_named_with_its_line() {
+    let text = with_line(&good_csv(400), 3, "0.00005,0.99,NaN");
+    assert_refused(&text, None, &["IN.csv:3: field `y`: not finite"]);
+}
+
+#[test]
+fn empty_file_is_refused() {
+    assert_refused("", None, &["IN.csv:1: empty file"]);
+}
+
+#[test]
+fn unknown_config_field_is_named_with_its_line() {
+    assert_refused(
+        &good_csv(400),
+        Some("sensor_periods = 2\n[gates]\nmin_spead_rad_s = 1.0\n"),
+        &["CFG.toml:3:", "`gates.min_spead_rad_s`", "unknown field"],
+    );
+}
