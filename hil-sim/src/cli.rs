@@ -24,9 +24,11 @@ pub struct ScenarioArgs {
 }
 
 fn out_dir(a: &ScenarioArgs, name: &str) -> PathBuf {
-    a.out
-        .clone()
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("out").join(name))
+    a.out.clone().unwrap_or_else(|| {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("out")
+            .join(name)
+    })
 }
 
 pub fn scenario(a: &ScenarioArgs) -> Result<(), String> {
@@ -64,7 +66,10 @@ pub fn scenario(a: &ScenarioArgs) -> Result<(), String> {
             .collect();
         handles
             .into_iter()
-            .map(|h| h.join().map_err(|_| "a simulation thread panicked".to_string())?)
+            .map(|h| {
+                h.join()
+                    .map_err(|_| "a simulation thread panicked".to_string())?
+            })
             .collect::<Result<_, _>>()
     })?;
     let summaries: Vec<_> = outcomes.iter().map(|o| &o.summary).collect();
@@ -79,7 +84,11 @@ pub fn scenario(a: &ScenarioArgs) -> Result<(), String> {
     println!(
         "  output: {} (timeseries.csv, summary.json{} per run) in {:.1} s wall",
         dir.display(),
-        if a.no_plots { "" } else { ", PNG and SVG plots" },
+        if a.no_plots {
+            ""
+        } else {
+            ", PNG and SVG plots"
+        },
         started.elapsed().as_secs_f64()
     );
     Ok(())

@@ -284,7 +284,9 @@ impl Drive {
     ) -> Result<Self, String> {
         motor.validate()?;
         if !(control.bandwidth_hz > 0.0 && control.current_bandwidth_hz > 0.0) {
-            return Err("`control.bandwidth_hz` and `control.current_bandwidth_hz` must be > 0".into());
+            return Err(
+                "`control.bandwidth_hz` and `control.current_bandwidth_hz` must be > 0".into(),
+            );
         }
         if control.current_bandwidth_hz * sample_period_s > 0.1 {
             return Err(format!(
@@ -400,8 +402,7 @@ impl Drive {
             let e = [-we * m.flux_wb * se, we * m.flux_wb * ce];
             let k_r = 1.0 / (1.0 + h * m.r_ohm / m.l_h);
             for j in 0..2 {
-                self.i_ab[j] =
-                    (self.i_ab[j] + h / m.l_h * (self.v_ab_applied[j] - e[j])) * k_r;
+                self.i_ab[j] = (self.i_ab[j] + h / m.l_h * (self.v_ab_applied[j] - e[j])) * k_r;
             }
             // T = 1.5·p·λ·(iβ cos θe - iα sin θe).
             let te = m.torque_constant_nm_a() * (self.i_ab[1] * ce - self.i_ab[0] * se);
@@ -410,8 +411,8 @@ impl Drive {
                 cog += cg.amplitude_nm * (cg.harmonic as f64 * th_mid + cg.phase_rad).sin();
             }
             // Coulomb friction, smoothed over ±1 mrad/s to keep the ODE well posed.
-            let fric = m.coulomb_nm * (self.omega_rm / 1.0e-3).tanh()
-                + m.viscous_nm_s_rad * self.omega_rm;
+            let fric =
+                m.coulomb_nm * (self.omega_rm / 1.0e-3).tanh() + m.viscous_nm_s_rad * self.omega_rm;
             let accel = (te - fric - load - cog) / m.j_kg_m2;
             self.omega_rm += accel * h;
             self.theta_rm += self.omega_rm * h;

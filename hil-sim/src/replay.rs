@@ -221,8 +221,8 @@ fn control_period_s(r: &Recording) -> Result<f64, String> {
     Ok(mean)
 }
 
-/// Input scaling from the extremes of each channel: offset = (max + min)/2,
-/// gain = 2/(max - min).
+/// Nominal scaling estimated from the recording: per-channel offsets
+/// `(max + min)/2` and one common gain `4/(span_x + span_y)`.
 ///
 /// Not a least-squares ellipse fit, and it need not be: it only sets the core's starting
 /// point. The offset and amplitude error it leaves (the harmonics shift the extremes by a
@@ -230,13 +230,15 @@ fn control_period_s(r: &Recording) -> Result<f64, String> {
 /// (|Z| in [0.25, 2] by default) is far wider than that residual. It needs the recording
 /// to sweep at least one full sensor period.
 ///
-/// Known limit (measured on `SensorModel::extreme()`): separate x/y gains also rescale
-/// the harmonics, so harmonics equal on x and y become unequal, i.e. grow k = -h
-/// components at m = 5, 6 that the default paths do not cover; the reduction stops near
-/// 50x instead of ~3 500x with one common gain. Give `[input]` in a --config file when
-/// that matters.
+/// One gain for both channels, not one each: separate gains would rescale the sensor's
+/// harmonics, turning harmonics that are equal on x and y into unequal ones (k = -h
+/// components at m = 5, 6 that the default paths do not cover). Measured on
+/// `SensorModel::extreme()`: ~50x with per-channel gains, ~3 500x with one gain. The
+/// amplitude imbalance itself is the C/D path's job. Give `[input]` in a --config file
+/// to set per-channel gains (e.g. a known front-end gain mismatch).
 fn estimate_scaling(r: &Recording) -> Result<[f32; 4], String> {
-    let mut out = [0.0f32; 4];
+    let mut offsets = [0.0f64; 2];
+    let mut span_sum = 0.0;
     for (i, (col, v)) in [("x", &r.x), ("y", &r.y)].into_iter().enumerate() {
         let (lo, hi) = v
             .iter()
@@ -244,18 +246,18 @@ fn estimate_scaling(r: &Recording) -> Result<[f32; 4], String> {
                 (l.min(s as f64), h.max(s as f64))
             });
         let span = hi - lo;
-        let gain = 2.0 / span;
-        if !(span > 0.0 && gain.is_finite() && (gain as f32).is_normal()) {
+        if !(span.is_finite() && span > 0.0 && ((2.0 / span) as f32).is_normal()) {
             return Err(format!(
                 "{}: column `{col}` spans [{lo}, {hi}]: cannot estimate its scaling; give \
                  [input] offset_{col} and gain_{col} in a --config file",
                 r.name
             ));
         }
-        out[2 * i] = (0.5 * (hi + lo)) as f32;
-        out[2 * i + 1] = gain as f32;
+        offsets[i] = 0.5 * (hi + lo);
+        span_sum += span;
     }
-    Ok(out)
+    let gain = (4.0 / span_sum) as f32;
+    Ok([offsets[0] as f32, gain, offsets[1] as f32, gain])
 }
 
 /// The core configuration: `--config` (or the defaults), N from the file or the flag,

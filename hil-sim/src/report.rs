@@ -54,7 +54,10 @@ pub fn summary_text(sc: &Scenario, runs: &[&RunSummary]) -> String {
             format!("{:.3}", r.after.tracking_pk_pk_mrad)
         }),
         ("reduction of raw spatial error (x)", |r| {
-            format!("{:.0}", r.after.raw_pk_pk_mrad / r.after.estimate_pk_pk_mrad)
+            format!(
+                "{:.0}",
+                r.after.raw_pk_pk_mrad / r.after.estimate_pk_pk_mrad
+            )
         }),
         ("converged after", |r| {
             format!(

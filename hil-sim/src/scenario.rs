@@ -418,7 +418,10 @@ impl Scenario {
         let f = &self.file;
         let err = |m: String| format!("{}: {m}", self.origin);
         if !(f.duration_s > 0.0 && f.duration_s <= 600.0) {
-            return Err(err(format!("`duration_s` = {}: must be in (0, 600]", f.duration_s)));
+            return Err(err(format!(
+                "`duration_s` = {}: must be in (0, 600]",
+                f.duration_s
+            )));
         }
         if !(f.sample_rate_hz >= 1000.0 && f.sample_rate_hz <= 200_000.0) {
             return Err(err(format!(
@@ -619,12 +622,13 @@ pub fn run(
     progress: bool,
 ) -> Result<RunOutcome, String> {
     let f = &sc.file;
-    let paper = match variant {
-        Variant::Paper => Some(f.paper.ok_or_else(|| {
-            format!("{}: no [paper] table, so no paper-literal run", sc.origin)
-        })?),
-        Variant::Ours => None,
-    };
+    let paper =
+        match variant {
+            Variant::Paper => Some(f.paper.ok_or_else(|| {
+                format!("{}: no [paper] table, so no paper-literal run", sc.origin)
+            })?),
+            Variant::Ours => None,
+        };
     let cfg = sc.core_config(paper)?;
     let mut tracker = Tracker::new(cfg).map_err(|e| e.to_string())?;
     let t_s = sc.sample_period_s();

@@ -34,10 +34,16 @@ pub struct SensorParams {
 impl SensorParams {
     pub fn validate(&self) -> Result<(), String> {
         if !(self.noise_std.is_finite() && (0.0..=0.1).contains(&self.noise_std)) {
-            return Err(format!("`sensor.noise_std` = {}: must be in [0, 0.1]", self.noise_std));
+            return Err(format!(
+                "`sensor.noise_std` = {}: must be in [0, 0.1]",
+                self.noise_std
+            ));
         }
         if !(self.skew_s.is_finite() && self.skew_s.abs() <= 1e-3) {
-            return Err(format!("`sensor.skew_s` = {}: must be within ±1 ms", self.skew_s));
+            return Err(format!(
+                "`sensor.skew_s` = {}: must be within ±1 ms",
+                self.skew_s
+            ));
         }
         if !(self.eccentricity_rad.is_finite() && self.eccentricity_rad.abs() < 0.5) {
             return Err(format!(
@@ -47,7 +53,9 @@ impl SensorParams {
         }
         if let Some(adc) = self.adc {
             if !(8..=24).contains(&adc.bits) || !(adc.full_scale > 0.0) {
-                return Err("`sensor.adc_bits` must be 8..=24 and `sensor.adc_full_scale` > 0".into());
+                return Err(
+                    "`sensor.adc_bits` must be 8..=24 and `sensor.adc_full_scale` > 0".into(),
+                );
             }
         }
         if self.model.sensor_periods == 0 {
@@ -160,12 +168,17 @@ mod tests {
         p.eccentricity_rad = 0.002;
         let s = SensorSim::new(p.clone(), 1).unwrap();
         assert!((s.model_at(2.0).ax - 0.02).abs() < 1e-12);
-        assert!((s.sensed_angle_rad(std::f64::consts::FRAC_PI_2) - (1.5707963 + 0.002)).abs() < 1e-6);
+        assert!(
+            (s.sensed_angle_rad(std::f64::consts::FRAC_PI_2) - (1.5707963 + 0.002)).abs() < 1e-6
+        );
         p.noise_std = 1e-3;
         let mut a = SensorSim::new(p.clone(), 7).unwrap();
         let mut b = SensorSim::new(p, 7).unwrap();
         for k in 0..10 {
-            assert_eq!(a.sample(k as f64, 0.1 * k as f64, 1.0), b.sample(k as f64, 0.1 * k as f64, 1.0));
+            assert_eq!(
+                a.sample(k as f64, 0.1 * k as f64, 1.0),
+                b.sample(k as f64, 0.1 * k as f64, 1.0)
+            );
         }
     }
 
@@ -173,6 +186,8 @@ mod tests {
     fn out_of_range_parameters_are_named() {
         let mut p = params();
         p.noise_std = -1.0;
-        assert!(SensorSim::new(p, 1).unwrap_err().contains("sensor.noise_std"));
+        assert!(SensorSim::new(p, 1)
+            .unwrap_err()
+            .contains("sensor.noise_std"));
     }
 }

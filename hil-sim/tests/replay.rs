@@ -245,11 +245,10 @@ fn default_config_commissions_a_recording_in_adc_counts() {
     }
     let e = &rep["spatial_error"];
     let reduction = e["reduction"].as_f64().unwrap();
-    assert!(
-        rep["convergence"]["converged"] == true || reduction >= 20.0,
-        "{stdout}"
-    );
-    assert!(reduction >= 20.0, "{stdout}");
+    // Measured: converged, about 3 500x (one common estimated gain keeps the sensor's
+    // equal x/y harmonics equal; see `estimate_scaling`).
+    assert_eq!(rep["convergence"]["converged"], true, "{stdout}");
+    assert!(reduction >= 1000.0, "{stdout}");
 }
 
 #[test]
@@ -262,7 +261,7 @@ fn without_reference_angle_the_report_says_why() {
     );
     let mut text = String::from("t_s,x,y\n");
     for k in 0..2000 {
-        let th = 2.0 * k as f64 * 1e-3; // 2 rad/s·... a slow electrical rotation
+        let th = 2.0e-3 * k as f64; // rad electrical: 20 rad/s at 10 kHz, ideal sensor
         writeln!(text, "{},{},{}", k as f64 * 1e-4, th.cos(), th.sin()).unwrap();
     }
     std::fs::write(&input, text).unwrap();

@@ -17,11 +17,14 @@ const METRIC_H_FLOOR: f32 = 0.2;
 /// integration: its ripple (the other paths' harmonics, amplified by 1/|H|) would
 /// otherwise drive a limit cycle between paths at low speed (docs/theory.md §3).
 pub(crate) const G_WINDOW_RAD: f32 = core::f32::consts::PI;
+/// H is re-evaluated only when the smoothed speed has moved by more than this fraction
+/// (phase error below ~2 mrad), which saves most of the path's arithmetic.
+const H_REUSE_REL: f32 = 1.0e-3;
 /// The residual measure averages over this much sensor-electrical angle (two periods).
 const RESIDUAL_WINDOW_RAD: f32 = 2.0 * TAU;
 
 /// One path's adaptive state.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct PathState {
     /// Integral (persistent) coefficient in the path's paper form (Xo+jYo, C+jD, or d_h).
     pub coef: Cplx,
@@ -32,8 +35,29 @@ pub(crate) struct PathState {
     pub coef_at_rev_start: Cplx,
     /// G estimate low-passed over angle before it is integrated (see [`G_WINDOW_RAD`]).
     pub g_filtered: Cplx,
+    /// H compensation cached at `comp_omega_rad_s` (see [`H_REUSE_REL`]): the factor
+    /// `2·conj(H)/(|H|·max(|H|, floor))` and |H|.
+    pub comp: Cplx,
+    pub h_abs: f32,
+    pub comp_omega_rad_s: f32,
     /// |Δcoef| over the last completed revolution of adaptation, relative to |Z|.
     pub change_last_rev: f32,
+}
+
+impl Default for PathState {
+    fn default() -> Self {
+        Self {
+            coef: Cplx::ZERO,
+            coef_p: Cplx::ZERO,
+            residual: Cplx::ZERO,
+            coef_at_rev_start: Cplx::ZERO,
+            g_filtered: Cplx::ZERO,
+            comp: Cplx::ZERO,
+            h_abs: 0.0,
+            comp_omega_rad_s: f32::NAN,
+            change_last_rev: 0.0,
+        }
+    }
 }
 
 /// The path's contribution to the decoupling vector, given `pw[i] = e^{j i θ̂s}`.
@@ -131,12 +155,22 @@ impl PathBank {
             let m = kind.error_harmonic() as usize;
             // Coherent power of the MRE: ε·e^{-j m θ̂s}, mean H·G/(2j).
             let cp = cx.pw[m].conj().scale(cx.eps_e_rad);
-            let h = gains.error_transfer(m as f32 * n * cx.omega_smooth_rad_s);
-            let h_abs = h.abs();
-            let visible = cx.gates_open && h_abs >= cfg.gates.min_h && h_abs > 0.0;
+            let w = cx.omega_smooth_rad_s;
+            // `!(a <= b)` so that the NaN of a fresh state forces the first evaluation.
+            if !(libm::fabsf(w - s.comp_omega_rad_s) <= H_REUSE_REL * libm::fabsf(w)) {
+                let h = gains.error_transfer(m as f32 * n * w);
+                s.h_abs = h.abs();
+                s.comp = if s.h_abs > 0.0 {
+                    h.conj().scale(2.0 / (s.h_abs * s.h_abs.max(h_floor)))
+                } else {
+                    Cplx::ZERO
+                };
+                s.comp_omega_rad_s = w;
+            }
+            let visible = cx.gates_open && s.h_abs >= cfg.gates.min_h && s.h_abs > 0.0;
             // G estimate: 2j·cp·conj(H)/(|H|·max(|H|, floor)).
             let g_est = if visible {
-                (cp.mul_j() * h.conj()).scale(2.0 / (h_abs * h_abs.max(h_floor)))
+                cp.mul_j() * s.comp
             } else {
                 Cplx::ZERO
             };
