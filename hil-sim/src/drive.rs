@@ -10,17 +10,42 @@
 //!    one PWM period of delay, limited to the linear SVPWM range Vdc/√3);
 //! 5. the plant integrates over T in `SUBSTEPS` substeps.
 //!
-//! The electrical state is integrated in the stationary αβ frame (one sin/cos per
-//! substep, for the back-EMF and torque), semi-implicitly in R; with 4 substeps per 50 µs
-//! period the substep is 12.5 µs against L/R = 1.7 ms and ωe·h ≤ 0.03 rad at 100 rev/s.
+//! The electrical state is integrated in the stationary αβ frame, semi-implicitly in R,
+//! with the back-EMF and torque evaluated at each substep's mid angle (one sin/cos per
+//! period, then exact small-angle rotations). The default, 2 substeps per 50 µs period
+//! (h = 25 µs against L/R = 1.7 ms, ωe·h ≤ 0.063 rad at 100 rev/s), agrees with 16
+//! substeps to within 0.1 % in current and 2e-5 rad in angle after 0.3 s of a closed-loop
+//! run (`tests::substeps_converge`)
+//! and keeps the model above 200x real time.
 
 use crate::sensor::SensorSim;
 use mras::{Estimate, Fault, Tracker};
 use std::f64::consts::TAU;
 
-/// Electrical substeps per control period.
-pub const SUBSTEPS: u32 = 4;
+/// Electrical substeps per control period (see the module doc for the accuracy).
+pub const SUBSTEPS: u32 = 2;
 const SQRT3: f64 = 1.732_050_807_568_877_2;
+
+/// (sin δ, cos δ), by Taylor series for the small angles a substep or a PWM period
+/// turns through (error < 2e-12 for |δ| ≤ 0.3), else the library call. Saves most of the
+/// model's transcendental functions.
+fn sin_cos_small(d: f64) -> (f64, f64) {
+    if d.abs() > 0.3 {
+        return d.sin_cos();
+    }
+    // Reciprocal constants: multiplications, not divisions, in the inner loop.
+    const S: [f64; 4] = [1.0 / 6.0, 1.0 / 20.0, 1.0 / 42.0, 1.0 / 72.0];
+    const C: [f64; 4] = [1.0 / 2.0, 1.0 / 12.0, 1.0 / 30.0, 1.0 / 56.0];
+    let d2 = d * d;
+    let s = d * (1.0 - d2 * S[0] * (1.0 - d2 * S[1] * (1.0 - d2 * S[2] * (1.0 - d2 * S[3]))));
+    let c = 1.0 - d2 * C[0] * (1.0 - d2 * C[1] * (1.0 - d2 * C[2] * (1.0 - d2 * C[3])));
+    (s, c)
+}
+
+/// Rotate the unit vector (sin a, cos a) by (sin d, cos d).
+fn rotate((s, c): (f64, f64), (sd, cd): (f64, f64)) -> (f64, f64) {
+    (s * cd + c * sd, c * cd - s * sd)
+}
 
 /// One spatial harmonic of the cogging torque: `amplitude·sin(harmonic·θrm + phase)`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -270,6 +295,33 @@ pub struct Drive {
     iq_int: f64,
     torque_cmd_nm: f64,
     last_torque_nm: f64,
+    consts: PlantConsts,
+}
+
+/// Substep constants, computed once (divisions are slow in the inner loop).
+#[derive(Clone, Copy, Debug)]
+struct PlantConsts {
+    substeps: u32,
+    h_s: f64,
+    /// 1/(1 + h·R/L): the resistive term taken implicitly.
+    k_r: f64,
+    h_over_l: f64,
+    h_over_j: f64,
+    kt: f64,
+}
+
+impl PlantConsts {
+    fn new(m: &MotorParams, t_s: f64, substeps: u32) -> Self {
+        let h_s = t_s / substeps as f64;
+        Self {
+            substeps,
+            h_s,
+            k_r: 1.0 / (1.0 + h_s * m.r_ohm / m.l_h),
+            h_over_l: h_s / m.l_h,
+            h_over_j: h_s / m.j_kg_m2,
+            kt: m.torque_constant_nm_a(),
+        }
+    }
 }
 
 impl Drive {
@@ -294,7 +346,9 @@ impl Drive {
                 control.current_bandwidth_hz
             ));
         }
+        let consts = PlantConsts::new(&motor, sample_period_s, SUBSTEPS);
         Ok(Self {
+            consts,
             motion: MotionController::new(&control, j_hat_kg_m2),
             motor,
             control,
@@ -310,6 +364,12 @@ impl Drive {
             torque_cmd_nm: 0.0,
             last_torque_nm: 0.0,
         })
+    }
+
+    /// Integrate the plant in `n` substeps per period instead of [`SUBSTEPS`].
+    pub fn with_substeps(mut self, n: u32) -> Self {
+        self.consts = PlantConsts::new(&self.motor, self.t_s, n.max(1));
+        self
     }
 
     pub fn time_s(&self) -> f64 {
@@ -387,40 +447,51 @@ impl Drive {
             self.id_int -= ki * ed * self.t_s;
             self.iq_int -= ki * eq * self.t_s;
         }
-        let (s2, c2) = (th_e + 1.5 * we_hat * self.t_s).sin_cos();
+        let (s2, c2) = rotate((s, c), sin_cos_small(1.5 * we_hat * self.t_s));
         let v_cmd = [c2 * vd - s2 * vq, s2 * vd + c2 * vq];
 
         // 5. Plant over one period with the voltage commanded one period ago.
-        let h = self.t_s / SUBSTEPS as f64;
+        let c = &self.consts;
+        let h = c.h_s;
         let load = self.load_torque_nm(t);
         let mut torque = 0.0;
-        for _ in 0..SUBSTEPS {
-            let th_mid = self.theta_rm + 0.5 * h * self.omega_rm;
-            let (se, ce) = (p * th_mid).sin_cos();
-            let we = p * self.omega_rm;
+        // One exact sin/cos per period, then rotation by the substep's electrical angle at
+        // the period's starting speed (the speed change within 50 µs moves the angle by
+        // less than 1e-6 rad).
+        let mut th_mid = self.theta_rm + 0.5 * h * self.omega_rm;
+        let (mut se, mut ce) = (p * th_mid).sin_cos();
+        let turn = sin_cos_small(p * self.omega_rm * h);
+        for n in 0..c.substeps {
+            if n > 0 {
+                (se, ce) = rotate((se, ce), turn);
+                th_mid += self.omega_rm * h;
+            }
             // Back-EMF e_αβ = ωe·λ·(-sin θe, cos θe).
-            let e = [-we * m.flux_wb * se, we * m.flux_wb * ce];
-            let k_r = 1.0 / (1.0 + h * m.r_ohm / m.l_h);
-            for j in 0..2 {
-                self.i_ab[j] = (self.i_ab[j] + h / m.l_h * (self.v_ab_applied[j] - e[j])) * k_r;
+            let we_flux = p * self.omega_rm * m.flux_wb;
+            let e = [-we_flux * se, we_flux * ce];
+            for (i, (v, e)) in self.i_ab.iter_mut().zip(self.v_ab_applied.iter().zip(e)) {
+                *i = (*i + c.h_over_l * (v - e)) * c.k_r;
             }
             // T = 1.5·p·λ·(iβ cos θe - iα sin θe).
-            let te = m.torque_constant_nm_a() * (self.i_ab[1] * ce - self.i_ab[0] * se);
+            let te = c.kt * (self.i_ab[1] * ce - self.i_ab[0] * se);
             let mut cog = 0.0;
             for cg in &m.cogging {
                 cog += cg.amplitude_nm * (cg.harmonic as f64 * th_mid + cg.phase_rad).sin();
             }
             // Coulomb friction, smoothed over ±1 mrad/s to keep the ODE well posed.
-            let fric =
-                m.coulomb_nm * (self.omega_rm / 1.0e-3).tanh() + m.viscous_nm_s_rad * self.omega_rm;
-            let accel = (te - fric - load - cog) / m.j_kg_m2;
-            self.omega_rm += accel * h;
+            let coulomb = if m.coulomb_nm > 0.0 {
+                m.coulomb_nm * (self.omega_rm / 1.0e-3).tanh()
+            } else {
+                0.0
+            };
+            let fric = coulomb + m.viscous_nm_s_rad * self.omega_rm;
+            self.omega_rm += (te - fric - load - cog) * c.h_over_j;
             self.theta_rm += self.omega_rm * h;
             torque += te;
         }
         self.v_ab_applied = v_cmd;
         self.torque_cmd_nm = torque_cmd;
-        self.last_torque_nm = torque / SUBSTEPS as f64;
+        self.last_torque_nm = torque / self.consts.substeps as f64;
         self.k += 1;
 
         DriveSample {
@@ -435,5 +506,163 @@ impl Drive {
             result,
             estimate: est,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sensor::{Drift, SensorParams};
+    use mras::sim::{SensorModel, SpatialError};
+    use mras::Config;
+
+    const T_S: f64 = 50e-6;
+
+    fn sensor(model: SensorModel) -> SensorSim {
+        SensorSim::new(
+            SensorParams {
+                model,
+                noise_std: 0.0,
+                adc: None,
+                skew_s: 0.0,
+                drift: Drift::default(),
+                eccentricity_rad: 0.0,
+                eccentricity_phase_rad: 0.0,
+            },
+            1,
+        )
+        .unwrap()
+    }
+
+    fn drive(motor: MotorParams, model: SensorModel, speed_rev_s: f64) -> (Drive, Tracker) {
+        let control = ControlParams {
+            mode: LoopMode::Velocity,
+            bandwidth_hz: 20.0,
+            current_bandwidth_hz: 1000.0,
+            reference: Reference::Ramp {
+                speed_rev_s,
+                accel_rad_s2: 500.0,
+            },
+        };
+        let cfg = Config {
+            sample_period_s: T_S as f32,
+            observer: mras::ObserverConfig {
+                eigenvalues_hz: [200.0, 20.0, 2.0],
+                inertia_kg_m2: motor.j_kg_m2 as f32,
+            },
+            ..Config::default()
+        };
+        let mut t = Tracker::new(cfg).unwrap();
+        t.set_frozen(true);
+        let j = motor.j_kg_m2;
+        (
+            Drive::new(motor, control, sensor(model), T_S, j).unwrap(),
+            t,
+        )
+    }
+
+    fn run(d: &mut Drive, t: &mut Tracker, seconds: f64) -> Vec<DriveSample> {
+        (0..(seconds / T_S) as usize).map(|_| d.step(t)).collect()
+    }
+
+    #[test]
+    fn substeps_converge() {
+        let mut out = Vec::new();
+        for n in [2, 16] {
+            let (d, mut t) = drive(MotorParams::default(), SensorModel::ideal(2), 20.0);
+            let mut d = d.with_substeps(n);
+            let s = run(&mut d, &mut t, 0.3);
+            out.push((s.last().unwrap().theta_rad, d.i_ab));
+        }
+        let (a, b) = (out[0], out[1]);
+        assert!((a.0 - b.0).abs() < 2e-5, "angle {} vs {}", a.0, b.0);
+        let i_scale = b.1[0].hypot(b.1[1]).max(0.1);
+        for k in 0..2 {
+            assert!(
+                (a.1[k] - b.1[k]).abs() < 1e-3 * i_scale,
+                "current {a:?} vs {b:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn holds_speed_against_a_load_step_with_matching_torque() {
+        let mut m = MotorParams::default();
+        m.load_steps = vec![LoadStep {
+            t_s: 0.3,
+            torque_nm: 0.5,
+        }];
+        let (mut d, mut t) = drive(m, SensorModel::ideal(2), 10.0);
+        let s = run(&mut d, &mut t, 1.0);
+        let last = s.last().unwrap();
+        assert!(
+            (last.omega_rad_s - 10.0 * TAU).abs() < 0.5,
+            "{}",
+            last.omega_rad_s
+        );
+        // Steady state: electrical torque = load + viscous friction.
+        let expect = 0.5 + 1e-5 * last.omega_rad_s;
+        assert!(
+            (last.torque_nm - expect).abs() < 0.02,
+            "{} vs {expect}",
+            last.torque_nm
+        );
+        assert!(s.iter().all(|x| x.result.is_ok()));
+    }
+
+    /// Torque ripple spectrum vs θrm at constant speed: harmonic `k` amplitude (N·m).
+    fn torque_ripple(m: MotorParams, model: SensorModel, k: u32) -> f64 {
+        let (mut d, mut t) = drive(m, model, 10.0);
+        let s = run(&mut d, &mut t, 1.5);
+        let mut e = SpatialError::<360>::new();
+        for x in s.iter().filter(|x| x.t_s > 0.5) {
+            e.add(x.theta_rad, x.torque_nm);
+        }
+        e.harmonic_amplitude_rad(k)
+    }
+
+    #[test]
+    fn sensor_error_becomes_torque_ripple_at_its_harmonic() {
+        let mut offset = SensorModel::ideal(2);
+        offset.ax = 0.05;
+        // The 5 Hz sensor error at 2θrm passes the 20 Hz velocity loop into real torque.
+        let with = torque_ripple(MotorParams::default(), offset, 2);
+        let without = torque_ripple(MotorParams::default(), SensorModel::ideal(2), 2);
+        assert!(with > 20.0 * without.max(1e-6), "{with} vs {without}");
+    }
+
+    #[test]
+    fn current_sensor_offset_and_gain_ripple_at_p_and_2p() {
+        // Paper §V.C: offset → pole-pair harmonic, gain error → twice that.
+        let p = MotorParams::default().pole_pairs;
+        let mut m = MotorParams::default();
+        m.load_steps = vec![LoadStep {
+            t_s: 0.0,
+            torque_nm: 0.5,
+        }];
+        let mut off = m.clone();
+        off.current_offset_a = [0.2, 0.0];
+        let r_off = torque_ripple(off, SensorModel::ideal(2), p);
+        let r_off_2p = torque_ripple(m.clone(), SensorModel::ideal(2), p);
+        assert!(r_off > 10.0 * r_off_2p.max(1e-6), "{r_off} vs {r_off_2p}");
+        let mut gain = m.clone();
+        gain.current_gain_error = [0.05, -0.05];
+        let r_gain = torque_ripple(gain.clone(), SensorModel::ideal(2), 2 * p);
+        let r_gain_p = torque_ripple(gain, SensorModel::ideal(2), p);
+        assert!(r_gain > 10.0 * r_gain_p.max(1e-6), "{r_gain} vs {r_gain_p}");
+    }
+
+    #[test]
+    fn voltage_limit_caps_speed_without_blowing_up() {
+        // Back-EMF at 48 V / √3 limits this motor to ~ 27.7 / (4·0.02) = 346 rad/s.
+        let (mut d, mut t) = drive(MotorParams::default(), SensorModel::ideal(2), 100.0);
+        let s = run(&mut d, &mut t, 1.5);
+        let last = s.last().unwrap();
+        assert!(
+            last.omega_rad_s.is_finite() && last.omega_rad_s < 360.0,
+            "{}",
+            last.omega_rad_s
+        );
+        assert!(last.omega_rad_s > 250.0, "{}", last.omega_rad_s);
     }
 }

@@ -3,7 +3,7 @@
 //! of offsets and gain (temperature) and a mechanical once-per-revolution error
 //! (magnet eccentricity).
 
-use mras::sim::{Adc, SensorModel};
+use mras::sim::{Adc, CompiledSensor, SensorModel};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -69,6 +69,7 @@ impl SensorParams {
 #[derive(Clone, Debug)]
 pub struct SensorSim {
     pub params: SensorParams,
+    compiled: CompiledSensor,
     rng: ChaCha8Rng,
     noise: Option<Normal<f64>>,
 }
@@ -82,6 +83,7 @@ impl SensorSim {
             None
         };
         Ok(Self {
+            compiled: params.model.compile(),
             params,
             rng: ChaCha8Rng::seed_from_u64(seed),
             noise,
@@ -102,6 +104,9 @@ impl SensorSim {
 
     /// The angle the sensing element sees (eccentricity included).
     pub fn sensed_angle_rad(&self, theta_rm_rad: f64) -> f64 {
+        if self.params.eccentricity_rad == 0.0 {
+            return theta_rm_rad;
+        }
         theta_rm_rad
             + self.params.eccentricity_rad
                 * (theta_rm_rad + self.params.eccentricity_phase_rad).sin()
@@ -109,17 +114,18 @@ impl SensorSim {
 
     /// Sample X at θ and Y at θ + ω·skew, add noise, quantise.
     pub fn sample(&mut self, t_s: f64, theta_rm_rad: f64, omega_rad_s: f64) -> (f32, f32) {
-        let m = if self.params.drift == Drift::default() {
-            self.params.model
-        } else {
-            self.model_at(t_s)
-        };
-        let (mut x, y0) = m.vector(self.sensed_angle_rad(theta_rm_rad));
+        // Drift, applied at evaluation (same as `model_at`, without recompiling).
+        let d = &self.params.drift;
+        let mut m = self.compiled;
+        m.ax += d.ax_per_s * t_s;
+        m.ay += d.ay_per_s * t_s;
+        let gain = 1.0 + d.gain_per_s * t_s;
+        let (mut x, y0) = m.vector_scaled(self.sensed_angle_rad(theta_rm_rad), gain);
         let mut y = if self.params.skew_s == 0.0 {
             y0
         } else {
             let th_y = theta_rm_rad + omega_rad_s * self.params.skew_s;
-            m.vector(self.sensed_angle_rad(th_y)).1
+            m.vector_scaled(self.sensed_angle_rad(th_y), gain).1
         };
         if let Some(n) = &self.noise {
             x += n.sample(&mut self.rng);

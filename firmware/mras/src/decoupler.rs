@@ -204,9 +204,9 @@ impl PathBank {
                     s.coef_p = coef_delta(kind, c, k2 * cx.amplitude);
                 }
             }
-            let a = s.coef.abs();
-            if a > limit {
-                s.coef = s.coef.scale(limit / a);
+            let a2 = s.coef.norm_sqr();
+            if a2 > limit * limit {
+                s.coef = s.coef.scale(limit / libm::sqrtf(a2));
             }
             adapted = true;
         }

@@ -58,6 +58,9 @@ pub struct Tracker<T: Trig = LibmTrig> {
     trig: T,
     gains: ObserverGains,
     obs: ObserverState,
+    /// `obs.periods` split into (sensor period within the turn, turns); refreshed only
+    /// when the period count changes, to keep integer division out of most samples.
+    mech: (i32, i32),
     bank: PathBank,
     /// ω̂ and |Zd| smoothed for the adaptation.
     smooth: Smoothed,
@@ -67,6 +70,7 @@ pub struct Tracker<T: Trig = LibmTrig> {
     last: Estimate,
     max_order: usize,
     cos_lock: f32,
+    inv_n: f32,
 }
 
 /// Two-stage angle-domain low-pass of ω̂ and |Zd| (see [`SMOOTH_WINDOW_RAD`]).
@@ -118,6 +122,7 @@ impl<T: Trig> Tracker<T> {
                 cfg.observer.inertia_kg_m2,
             ),
             obs: ObserverState::default(),
+            mech: (0, 0),
             bank: PathBank::new(&cfg),
             smooth: Smoothed::reset(0.0, 1.0),
             acquired: false,
@@ -126,6 +131,7 @@ impl<T: Trig> Tracker<T> {
             last: Estimate::default(),
             max_order: cfg.max_order(),
             cos_lock: libm::cosf(cfg.health.lock_threshold_rad),
+            inv_n: 1.0 / cfg.sensor_periods as f32,
             cfg,
             trig,
         })
@@ -233,6 +239,9 @@ impl<T: Trig> Tracker<T> {
 
         let mut est = self.estimate_of(&self.obs, amplitude, eps_e_rad, adapting);
         est.decoupled = zd;
+        if next.periods != self.obs.periods {
+            self.mech = Self::split_periods(next.periods, n);
+        }
         self.obs = next;
         self.smooth = smooth;
         self.last = est;
@@ -261,16 +270,22 @@ impl<T: Trig> Tracker<T> {
             theta_e_rad: th,
             ..Default::default()
         };
+        self.mech = (0, 0);
         self.smooth = Smoothed::reset(0.0, z.abs());
         self.acquired = true;
     }
 
+    fn split_periods(periods: i32, n: u16) -> (i32, i32) {
+        let n = n as i32;
+        (periods.rem_euclid(n), periods.div_euclid(n))
+    }
+
+    /// The estimate for the state `o`, whose period split is `self.mech`.
     fn estimate_of(&self, o: &ObserverState, amplitude: f32, eps: f32, adapting: bool) -> Estimate {
-        let n = self.cfg.sensor_periods as i32;
-        let p = o.periods.rem_euclid(n);
+        let (p, turns) = self.mech;
         Estimate {
-            theta_rad: (p as f32 * TAU + o.theta_e_rad) / n as f32,
-            turns: o.periods.div_euclid(n),
+            theta_rad: (p as f32 * TAU + o.theta_e_rad) * self.inv_n,
+            turns,
             theta_e_rad: o.theta_e_rad,
             omega_rad_s: o.omega_rad_s,
             disturbance_nm: o.disturbance_nm,
@@ -295,6 +310,7 @@ impl<T: Trig> Tracker<T> {
     pub fn reset_observer(&mut self) {
         self.acquired = false;
         self.obs = ObserverState::default();
+        self.mech = (0, 0);
     }
 
     /// Stop (true) or resume (false) adaptation; residuals are still measured.
