@@ -75,6 +75,8 @@ pub struct MotorParams {
     pub vdc_v: f64,
     /// Current limit (peak phase current).
     pub i_max_a: f64,
+    /// Continuous rated torque: the base of per-unit loads.
+    pub rated_torque_nm: f64,
     pub coulomb_nm: f64,
     pub viscous_nm_s_rad: f64,
     pub cogging: Vec<Cogging>,
@@ -95,6 +97,7 @@ impl Default for MotorParams {
             j_kg_m2: 2.0e-4,
             vdc_v: 48.0,
             i_max_a: 20.0,
+            rated_torque_nm: 0.6,
             coulomb_nm: 0.0,
             viscous_nm_s_rad: 1.0e-5,
             cogging: Vec::new(),
@@ -110,8 +113,8 @@ impl MotorParams {
         1.5 * self.pole_pairs as f64 * self.flux_wb
     }
 
-    /// Rated torque: the torque at the current limit.
-    pub fn rated_torque_nm(&self) -> f64 {
+    /// Peak torque: the torque at the current limit.
+    pub fn peak_torque_nm(&self) -> f64 {
         self.torque_constant_nm_a() * self.i_max_a
     }
 
@@ -124,6 +127,7 @@ impl MotorParams {
             ("motor.j_kg_m2", self.j_kg_m2),
             ("motor.vdc_v", self.vdc_v),
             ("motor.i_max_a", self.i_max_a),
+            ("motor.rated_torque_nm", self.rated_torque_nm),
         ];
         for (name, v) in positive {
             if !(v.is_finite() && v > 0.0) {
@@ -296,6 +300,9 @@ pub struct Drive {
     torque_cmd_nm: f64,
     last_torque_nm: f64,
     consts: PlantConsts,
+    /// θ̂ - θ*(0) at the first good estimate: the reference is homed to the measured
+    /// angle, as a drive does at enable (an N-period sensor knows θrm only modulo 2π/N).
+    reference_offset_rad: Option<f64>,
 }
 
 /// Substep constants, computed once (divisions are slow in the inner loop).
@@ -363,6 +370,7 @@ impl Drive {
             iq_int: 0.0,
             torque_cmd_nm: 0.0,
             last_torque_nm: 0.0,
+            reference_offset_rad: None,
         })
     }
 
@@ -415,9 +423,13 @@ impl Drive {
         let theta_hat = est.theta_unwrapped_rad();
         let omega_hat = est.omega_rad_s as f64;
 
-        // 3. Motion control (torque limited by the current limit).
-        let r = self.control.reference.state(t);
-        let t_max = m.rated_torque_nm();
+        // 3. Motion control (torque limited by the current limit), on the homed reference.
+        let mut r = self.control.reference.state(t);
+        if result.is_ok() && self.reference_offset_rad.is_none() {
+            self.reference_offset_rad = Some(theta_hat - r.0);
+        }
+        r.0 += self.reference_offset_rad.unwrap_or(0.0);
+        let t_max = m.peak_torque_nm();
         let torque_cmd = self
             .motion
             .torque(r, theta_hat, omega_hat, self.t_s)
@@ -587,11 +599,13 @@ mod tests {
 
     #[test]
     fn holds_speed_against_a_load_step_with_matching_torque() {
-        let mut m = MotorParams::default();
-        m.load_steps = vec![LoadStep {
-            t_s: 0.3,
-            torque_nm: 0.5,
-        }];
+        let m = MotorParams {
+            load_steps: vec![LoadStep {
+                t_s: 0.3,
+                torque_nm: 0.5,
+            }],
+            ..MotorParams::default()
+        };
         let (mut d, mut t) = drive(m, SensorModel::ideal(2), 10.0);
         let s = run(&mut d, &mut t, 1.0);
         let last = s.last().unwrap();
@@ -635,11 +649,13 @@ mod tests {
     fn current_sensor_offset_and_gain_ripple_at_p_and_2p() {
         // Paper §V.C: offset → pole-pair harmonic, gain error → twice that.
         let p = MotorParams::default().pole_pairs;
-        let mut m = MotorParams::default();
-        m.load_steps = vec![LoadStep {
-            t_s: 0.0,
-            torque_nm: 0.5,
-        }];
+        let m = MotorParams {
+            load_steps: vec![LoadStep {
+                t_s: 0.0,
+                torque_nm: 0.5,
+            }],
+            ..MotorParams::default()
+        };
         let mut off = m.clone();
         off.current_offset_a = [0.2, 0.0];
         let r_off = torque_ripple(off, SensorModel::ideal(2), p);

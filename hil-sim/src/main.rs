@@ -16,7 +16,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Self-commission the extreme sensor at constant speed and print the summary.
+    /// Kinematic self-commissioning (rigid rotor, perfect feedforward) of the extreme
+    /// sensor at constant speed: the core alone, no drive model.
     Commission(commission::Args),
     /// Revolutions to a 10x error reduction, ours vs the paper-literal law, per speed
     /// (the table in docs/theory.md).
@@ -35,7 +36,8 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        None => commission::run(&commission::Args::default()),
+        // The README's main job: the paper's Fig. 9 self-commissioning on the simulated drive.
+        None => cmd::scenario(&cmd::ScenarioArgs::named("paper-fig9")),
         Some(Command::Commission(a)) => commission::run(&a),
         Some(Command::CompareLaws(a)) => study::compare_laws(&a),
         Some(Command::GainSweep(a)) => study::gain_sweep(&a),

@@ -493,7 +493,8 @@ fn tick_label(v: f64) -> String {
     // significant digits first, then print the shortest form.
     let v: f64 = format!("{v:.5e}").parse().unwrap_or(v);
     let a = v.abs();
-    if a == 0.0 {
+    // Linear ticks stepped from a range land on ±2e-16 instead of 0.
+    if a < 1e-12 {
         "0".into()
     } else if !(1e-3..1e5).contains(&a) {
         format!("{v:e}")
@@ -1060,6 +1061,7 @@ mod tests {
     #[test]
     fn tick_labels_are_readable() {
         assert_eq!(tick_label(0.0), "0");
+        assert_eq!(tick_label(-2.220446049250313e-16), "0");
         assert_eq!(tick_label(0.25), "0.25");
         assert_eq!(tick_label(-3.0), "-3");
         assert_eq!(tick_label(1e-5), "1e-5");

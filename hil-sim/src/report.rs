@@ -221,11 +221,18 @@ pub fn write_run(dir: &Path, out: &RunOutcome, with_plots: bool) -> Result<(), S
         &series,
     )?;
 
-    // Position error vs time, and vs angle at the end.
+    // Position error vs time (less its final constant, which no sensor can observe:
+    // an N-period sensor knows θrm only modulo 2π/N), and vs angle at the end.
+    let tail = &out.rows[out.rows.len() * 4 / 5..];
+    let offset = tail
+        .iter()
+        .map(|r| r.theta_hat_rad - r.theta_rad)
+        .sum::<f64>()
+        / tail.len().max(1) as f64;
     let est_err: Vec<(f64, f64)> = out
         .rows
         .iter()
-        .map(|r| (r.t_s, (r.theta_hat_rad - r.theta_rad) * 1e3))
+        .map(|r| (r.t_s, (r.theta_hat_rad - r.theta_rad - offset) * 1e3))
         .collect();
     let track: Vec<(f64, f64)> = out
         .rows
@@ -239,7 +246,7 @@ pub fn write_run(dir: &Path, out: &RunOutcome, with_plots: bool) -> Result<(), S
         "error (mrad)",
         &[
             Series {
-                label: "estimate θ̂ - θ",
+                label: "estimate θ̂ - θ (constant removed)",
                 points: &est_err,
             },
             Series {

@@ -213,6 +213,7 @@ pub struct MotorToml {
     pub j_kg_m2: f64,
     pub vdc_v: f64,
     pub i_max_a: f64,
+    pub rated_torque_nm: f64,
     /// Coulomb friction as a fraction of rated torque (Fig. 11: 0.5 p.u.).
     pub coulomb_pu: f64,
     pub viscous_nm_s_rad: f64,
@@ -233,6 +234,7 @@ impl Default for MotorToml {
             j_kg_m2: d.j_kg_m2,
             vdc_v: d.vdc_v,
             i_max_a: d.i_max_a,
+            rated_torque_nm: d.rated_torque_nm,
             coulomb_pu: 0.0,
             viscous_nm_s_rad: d.viscous_nm_s_rad,
             cogging: Vec::new(),
@@ -269,6 +271,7 @@ impl MotorToml {
             j_kg_m2: self.j_kg_m2,
             vdc_v: self.vdc_v,
             i_max_a: self.i_max_a,
+            rated_torque_nm: self.rated_torque_nm,
             coulomb_nm: 0.0,
             viscous_nm_s_rad: self.viscous_nm_s_rad,
             cogging: self
@@ -291,7 +294,7 @@ impl MotorToml {
             current_offset_a: self.current_offset_a,
             current_gain_error: self.current_gain_error,
         };
-        m.coulomb_nm = self.coulomb_pu * m.rated_torque_nm();
+        m.coulomb_nm = self.coulomb_pu * m.rated_torque_nm;
         m.validate()?;
         Ok(m)
     }
@@ -346,7 +349,7 @@ impl ControlToml {
                 speed_rev_s,
                 accel_rad_s2,
             } => {
-                if !(accel_rad_s2 > 0.0) {
+                if accel_rad_s2.is_nan() || accel_rad_s2 <= 0.0 {
                     return Err("`control.reference.accel_rad_s2` must be > 0".into());
                 }
                 Reference::Ramp {
@@ -400,7 +403,7 @@ impl Scenario {
         let file: ScenarioFile = toml::from_str(text).map_err(|e| {
             let line = e
                 .span()
-                .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+                .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1);
             match line {
                 Some(l) => format!("{origin}:{l}: {}", e.message()),
                 None => format!("{origin}: {}", e.message()),
@@ -713,12 +716,11 @@ pub fn run(
     })
 }
 
-/// Table I: each case's raw spatial error spectrum; returns (case, expected, dominant,
-/// spectrum in mrad for harmonics 1..=16).
-pub fn run_table1(
-    sc: &Scenario,
-    duration_s: f64,
-) -> Result<Vec<(String, u32, u32, Vec<f64>)>, String> {
+/// (case, Table I harmonic, measured dominant harmonic, spectrum in mrad for 1..=16).
+pub type Table1Row = (String, u32, u32, Vec<f64>);
+
+/// Table I: each case's raw spatial error spectrum.
+pub fn run_table1(sc: &Scenario, duration_s: f64) -> Result<Vec<Table1Row>, String> {
     let mut out = Vec::new();
     for case in &sc.file.cases {
         let mut file = sc.file.clone();

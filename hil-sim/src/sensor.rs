@@ -52,7 +52,7 @@ impl SensorParams {
             ));
         }
         if let Some(adc) = self.adc {
-            if !(8..=24).contains(&adc.bits) || !(adc.full_scale > 0.0) {
+            if !(8..=24).contains(&adc.bits) || adc.full_scale.is_nan() || adc.full_scale <= 0.0 {
                 return Err(
                     "`sensor.adc_bits` must be 8..=24 and `sensor.adc_full_scale` > 0".into(),
                 );
@@ -175,7 +175,10 @@ mod tests {
         let s = SensorSim::new(p.clone(), 1).unwrap();
         assert!((s.model_at(2.0).ax - 0.02).abs() < 1e-12);
         assert!(
-            (s.sensed_angle_rad(std::f64::consts::FRAC_PI_2) - (1.5707963 + 0.002)).abs() < 1e-6
+            (s.sensed_angle_rad(std::f64::consts::FRAC_PI_2)
+                - (std::f64::consts::FRAC_PI_2 + 0.002))
+                .abs()
+                < 1e-9
         );
         p.noise_std = 1e-3;
         let mut a = SensorSim::new(p.clone(), 7).unwrap();

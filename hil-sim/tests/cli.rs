@@ -29,8 +29,37 @@ fn number_after(text: &str, label: &str) -> f64 {
 }
 
 #[test]
-fn default_run_self_commissions_the_extreme_sensor() {
-    let (ok, out, err) = hil_sim(&[]);
+fn default_run_is_the_fig9_scenario_with_its_output_location() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("fig9");
+    let (ok, out, err) = hil_sim(&[
+        "scenario",
+        "paper-fig9",
+        "--ci",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(ok, "{out}\n{err}");
+    assert!(out.contains("scenario paper-fig9"), "{out}");
+    assert!(
+        out.contains(&format!("output: {}", out_dir.display())),
+        "{out}"
+    );
+    for run in ["paper", "ours"] {
+        for f in [
+            "timeseries.csv",
+            "summary.json",
+            "sensor_image.png",
+            "spectrum.svg",
+        ] {
+            assert!(out_dir.join(run).join(f).is_file(), "{run}/{f} missing");
+        }
+    }
+}
+
+#[test]
+fn kinematic_commission_self_commissions_the_extreme_sensor() {
+    let (ok, out, err) = hil_sim(&["commission"]);
     assert!(ok, "{out}\n{err}");
     let raw = number_after(&out, "spatial error, raw sensor :");
     let corrected = number_after(&out, "spatial error, corrected  :");
@@ -73,4 +102,12 @@ fn bad_arguments_are_refused_with_a_reason() {
     let (ok, _, err) = hil_sim(&["commission", "--revs", "x"]);
     assert!(!ok);
     assert!(err.contains("--revs"), "{err}");
+}
+
+#[test]
+fn bench_reports_real_time_factor() {
+    let (ok, out, err) = hil_sim(&["bench", "--seconds", "0.2", "--repeats", "1"]);
+    assert!(ok, "{out}\n{err}");
+    assert!(number_after(&out, "best  :") > 0.0, "{out}");
+    assert!(out.contains("x real time"), "{out}");
 }

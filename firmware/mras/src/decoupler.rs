@@ -11,8 +11,9 @@ use crate::config::{AdaptationLaw, Config, PathKind, MAX_PATHS};
 use crate::observer::ObserverGains;
 use core::f32::consts::TAU;
 
-/// |H| floor used for the residual measure when the law itself has none (paper-literal).
-const METRIC_H_FLOOR: f32 = 0.2;
+/// |H| floor used for the residual measure when the law itself has none (paper-literal):
+/// the same as our default, so that both laws' residuals read alike.
+const METRIC_H_FLOOR: f32 = 0.05;
 /// The error phasor estimate is low-passed over this much sensor-electrical angle before
 /// integration: its ripple (the other paths' harmonics, amplified by 1/|H|) would
 /// otherwise drive a limit cycle between paths at low speed (docs/theory.md §3).
@@ -156,8 +157,10 @@ impl PathBank {
             // Coherent power of the MRE: ε·e^{-j m θ̂s}, mean H·G/(2j).
             let cp = cx.pw[m].conj().scale(cx.eps_e_rad);
             let w = cx.omega_smooth_rad_s;
-            // `!(a <= b)` so that the NaN of a fresh state forces the first evaluation.
-            if !(libm::fabsf(w - s.comp_omega_rad_s) <= H_REUSE_REL * libm::fabsf(w)) {
+            // A fresh state holds NaN, whose difference never passes `stale` as false.
+            let drift = libm::fabsf(w - s.comp_omega_rad_s);
+            let stale = drift.is_nan() || drift > H_REUSE_REL * libm::fabsf(w);
+            if stale {
                 let h = gains.error_transfer(m as f32 * n * w);
                 s.h_abs = h.abs();
                 s.comp = if s.h_abs > 0.0 {

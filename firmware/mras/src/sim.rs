@@ -149,6 +149,9 @@ impl SensorModel {
     }
 }
 
+/// (h, Bxh·e^{jφxh}, Byh·e^{jφyh}) as (re, im) pairs.
+type CompiledHarmonic = (i32, (f64, f64), (f64, f64));
+
 /// A [`SensorModel`] with its phases folded into complex amplitudes, evaluated with one
 /// sin/cos and powers of e^{jθs}: `X = Ax + Re(Σ Bxh e^{jφxh} e^{jhθs})`,
 /// `Y = Ay + Im(Σ Byh e^{jφyh} e^{jhθs})` (the fundamental of Y has no phase).
@@ -159,7 +162,7 @@ pub struct CompiledSensor {
     pub ay: f64,
     fund_x: (f64, f64),
     fund_y: f64,
-    harmonics: [(i32, (f64, f64), (f64, f64)); MAX_SENSOR_HARMONICS],
+    harmonics: [CompiledHarmonic; MAX_SENSOR_HARMONICS],
     harmonic_count: usize,
     max_order: usize,
 }
