@@ -86,7 +86,8 @@ pub fn scenario(a: &ScenarioArgs) -> Result<(), String> {
             .collect::<Result<_, _>>()
     })?;
     let summaries: Vec<_> = outcomes.iter().map(|o| &o.summary).collect();
-    let text = report::summary_text(&sc, &summaries);
+    let reference = scenario::reference_coefficients(&sc)?;
+    let text = report::summary_text(&sc, &summaries, reference.as_deref());
     print!("{text}");
     std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     std::fs::write(dir.join("summary.txt"), &text)

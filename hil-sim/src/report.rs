@@ -5,12 +5,14 @@ use crate::scenario::{path_name, RunOutcome, RunSummary, Scenario, SPECTRUM_HARM
 use std::fmt::Write as _;
 use std::path::Path;
 
-fn opt(v: Option<f64>, unit: &str) -> String {
-    v.map_or("not reached".into(), |v| format!("{v:.2} {unit}"))
-}
-
 /// The side-by-side summary of a scenario's runs.
-pub fn summary_text(sc: &Scenario, runs: &[&RunSummary]) -> String {
+/// `reference`: the exact decoupling coefficients of the scenario's sensor, if known
+/// (see [`crate::scenario::reference_coefficients`]).
+pub fn summary_text(
+    sc: &Scenario,
+    runs: &[&RunSummary],
+    reference: Option<&[(String, f32, f32)]>,
+) -> String {
     let f = &sc.file;
     let mut s = String::new();
     let _ = writeln!(s, "scenario {}: {}", f.name, f.description);
@@ -59,12 +61,11 @@ pub fn summary_text(sc: &Scenario, runs: &[&RunSummary]) -> String {
                 r.after.raw_pk_pk_mrad / r.after.estimate_pk_pk_mrad
             )
         }),
-        ("converged after", |r| {
-            format!(
-                "{} / {}",
-                opt(r.converged_after_s, "s"),
-                opt(r.converged_after_revs, "rev")
-            )
+        ("converged after (s / rev)", |r| {
+            match (r.converged_after_s, r.converged_after_revs) {
+                (Some(s), Some(n)) => format!("{s:.2} / {n:.1}"),
+                _ => "not reached".into(),
+            }
         }),
         ("faulted samples", |r| r.faults.to_string()),
     ];
@@ -75,14 +76,34 @@ pub fn summary_text(sc: &Scenario, runs: &[&RunSummary]) -> String {
         }
         let _ = writeln!(s, "{line}");
     }
-    let _ = writeln!(s, "  final coefficients (scaled units):");
+    let _ = writeln!(
+        s,
+        "  final coefficients (scaled units){}:",
+        if reference.is_some() {
+            "; truth: the sensor's exact fixed point"
+        } else {
+            ""
+        }
+    );
     if let Some(first) = runs.first() {
+        let mut head = format!("    {:<42}", "");
+        for r in runs {
+            head += &format!("{:>16}", r.variant.label());
+        }
+        if reference.is_some() {
+            head += &format!("{:>16}", "truth");
+        }
+        let _ = writeln!(s, "{head}");
+        let cell = |re: f32, im: f32| format!("{:>16}", format!("{re:+.4}{im:+.4}j"));
         for (i, (name, _, _)) in first.coefficients.iter().enumerate() {
             let mut line = format!("    {name:<42}");
             for r in runs {
                 if let Some((_, re, im)) = r.coefficients.get(i) {
-                    line += &format!("{:>16}", format!("{re:+.4}{im:+.4}j"));
+                    line += &cell(*re, *im);
                 }
+            }
+            if let Some((_, re, im)) = reference.and_then(|r| r.get(i)) {
+                line += &cell(*re, *im);
             }
             let _ = writeln!(s, "{line}");
         }

@@ -716,6 +716,51 @@ pub fn run(
     })
 }
 
+/// The exact decoupling coefficients of the scenario's sensor for its path bank: the
+/// fixed point the MRAS converges to without noise, drive or drift (docs/theory.md §1,
+/// §4), found by a noiseless kinematic commissioning at 20 rev/s, 40 revolutions.
+/// `None` when the sensor drifts or has errors the paths cannot represent exactly
+/// (eccentricity), or when that run does not settle.
+pub fn reference_coefficients(sc: &Scenario) -> Result<Option<Vec<(String, f32, f32)>>, String> {
+    let f = &sc.file;
+    let p = f.sensor.to_params()?;
+    if p.eccentricity_rad != 0.0 || p.drift != Drift::default() {
+        return Ok(None);
+    }
+    let mut cfg = sc.core_config(None)?;
+    cfg.sample_period_s = 50e-6;
+    cfg.observer.eigenvalues_hz = [100.0, 10.0, 1.0];
+    let mut t = Tracker::new(cfg).map_err(|e| e.to_string())?;
+    let run = mras::sim::CommissioningRun {
+        sensor: p.model,
+        speed_rev_s: 20.0,
+        sample_period_s: 50e-6,
+        inertia_kg_m2: 1e-4,
+        adc: None,
+    };
+    let mut last_change = f32::INFINITY;
+    run.run(
+        &mut t,
+        40,
+        || (0.0, 0.0),
+        |t, _| {
+            let c = t.convergence();
+            last_change = c.change_per_rev[..c.len as usize]
+                .iter()
+                .fold(0.0, |a, b| a.max(*b));
+        },
+    );
+    if !t.faults().is_empty() || last_change > 1e-4 {
+        return Ok(None);
+    }
+    Ok(Some(
+        t.coefficients()
+            .iter()
+            .map(|(k, v)| (path_name(k), v.re, v.im))
+            .collect(),
+    ))
+}
+
 /// (case, Table I harmonic, measured dominant harmonic, spectrum in mrad for 1..=16).
 pub type Table1Row = (String, u32, u32, Vec<f64>);
 

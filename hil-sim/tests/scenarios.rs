@@ -100,3 +100,40 @@ fn malformed_scenarios_name_line_and_field() {
     let e = Scenario::load("no-such-scenario").unwrap_err();
     assert!(e.contains("available: ") && e.contains("paper-fig9"), "{e}");
 }
+
+/// The summary's "truth" column is the closed form where one exists: Fig. 9's sensor
+/// (offsets, Y at 66 %) has Xo = -Ax, Yo = -Ay (eq. 6-7), C = By1 - Bx1, D = 0
+/// (eq. 10-11); and our law lands on it on the simulated drive.
+#[test]
+fn fig9_truth_is_the_closed_form_and_ours_reaches_it() {
+    let sc = Scenario::load("paper-fig9").unwrap();
+    let truth = scenario::reference_coefficients(&sc).unwrap().unwrap();
+    let s = &sc.file.sensor;
+    let (xo, yo) = mras::closed_form::offset_and_h2(s.ax, s.ay, 0.0, 0.0);
+    let (c, d) = mras::closed_form::amplitude_quadrature(s.bx1, s.by1, 0.0);
+    let want = [("offset", xo, yo), ("amplitude_quadrature", c, d)];
+    for (name, re, im) in want {
+        let (_, tr, ti) = truth.iter().find(|(n, _, _)| n == name).unwrap();
+        assert!(
+            (*tr as f64 - re).abs() < 1e-4 && (*ti as f64 - im).abs() < 1e-4,
+            "{name}"
+        );
+    }
+    let ours = coefficients(&run("paper-fig9", Variant::Ours));
+    for ((name, re, im), (_, tr, ti)) in ours.iter().zip(&truth) {
+        let d = (re - tr).hypot(im - ti);
+        assert!(d < 2e-3, "{name}: ours {re}{im:+}j vs truth {tr}{ti:+}j");
+    }
+}
+
+/// The file-format example in docs/hil-sim.md is a valid scenario.
+#[test]
+fn documented_example_parses() {
+    let doc = include_str!("../../docs/hil-sim.md");
+    let start = doc.find("```toml\n").expect("toml block") + 8;
+    let end = start + doc[start..].find("```").unwrap();
+    let sc = Scenario::parse(&doc[start..end], "docs/hil-sim.md").unwrap();
+    assert_eq!(sc.file.motor.cogging.len(), 1);
+    assert_eq!(sc.file.sensor.harmonics.len(), 2);
+    assert!(sc.file.paper.is_some());
+}
