@@ -1,7 +1,9 @@
 //! Scenario output: the printed summary, CSV time series, JSON summary and plots.
 
 use crate::plots::{self, Series};
-use crate::scenario::{path_name, RunOutcome, RunSummary, Scenario, SPECTRUM_HARMONICS};
+use crate::scenario::{
+    path_name, NamedCoefficient, RunOutcome, RunSummary, Scenario, SPECTRUM_HARMONICS,
+};
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -11,7 +13,7 @@ use std::path::Path;
 pub fn summary_text(
     sc: &Scenario,
     runs: &[&RunSummary],
-    reference: Option<&[(String, f32, f32)]>,
+    reference: Option<&[NamedCoefficient]>,
 ) -> String {
     let f = &sc.file;
     let mut s = String::new();

@@ -597,8 +597,11 @@ pub struct RunSummary {
     pub converged_after_s: Option<f64>,
     pub converged_after_revs: Option<f64>,
     pub faults: u32,
-    pub coefficients: Vec<(String, f32, f32)>,
+    pub coefficients: Vec<NamedCoefficient>,
 }
+
+/// (path name, real part, imaginary part) of a coefficient.
+pub type NamedCoefficient = (String, f32, f32);
 
 /// A run's summary and its decimated record.
 pub struct RunOutcome {
@@ -721,7 +724,7 @@ pub fn run(
 /// §4), found by a noiseless kinematic commissioning at 20 rev/s, 40 revolutions.
 /// `None` when the sensor drifts or has errors the paths cannot represent exactly
 /// (eccentricity), or when that run does not settle.
-pub fn reference_coefficients(sc: &Scenario) -> Result<Option<Vec<(String, f32, f32)>>, String> {
+pub fn reference_coefficients(sc: &Scenario) -> Result<Option<Vec<NamedCoefficient>>, String> {
     let f = &sc.file;
     let p = f.sensor.to_params()?;
     if p.eccentricity_rad != 0.0 || p.drift != Drift::default() {

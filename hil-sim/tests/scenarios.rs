@@ -10,7 +10,7 @@ fn run(name: &str, variant: Variant) -> RunOutcome {
     out
 }
 
-fn coefficients(o: &RunOutcome) -> Vec<(String, f32, f32)> {
+fn coefficients(o: &RunOutcome) -> Vec<scenario::NamedCoefficient> {
     o.summary.coefficients.clone()
 }
 
