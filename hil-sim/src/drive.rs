@@ -524,26 +524,14 @@ impl Drive {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sensor::{Drift, SensorParams};
+    use crate::sensor::SensorParams;
     use mras::sim::{SensorModel, SpatialError};
     use mras::Config;
 
     const T_S: f64 = 50e-6;
 
     fn sensor(model: SensorModel) -> SensorSim {
-        SensorSim::new(
-            SensorParams {
-                model,
-                noise_std: 0.0,
-                adc: None,
-                skew_s: 0.0,
-                drift: Drift::default(),
-                eccentricity_rad: 0.0,
-                eccentricity_phase_rad: 0.0,
-            },
-            1,
-        )
-        .unwrap()
+        SensorSim::new(SensorParams::exact(model), 1).unwrap()
     }
 
     fn drive(motor: MotorParams, model: SensorModel, speed_rev_s: f64) -> (Drive, Tracker) {

@@ -32,6 +32,19 @@ pub struct SensorParams {
 }
 
 impl SensorParams {
+    /// The bare model: no noise, no ADC, no skew, drift or eccentricity.
+    pub fn exact(model: SensorModel) -> Self {
+        Self {
+            model,
+            noise_std: 0.0,
+            adc: None,
+            skew_s: 0.0,
+            drift: Drift::default(),
+            eccentricity_rad: 0.0,
+            eccentricity_phase_rad: 0.0,
+        }
+    }
+
     pub fn validate(&self) -> Result<(), String> {
         if !(self.noise_std.is_finite() && (0.0..=0.1).contains(&self.noise_std)) {
             return Err(format!(
@@ -144,15 +157,7 @@ mod tests {
     use super::*;
 
     fn params() -> SensorParams {
-        SensorParams {
-            model: SensorModel::ideal(2),
-            noise_std: 0.0,
-            adc: None,
-            skew_s: 0.0,
-            drift: Drift::default(),
-            eccentricity_rad: 0.0,
-            eccentricity_phase_rad: 0.0,
-        }
+        SensorParams::exact(SensorModel::ideal(2))
     }
 
     #[test]
