@@ -8,6 +8,7 @@ pub mod drive;
 pub mod plots;
 pub mod replay;
 pub mod report;
+pub mod rtt_log;
 pub mod scenario;
 pub mod sensor;
 pub mod study;

@@ -4,7 +4,7 @@
 //! trajectory exactly, perfect torque feedforward); the SPMSM drive model follows.
 
 use clap::{Parser, Subcommand};
-use hil_sim::{cli as cmd, commission, replay, study};
+use hil_sim::{cli as cmd, commission, replay, rtt_log, study};
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -31,6 +31,8 @@ enum Command {
     Scenario(cmd::ScenarioArgs),
     /// Simulated seconds per wall second of the full drive model.
     Bench(cmd::BenchArgs),
+    /// Turn the firmware's captured RTT stream into CSV and the same plots.
+    RttLog(rtt_log::Args),
 }
 
 fn main() -> ExitCode {
@@ -44,6 +46,7 @@ fn main() -> ExitCode {
         Some(Command::Replay(a)) => replay::run(&a),
         Some(Command::Scenario(a)) => cmd::scenario(&a),
         Some(Command::Bench(a)) => cmd::bench(&a),
+        Some(Command::RttLog(a)) => rtt_log::run(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
