@@ -1,0 +1,111 @@
+//! ADC counts → the core's scaled sensor units.
+//!
+//! The sensor's X and Y arrive as 12-bit counts (RM0440 §21: right-aligned, 0..=4095).
+//! The scaling `x = (counts - offset) · gain` uses a fixed-point gain (I2F30), so the
+//! conversion is exact integer arithmetic followed by one conversion to f32, identical
+//! on every target. Counts at the rails mean a saturated front end.
+
+use fixed::types::I2F30;
+
+/// Full scale of the 12-bit ADC.
+pub const ADC_MAX_COUNTS: u16 = 4095;
+
+/// Per-channel nominal scaling, e.g. from the sensor's datasheet or a bench measurement.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ChannelScaling {
+    /// Counts at the channel's zero (mid-supply for a KMZ41 bridge amplifier).
+    pub offset_counts: u16,
+    /// Scaled units per count.
+    pub gain: I2F30,
+}
+
+impl ChannelScaling {
+    /// From a nominal amplitude: the counts that correspond to a unit vector.
+    pub fn from_amplitude(offset_counts: u16, amplitude_counts: u16) -> Option<Self> {
+        if amplitude_counts == 0 || offset_counts > ADC_MAX_COUNTS {
+            return None;
+        }
+        // 1/amplitude, rounded to the nearest 2^-30 (integer arithmetic: no panics).
+        let a = amplitude_counts as i64;
+        let gain = I2F30::from_bits((((1i64 << 30) + a / 2) / a) as i32);
+        Some(Self {
+            offset_counts,
+            gain,
+        })
+    }
+}
+
+/// Why a pair of samples is not usable.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SampleError {
+    /// A channel sits at 0 or full scale: saturated amplifier or open input.
+    Railed,
+    /// A count above 12 bits: a misconfigured ADC (wrong resolution or alignment).
+    OutOfRange,
+}
+
+/// Scale one channel; exact (a 13-bit signed difference times a 32-bit gain fits i64).
+pub fn scale(counts: u16, s: &ChannelScaling) -> Result<f32, SampleError> {
+    if counts > ADC_MAX_COUNTS {
+        return Err(SampleError::OutOfRange);
+    }
+    if counts == 0 || counts == ADC_MAX_COUNTS {
+        return Err(SampleError::Railed);
+    }
+    let d = counts as i64 - s.offset_counts as i64;
+    // gain.to_bits() is the value · 2^30; the product is exact in i64, and dividing by a
+    // power of two after the one rounding to f32 is exact too.
+    let prod = d * s.gain.to_bits() as i64;
+    Ok(prod as f32 * (1.0 / (1u64 << 30) as f32))
+}
+
+/// Scale the (X, Y) pair sampled at the same instant.
+pub fn scale_pair(
+    x_counts: u16,
+    y_counts: u16,
+    sx: &ChannelScaling,
+    sy: &ChannelScaling,
+) -> Result<(f32, f32), SampleError> {
+    Ok((scale(x_counts, sx)?, scale(y_counts, sy)?))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mid_scale_is_zero_and_amplitude_is_one() {
+        let s = ChannelScaling::from_amplitude(2048, 1600).unwrap();
+        assert_eq!(scale(2048, &s), Ok(0.0));
+        let one = scale(2048 + 1600, &s).unwrap();
+        assert!((one - 1.0).abs() < 1e-4, "{one}");
+        let minus = scale(2048 - 1600, &s).unwrap();
+        assert!((minus + 1.0).abs() < 1e-4, "{minus}");
+    }
+
+    #[test]
+    fn every_count_scales_monotonically_and_exactly() {
+        let s = ChannelScaling::from_amplitude(2000, 1500).unwrap();
+        let mut last = f32::NEG_INFINITY;
+        for c in 1..ADC_MAX_COUNTS {
+            let v = scale(c, &s).unwrap();
+            assert!(v > last);
+            // Exact: equals the rational value computed in f64 to f32 rounding.
+            let exact = (c as f64 - 2000.0) * s.gain.to_num::<f64>();
+            assert!((v as f64 - exact).abs() <= exact.abs() * 1e-7 + 1e-9);
+            last = v;
+        }
+    }
+
+    #[test]
+    fn rails_and_garbage_are_refused() {
+        let s = ChannelScaling::from_amplitude(2048, 1600).unwrap();
+        assert_eq!(scale(0, &s), Err(SampleError::Railed));
+        assert_eq!(scale(4095, &s), Err(SampleError::Railed));
+        assert_eq!(scale(4096, &s), Err(SampleError::OutOfRange));
+        assert_eq!(scale(u16::MAX, &s), Err(SampleError::OutOfRange));
+        assert_eq!(scale_pair(100, 4095, &s, &s), Err(SampleError::Railed));
+        assert!(ChannelScaling::from_amplitude(2048, 0).is_none());
+        assert!(ChannelScaling::from_amplitude(5000, 100).is_none());
+    }
+}

@@ -1,0 +1,382 @@
+//! The power-up self-commissioning sequence, as a hardware-independent state machine.
+//!
+//! Check sensor health → load the stored calibration if valid (then run, with slow
+//! tracking if enabled) → otherwise align → spin up on the uncorrected sensor to the
+//! commissioning speed → adapt until converged or timeout → verify with the coefficients
+//! frozen → store → run. Any fault at any step ends in [`State::Safe`] (PWM outputs off)
+//! with its [`Cause`], until an explicit [`Commissioning::restart`].
+//!
+//! The firmware calls [`Commissioning::step`] periodically with what it measured and
+//! acts on the returned [`Outputs`]; hil-sim does the same with the simulated drive.
+
+use mras::Fault;
+
+/// Where the sequence is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum State {
+    CheckSensor,
+    LoadCalibration,
+    Align,
+    SpinUp,
+    Adapt,
+    Verify,
+    Store,
+    Run,
+    Safe,
+}
+
+impl State {
+    pub fn name(self) -> &'static str {
+        match self {
+            State::CheckSensor => "CheckSensor",
+            State::LoadCalibration => "LoadCalibration",
+            State::Align => "Align",
+            State::SpinUp => "SpinUp",
+            State::Adapt => "Adapt",
+            State::Verify => "Verify",
+            State::Store => "Store",
+            State::Run => "Run",
+            State::Safe => "Safe",
+        }
+    }
+}
+
+/// Why the drive went to the safe state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Cause {
+    /// The core refused a sample or lost lock.
+    Sensor(Fault),
+    /// Over-current (break input), reported by the hardware layer.
+    OverCurrent,
+    /// Non-finite or negative time step: a bug in the caller, refused safely.
+    BadInput,
+    /// The state did not finish in time (spin-up speed not reached, no convergence).
+    Timeout(State),
+    /// With the coefficients frozen, the residual error did not stay below the limit.
+    VerifyFailed,
+    /// Writing the calibration to flash failed (the previous record is intact).
+    StoreFailed,
+}
+
+/// Timing and limits of the sequence.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Params {
+    /// The sensor must be healthy this long before anything moves.
+    pub check_s: f32,
+    /// d-axis current and duration of the alignment.
+    pub align_current_a: f32,
+    pub align_s: f32,
+    /// Commissioning speed (mechanical) and how close and how long ω̂ must be to it.
+    pub speed_rad_s: f32,
+    pub speed_tolerance: f32,
+    pub speed_settle_s: f32,
+    pub spin_up_timeout_s: f32,
+    pub adapt_timeout_s: f32,
+    /// Verification: coefficients frozen this long, residual below the limit (rad, sensor
+    /// electrical, as `Convergence::residual_rad`).
+    pub verify_s: f32,
+    pub verify_residual_rad: f32,
+    /// After a loaded calibration or a commissioning: keep adapting slowly in Run.
+    pub slow_tracking: bool,
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        Self {
+            check_s: 0.05,
+            align_current_a: 2.0,
+            align_s: 0.3,
+            speed_rad_s: 20.0 * core::f32::consts::TAU,
+            speed_tolerance: 0.1,
+            speed_settle_s: 0.2,
+            spin_up_timeout_s: 2.0,
+            adapt_timeout_s: 5.0,
+            verify_s: 0.2,
+            verify_residual_rad: 3.0e-3,
+            slow_tracking: true,
+        }
+    }
+}
+
+/// What the hardware layer reports about a requested calibration load.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LoadStatus {
+    Pending,
+    /// A valid record was loaded into the core.
+    Loaded,
+    /// No valid record (erased, corrupt, other configuration): commission.
+    Unavailable,
+}
+
+/// What the hardware layer reports about a requested calibration store.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StoreStatus {
+    Pending,
+    Done,
+    Failed,
+}
+
+/// One step's measurements.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Inputs {
+    /// Time since the previous step (s).
+    pub dt_s: f32,
+    /// A fault the core raised since the previous step, if any.
+    pub fault: Option<Fault>,
+    pub overcurrent: bool,
+    pub omega_rad_s: f32,
+    pub converged: bool,
+    /// Largest per-path residual (`Convergence::residual_rad`).
+    pub residual_max_rad: f32,
+    pub load: LoadStatus,
+    pub store: StoreStatus,
+}
+
+impl Default for Inputs {
+    fn default() -> Self {
+        Self {
+            dt_s: 0.0,
+            fault: None,
+            overcurrent: false,
+            omega_rad_s: 0.0,
+            converged: false,
+            residual_max_rad: f32::INFINITY,
+            load: LoadStatus::Pending,
+            store: StoreStatus::Pending,
+        }
+    }
+}
+
+/// What the motion and current loops should do.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Setpoint {
+    /// PWM outputs off (MOE cleared).
+    Off,
+    /// d-axis current at electrical angle 0, open loop: pulls the rotor to a known angle.
+    Align { current_a: f32 },
+    /// Closed-loop speed on the (uncorrected or corrected) estimate.
+    Speed { omega_rad_s: f32 },
+    /// The application's own motion control.
+    Application,
+}
+
+/// What the MRAS should do.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Adaptation {
+    Frozen,
+    /// Full-rate commissioning.
+    Commissioning,
+    /// Slow tracking of drift in Run (the firmware lowers the gain).
+    Tracking,
+}
+
+/// A request to the hardware layer, repeated every step until answered.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Request {
+    None,
+    LoadCalibration,
+    StoreCalibration,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Outputs {
+    pub setpoint: Setpoint,
+    pub adaptation: Adaptation,
+    pub request: Request,
+}
+
+impl Outputs {
+    pub fn pwm_enabled(&self) -> bool {
+        self.setpoint != Setpoint::Off
+    }
+}
+
+/// The sequence.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Commissioning {
+    params: Params,
+    state: State,
+    cause: Option<Cause>,
+    /// Time in the current state, and time the current condition has held.
+    in_state_s: f32,
+    held_s: f32,
+    /// Whether the coefficients in use came from flash (for reporting).
+    loaded: bool,
+}
+
+impl Commissioning {
+    pub fn new(params: Params) -> Self {
+        Self {
+            params,
+            state: State::CheckSensor,
+            cause: None,
+            in_state_s: 0.0,
+            held_s: 0.0,
+            loaded: false,
+        }
+    }
+
+    pub fn state(&self) -> State {
+        self.state
+    }
+
+    /// Why the drive is in the safe state (None otherwise).
+    pub fn cause(&self) -> Option<Cause> {
+        self.cause
+    }
+
+    /// Whether Run uses a calibration loaded from flash (false: commissioned now).
+    pub fn calibration_loaded(&self) -> bool {
+        self.loaded
+    }
+
+    /// Start over from the sensor check (after the operator cleared the cause).
+    pub fn restart(&mut self) {
+        *self = Self::new(self.params);
+    }
+
+    /// Enter the safe state at once (watchdog reset, HardFault record found at boot).
+    pub fn force_safe(&mut self, cause: Cause) {
+        self.go(State::Safe);
+        self.cause = Some(cause);
+    }
+
+    fn go(&mut self, s: State) {
+        self.state = s;
+        self.in_state_s = 0.0;
+        self.held_s = 0.0;
+    }
+
+    /// One step.
+    pub fn step(&mut self, i: &Inputs) -> Outputs {
+        if self.state != State::Safe {
+            if !(i.dt_s.is_finite() && i.dt_s >= 0.0) {
+                self.force_safe(Cause::BadInput);
+            } else if i.overcurrent {
+                self.force_safe(Cause::OverCurrent);
+            } else if let Some(f) = i.fault {
+                self.force_safe(Cause::Sensor(f));
+            } else {
+                self.in_state_s += i.dt_s;
+                self.advance(i);
+            }
+        }
+        self.outputs()
+    }
+
+    fn advance(&mut self, i: &Inputs) {
+        let p = self.params;
+        match self.state {
+            State::CheckSensor => {
+                if self.in_state_s >= p.check_s {
+                    self.go(State::LoadCalibration);
+                }
+            }
+            State::LoadCalibration => match i.load {
+                LoadStatus::Pending => {}
+                LoadStatus::Loaded => {
+                    self.loaded = true;
+                    self.go(State::Run);
+                }
+                LoadStatus::Unavailable => self.go(State::Align),
+            },
+            State::Align => {
+                if self.in_state_s >= p.align_s {
+                    self.go(State::SpinUp);
+                }
+            }
+            State::SpinUp => {
+                let err = libm::fabsf(i.omega_rad_s - p.speed_rad_s);
+                if err <= p.speed_tolerance * libm::fabsf(p.speed_rad_s) {
+                    self.held_s += i.dt_s;
+                } else {
+                    self.held_s = 0.0;
+                }
+                if self.held_s >= p.speed_settle_s {
+                    self.go(State::Adapt);
+                } else if self.in_state_s >= p.spin_up_timeout_s {
+                    self.force_safe(Cause::Timeout(State::SpinUp));
+                }
+            }
+            State::Adapt => {
+                if i.converged {
+                    self.go(State::Verify);
+                } else if self.in_state_s >= p.adapt_timeout_s {
+                    self.force_safe(Cause::Timeout(State::Adapt));
+                }
+            }
+            State::Verify => {
+                if i.residual_max_rad.is_nan() || i.residual_max_rad >= p.verify_residual_rad {
+                    self.force_safe(Cause::VerifyFailed);
+                } else if self.in_state_s >= p.verify_s {
+                    self.go(State::Store);
+                }
+            }
+            State::Store => match i.store {
+                StoreStatus::Pending => {}
+                StoreStatus::Done => self.go(State::Run),
+                StoreStatus::Failed => self.force_safe(Cause::StoreFailed),
+            },
+            State::Run | State::Safe => {}
+        }
+    }
+
+    /// What the loops and the MRAS should do in the current state.
+    pub fn outputs(&self) -> Outputs {
+        let p = &self.params;
+        let (setpoint, adaptation, request) = match self.state {
+            State::CheckSensor => (Setpoint::Off, Adaptation::Frozen, Request::None),
+            State::LoadCalibration => (Setpoint::Off, Adaptation::Frozen, Request::LoadCalibration),
+            State::Align => (
+                Setpoint::Align {
+                    current_a: p.align_current_a,
+                },
+                Adaptation::Frozen,
+                Request::None,
+            ),
+            State::SpinUp => (
+                Setpoint::Speed {
+                    omega_rad_s: p.speed_rad_s,
+                },
+                Adaptation::Frozen,
+                Request::None,
+            ),
+            State::Adapt => (
+                Setpoint::Speed {
+                    omega_rad_s: p.speed_rad_s,
+                },
+                Adaptation::Commissioning,
+                Request::None,
+            ),
+            State::Verify => (
+                Setpoint::Speed {
+                    omega_rad_s: p.speed_rad_s,
+                },
+                Adaptation::Frozen,
+                Request::None,
+            ),
+            State::Store => (
+                Setpoint::Speed {
+                    omega_rad_s: p.speed_rad_s,
+                },
+                Adaptation::Frozen,
+                Request::StoreCalibration,
+            ),
+            State::Run => (
+                Setpoint::Application,
+                if p.slow_tracking {
+                    Adaptation::Tracking
+                } else {
+                    Adaptation::Frozen
+                },
+                Request::None,
+            ),
+            State::Safe => (Setpoint::Off, Adaptation::Frozen, Request::None),
+        };
+        Outputs {
+            setpoint,
+            adaptation,
+            request,
+        }
+    }
+}

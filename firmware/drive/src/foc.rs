@@ -1,0 +1,131 @@
+//! Field-oriented current control: Clarke/Park transforms, d/q PI regulators and
+//! space-vector PWM duties (min-max zero-sequence injection).
+
+const SQRT3: f32 = 1.732_050_8;
+const INV_SQRT3: f32 = 0.577_350_26;
+
+/// Phase currents a, b (c = -a - b) → αβ (amplitude-invariant Clarke).
+#[inline]
+pub fn clarke(ia: f32, ib: f32) -> (f32, f32) {
+    (ia, (ia + 2.0 * ib) * INV_SQRT3)
+}
+
+/// αβ → dq at the electrical angle given as (sin, cos).
+#[inline]
+pub fn park(alpha: f32, beta: f32, (s, c): (f32, f32)) -> (f32, f32) {
+    (c * alpha + s * beta, -s * alpha + c * beta)
+}
+
+/// dq → αβ.
+#[inline]
+pub fn inverse_park(d: f32, q: f32, (s, c): (f32, f32)) -> (f32, f32) {
+    (c * d - s * q, s * d + c * q)
+}
+
+/// Duty cycles (0..=1) of phases a, b, c for an αβ voltage on a DC link, centre-aligned
+/// PWM. The vector is first limited to the linear range |v| <= Vdc/√3; the return's
+/// second element says whether it was.
+pub fn svpwm(v_alpha: f32, v_beta: f32, vdc_v: f32) -> ([f32; 3], bool) {
+    let v_max = vdc_v * INV_SQRT3;
+    let mag2 = v_alpha * v_alpha + v_beta * v_beta;
+    let (va, vb, limited) = if mag2 > v_max * v_max {
+        let k = v_max / libm::sqrtf(mag2);
+        (v_alpha * k, v_beta * k, true)
+    } else {
+        (v_alpha, v_beta, false)
+    };
+    let a = va;
+    let b = -0.5 * va + 0.5 * SQRT3 * vb;
+    let c = -0.5 * va - 0.5 * SQRT3 * vb;
+    // Min-max injection centres the three phase voltages in the DC link.
+    let offset = -0.5 * (a.max(b).max(c) + a.min(b).min(c));
+    let inv = 1.0 / vdc_v;
+    let duty = [a, b, c].map(|v| ((v + offset) * inv + 0.5).clamp(0.0, 1.0));
+    (duty, limited)
+}
+
+/// A PI regulator with clamping anti-windup.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Pi {
+    pub kp: f32,
+    /// Integral gain (1/s).
+    pub ki: f32,
+    pub integral: f32,
+}
+
+impl Pi {
+    /// Current loop with its zero on the electrical pole: kp = L·ωc, ki = R·ωc.
+    pub fn current_loop(r_ohm: f32, l_h: f32, bandwidth_hz: f32) -> Self {
+        let wc = core::f32::consts::TAU * bandwidth_hz;
+        Self {
+            kp: l_h * wc,
+            ki: r_ohm * wc,
+            integral: 0.0,
+        }
+    }
+
+    /// One step; `saturated` (from the previous output) stops the integrator.
+    pub fn step(&mut self, error: f32, t_s: f32, saturated: bool) -> f32 {
+        if !saturated {
+            self.integral += self.ki * error * t_s;
+        }
+        self.kp * error + self.integral
+    }
+
+    pub fn reset(&mut self) {
+        self.integral = 0.0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn close(a: f32, b: f32, tol: f32) -> bool {
+        (a - b).abs() <= tol
+    }
+
+    #[test]
+    fn park_and_inverse_round_trip_and_clarke_is_amplitude_invariant() {
+        let sc = libm::sincosf(0.7);
+        let (d, q) = park(0.3, -0.8, sc);
+        let (a, b) = inverse_park(d, q, sc);
+        assert!(close(a, 0.3, 1e-6) && close(b, -0.8, 1e-6));
+        // Balanced currents of amplitude 2 at angle 0.4 → |αβ| = 2.
+        let th = 0.4f32;
+        let ia = 2.0 * libm::cosf(th);
+        let ib = 2.0 * libm::cosf(th - 2.094_395_2);
+        let (al, be) = clarke(ia, ib);
+        assert!(close(al, 2.0 * libm::cosf(th), 1e-5) && close(be, 2.0 * libm::sinf(th), 1e-5));
+    }
+
+    #[test]
+    fn svpwm_reproduces_the_vector_and_limits_it() {
+        let vdc = 48.0;
+        for k in 0..36 {
+            let th = k as f32 * 0.1745;
+            let (va, vb) = (20.0 * libm::cosf(th), 20.0 * libm::sinf(th));
+            let (d, limited) = svpwm(va, vb, vdc);
+            assert!(!limited);
+            // Line-to-line voltages from the duties reproduce the vector.
+            let (ua, ub, uc) = (d[0] * vdc, d[1] * vdc, d[2] * vdc);
+            let (al, be) = clarke(ua - (ua + ub + uc) / 3.0, ub - (ua + ub + uc) / 3.0);
+            assert!(close(al, va, 1e-3) && close(be, vb, 1e-3), "{k}: {al} {be}");
+            assert!(d.iter().all(|x| (0.0..=1.0).contains(x)));
+        }
+        let (d, limited) = svpwm(100.0, 0.0, vdc);
+        assert!(limited && d.iter().all(|x| (0.0..=1.0).contains(x)));
+    }
+
+    #[test]
+    fn pi_integrates_and_stops_when_saturated() {
+        let mut pi = Pi::current_loop(0.3, 0.5e-3, 1000.0);
+        let u1 = pi.step(1.0, 50e-6, false);
+        assert!(pi.integral > 0.0 && u1 > pi.kp);
+        let i = pi.integral;
+        pi.step(1.0, 50e-6, true);
+        assert_eq!(pi.integral, i);
+        pi.reset();
+        assert_eq!(pi.integral, 0.0);
+    }
+}

@@ -1,0 +1,294 @@
+//! Every transition and every fault path of the power-up sequence.
+
+use drive::commissioning::*;
+use mras::Fault;
+
+const DT: f32 = 1e-3;
+
+fn params() -> Params {
+    Params::default()
+}
+
+/// Inputs of a healthy drive at the commissioning speed.
+fn healthy() -> Inputs {
+    Inputs {
+        dt_s: DT,
+        omega_rad_s: params().speed_rad_s,
+        residual_max_rad: 1e-4,
+        ..Inputs::default()
+    }
+}
+
+/// Step until `state` is reached (at most `max_s`), with inputs from `f`.
+fn run_until(
+    c: &mut Commissioning,
+    state: State,
+    max_s: f32,
+    f: impl Fn(&Commissioning) -> Inputs,
+) {
+    let mut t = 0.0;
+    while c.state() != state {
+        let i = f(c);
+        c.step(&i);
+        t += i.dt_s;
+        assert!(
+            t <= max_s,
+            "{state:?} not reached in {max_s} s, stuck in {:?}",
+            c.state()
+        );
+    }
+}
+
+/// A responsive hardware layer: no calibration in flash, store succeeds, converges after
+/// 0.5 s of adaptation.
+fn hardware(c: &Commissioning) -> Inputs {
+    let mut i = healthy();
+    i.load = LoadStatus::Unavailable;
+    i.store = StoreStatus::Done;
+    i.converged = c.state() == State::Adapt;
+    i
+}
+
+fn drive_to(state: State) -> Commissioning {
+    let mut c = Commissioning::new(params());
+    run_until(&mut c, state, 10.0, hardware);
+    c
+}
+
+#[test]
+fn full_sequence_without_calibration() {
+    let mut c = Commissioning::new(params());
+    let mut seen = vec![c.state()];
+    let mut t = 0.0;
+    while c.state() != State::Run {
+        let o = c.step(&hardware(&c));
+        t += DT;
+        if *seen.last().unwrap() != c.state() {
+            seen.push(c.state());
+        }
+        // PWM is never on before the sensor was checked and the flash asked.
+        if matches!(c.state(), State::CheckSensor | State::LoadCalibration) {
+            assert!(!o.pwm_enabled());
+        }
+        assert!(t < 10.0);
+    }
+    use State::*;
+    assert_eq!(
+        seen,
+        [
+            CheckSensor,
+            LoadCalibration,
+            Align,
+            SpinUp,
+            Adapt,
+            Verify,
+            Store,
+            Run
+        ]
+    );
+    assert!(!c.calibration_loaded());
+    assert_eq!(c.cause(), None);
+}
+
+#[test]
+fn stored_calibration_skips_commissioning() {
+    let mut c = Commissioning::new(params());
+    run_until(&mut c, State::LoadCalibration, 1.0, |_| healthy());
+    // Pending: stays, asking.
+    for _ in 0..10 {
+        let o = c.step(&healthy());
+        assert_eq!(o.request, Request::LoadCalibration);
+        assert_eq!(c.state(), State::LoadCalibration);
+    }
+    let o = c.step(&Inputs {
+        load: LoadStatus::Loaded,
+        ..healthy()
+    });
+    assert_eq!(c.state(), State::Run);
+    assert!(c.calibration_loaded());
+    assert_eq!(o.setpoint, Setpoint::Application);
+    assert_eq!(o.adaptation, Adaptation::Tracking);
+}
+
+#[test]
+fn slow_tracking_can_be_disabled() {
+    let mut c = Commissioning::new(Params {
+        slow_tracking: false,
+        ..params()
+    });
+    run_until(&mut c, State::Run, 10.0, hardware);
+    assert_eq!(c.outputs().adaptation, Adaptation::Frozen);
+}
+
+#[test]
+fn outputs_per_state() {
+    use State::*;
+    for (state, pwm, adaptation, request) in [
+        (
+            LoadCalibration,
+            false,
+            Adaptation::Frozen,
+            Request::LoadCalibration,
+        ),
+        (Align, true, Adaptation::Frozen, Request::None),
+        (SpinUp, true, Adaptation::Frozen, Request::None),
+        (Adapt, true, Adaptation::Commissioning, Request::None),
+        (Verify, true, Adaptation::Frozen, Request::None),
+        (Store, true, Adaptation::Frozen, Request::StoreCalibration),
+        (Run, true, Adaptation::Tracking, Request::None),
+    ] {
+        let o = drive_to(state).outputs();
+        assert_eq!(o.pwm_enabled(), pwm, "{state:?}");
+        assert_eq!(o.adaptation, adaptation, "{state:?}");
+        assert_eq!(o.request, request, "{state:?}");
+    }
+    assert!(
+        matches!(drive_to(Align).outputs().setpoint, Setpoint::Align { current_a } if current_a > 0.0)
+    );
+    assert!(
+        matches!(drive_to(SpinUp).outputs().setpoint, Setpoint::Speed { omega_rad_s } if omega_rad_s > 0.0)
+    );
+}
+
+#[test]
+fn sensor_check_waits_its_time() {
+    let mut c = Commissioning::new(params());
+    let steps = (params().check_s / DT) as usize - 2;
+    for _ in 0..steps {
+        c.step(&healthy());
+    }
+    assert_eq!(c.state(), State::CheckSensor);
+}
+
+#[test]
+fn every_fault_in_every_state_ends_safe_with_its_cause() {
+    use State::*;
+    let faults = [
+        Fault::NonFiniteInput,
+        Fault::SensorLost,
+        Fault::SensorSaturated,
+        Fault::LossOfLock,
+        Fault::NumericalOverflow,
+    ];
+    for state in [
+        CheckSensor,
+        LoadCalibration,
+        Align,
+        SpinUp,
+        Adapt,
+        Verify,
+        Store,
+        Run,
+    ] {
+        for f in faults {
+            let mut c = drive_to(state);
+            let o = c.step(&Inputs {
+                fault: Some(f),
+                ..hardware(&c)
+            });
+            assert_eq!(c.state(), Safe, "{state:?} {f:?}");
+            assert_eq!(c.cause(), Some(Cause::Sensor(f)));
+            assert_eq!(o.setpoint, Setpoint::Off);
+        }
+        let mut c = drive_to(state);
+        c.step(&Inputs {
+            overcurrent: true,
+            ..hardware(&c)
+        });
+        assert_eq!(c.cause(), Some(Cause::OverCurrent), "{state:?}");
+        for dt in [f32::NAN, f32::INFINITY, -1e-3] {
+            let mut c = drive_to(state);
+            c.step(&Inputs {
+                dt_s: dt,
+                ..hardware(&c)
+            });
+            assert_eq!(c.cause(), Some(Cause::BadInput), "{state:?} dt {dt}");
+        }
+    }
+}
+
+#[test]
+fn spin_up_timeout_and_settling() {
+    let p = params();
+    let mut c = drive_to(State::SpinUp);
+    // In the band, out of it, in again: settling restarts.
+    let mut i = hardware(&c);
+    for _ in 0..((p.speed_settle_s / DT) as usize - 5) {
+        c.step(&i);
+    }
+    i.omega_rad_s = 0.5 * p.speed_rad_s;
+    c.step(&i);
+    i.omega_rad_s = p.speed_rad_s;
+    for _ in 0..10 {
+        c.step(&i);
+    }
+    assert_eq!(
+        c.state(),
+        State::SpinUp,
+        "settling must restart after leaving the band"
+    );
+    // Never reaching speed: timeout.
+    let mut c = drive_to(State::SpinUp);
+    let slow = Inputs {
+        omega_rad_s: 0.2 * p.speed_rad_s,
+        ..hardware(&c)
+    };
+    run_until(&mut c, State::Safe, p.spin_up_timeout_s + 0.1, |_| slow);
+    assert_eq!(c.cause(), Some(Cause::Timeout(State::SpinUp)));
+}
+
+#[test]
+fn adapt_timeout() {
+    let p = params();
+    let mut c = drive_to(State::Adapt);
+    run_until(&mut c, State::Safe, p.adapt_timeout_s + 0.1, |_| healthy());
+    assert_eq!(c.cause(), Some(Cause::Timeout(State::Adapt)));
+}
+
+#[test]
+fn verify_fails_on_a_large_residual_or_nan() {
+    for r in [1.0, f32::NAN] {
+        let mut c = drive_to(State::Verify);
+        c.step(&Inputs {
+            residual_max_rad: r,
+            ..healthy()
+        });
+        assert_eq!(c.cause(), Some(Cause::VerifyFailed), "{r}");
+    }
+}
+
+#[test]
+fn store_waits_then_fails_or_succeeds() {
+    let mut c = drive_to(State::Store);
+    for _ in 0..100 {
+        c.step(&healthy()); // store Pending
+    }
+    assert_eq!(c.state(), State::Store);
+    c.step(&Inputs {
+        store: StoreStatus::Failed,
+        ..healthy()
+    });
+    assert_eq!(c.cause(), Some(Cause::StoreFailed));
+}
+
+#[test]
+fn safe_is_sticky_until_restart_and_boot_faults_force_it() {
+    let mut c = drive_to(State::Adapt);
+    c.step(&Inputs {
+        overcurrent: true,
+        ..healthy()
+    });
+    for _ in 0..100 {
+        let o = c.step(&hardware(&c));
+        assert_eq!(o.setpoint, Setpoint::Off);
+    }
+    assert_eq!(c.state(), State::Safe);
+    c.restart();
+    assert_eq!((c.state(), c.cause()), (State::CheckSensor, None));
+
+    let mut c = Commissioning::new(params());
+    c.force_safe(Cause::OverCurrent);
+    assert_eq!(c.state(), State::Safe);
+    c.step(&healthy());
+    assert_eq!(c.state(), State::Safe);
+}
