@@ -56,6 +56,10 @@ pub enum Cause {
     VerifyFailed,
     /// Writing the calibration to flash failed (the previous record is intact).
     StoreFailed,
+    /// The independent watchdog reset the MCU (found in the reset flags at boot).
+    Watchdog,
+    /// A HardFault ended the previous run (found in the fault record at boot).
+    HardFault,
 }
 
 /// Timing and limits of the sequence.
@@ -306,6 +310,7 @@ impl Commissioning {
                 }
             }
             State::Verify => {
+                // Verified with the coefficients frozen and the drive still at speed.
                 if i.residual_max_rad.is_nan() || i.residual_max_rad >= p.verify_residual_rad {
                     self.force_safe(Cause::VerifyFailed);
                 } else if self.in_state_s >= p.verify_s {
@@ -355,13 +360,9 @@ impl Commissioning {
                 Adaptation::Frozen,
                 Request::None,
             ),
-            State::Store => (
-                Setpoint::Speed {
-                    omega_rad_s: p.speed_rad_s,
-                },
-                Adaptation::Frozen,
-                Request::StoreCalibration,
-            ),
+            // PWM off while storing: a flash page erase stalls code fetch from the same
+            // bank for ~20 ms, longer than the control loop may go without a period.
+            State::Store => (Setpoint::Off, Adaptation::Frozen, Request::StoreCalibration),
             State::Run => (
                 Setpoint::Application,
                 if p.slow_tracking {

@@ -134,7 +134,7 @@ fn outputs_per_state() {
         (SpinUp, true, Adaptation::Frozen, Request::None),
         (Adapt, true, Adaptation::Commissioning, Request::None),
         (Verify, true, Adaptation::Frozen, Request::None),
-        (Store, true, Adaptation::Frozen, Request::StoreCalibration),
+        (Store, false, Adaptation::Frozen, Request::StoreCalibration),
         (Run, true, Adaptation::Tracking, Request::None),
     ] {
         let o = drive_to(state).outputs();
@@ -286,9 +286,11 @@ fn safe_is_sticky_until_restart_and_boot_faults_force_it() {
     c.restart();
     assert_eq!((c.state(), c.cause()), (State::CheckSensor, None));
 
-    let mut c = Commissioning::new(params());
-    c.force_safe(Cause::OverCurrent);
-    assert_eq!(c.state(), State::Safe);
-    c.step(&healthy());
-    assert_eq!(c.state(), State::Safe);
+    for cause in [Cause::Watchdog, Cause::HardFault] {
+        let mut c = Commissioning::new(params());
+        c.force_safe(cause);
+        assert_eq!(c.state(), State::Safe);
+        c.step(&healthy());
+        assert_eq!((c.state(), c.cause()), (State::Safe, Some(cause)));
+    }
 }

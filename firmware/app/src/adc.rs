@@ -1,0 +1,88 @@
+//! ADC1 and ADC2 in dual injected-simultaneous mode, triggered by TIM1 TRGO2: the
+//! sensor's X and Y are converted at the same instant (ADC1 JSQ1 = X, ADC2 JSQ1 = Y),
+//! followed by the phase currents (JSQ2). RM0440 §21 "Analog-to-digital converters".
+
+use crate::board::pins;
+use stm32g4xx_hal::stm32::{ADC1, ADC12_COMMON, ADC2, RCC};
+
+/// One trigger's conversions, in counts.
+#[derive(Clone, Copy, Debug, Default, defmt::Format)]
+pub struct Sample {
+    pub x: u16,
+    pub y: u16,
+    pub ia: u16,
+    pub ib: u16,
+}
+
+pub struct Adcs {
+    adc1: ADC1,
+    adc2: ADC2,
+}
+
+fn power_up_and_calibrate(adc: &stm32g4xx_hal::stm32::adc1::RegisterBlock) {
+    // §21.4.6: leave deep power-down, enable the regulator, wait t_ADCVREG_STUP (20 µs).
+    adc.cr().modify(|_, w| w.deeppwd().clear_bit());
+    adc.cr().modify(|_, w| w.advregen().set_bit());
+    cortex_m::asm::delay(crate::board::SYSCLK_HZ / 50_000);
+    // §21.4.8: single-ended calibration.
+    adc.cr()
+        .modify(|_, w| w.adcaldif().clear_bit().adcal().set_bit());
+    while adc.cr().read().adcal().bit_is_set() {}
+    // §21.4.9: enable and wait for ADRDY.
+    adc.isr().write(|w| w.adrdy().clear_bit_by_one());
+    adc.cr().modify(|_, w| w.aden().set_bit());
+    while adc.isr().read().adrdy().bit_is_clear() {}
+}
+
+impl Adcs {
+    pub fn new(adc1: ADC1, adc2: ADC2, common: ADC12_COMMON) -> Self {
+        // SAFETY: init-time enable of the ADC12 clock.
+        unsafe { (*RCC::ptr()).ahb2enr().modify(|_, w| w.adc12en().set_bit()) };
+        // §21.7.2: synchronous clock HCLK/4 = 42.5 MHz; dual mode, injected simultaneous
+        // only (DUAL = 00101).
+        common
+            .ccr()
+            .write(|w| w.ckmode().sync_div4().dual().dual_j());
+        for adc in [&*adc1, &*adc2] {
+            power_up_and_calibrate(adc);
+            // 24.5 ADC cycles (0.58 µs): the sensor amplifier's source impedance.
+            adc.smpr1().modify(|_, w| {
+                w.smp1().cycles24_5().smp2().cycles24_5();
+                w.smp6().cycles24_5().smp7().cycles24_5()
+            });
+        }
+        // §21.4.12: injected sequence of two conversions; the master's trigger (TIM1
+        // TRGO2, rising edge) starts both ADCs.
+        // SAFETY: channel numbers 1..=18 and JL = 1 (two conversions) are valid values.
+        adc1.jsqr().write(|w| unsafe {
+            w.jl().set(1);
+            w.jextsel().tim1_trgo2().jexten().bits(0b01);
+            w.jsq1().bits(pins::SENSOR_X_ADC1_CHANNEL);
+            w.jsq2().bits(pins::CURRENT_A_ADC1_CHANNEL)
+        });
+        adc2.jsqr().write(|w| unsafe {
+            w.jl().set(1);
+            w.jsq1().bits(pins::SENSOR_Y_ADC2_CHANNEL);
+            w.jsq2().bits(pins::CURRENT_B_ADC2_CHANNEL)
+        });
+        // End of the injected sequence on the master raises ADC1_2.
+        adc1.ier().write(|w| w.jeosie().set_bit());
+        adc1.cr().modify(|_, w| w.jadstart().set_bit());
+        Self { adc1, adc2 }
+    }
+
+    /// Read the sequence and acknowledge the interrupt.
+    #[inline]
+    pub fn read(&self) -> Sample {
+        let s = Sample {
+            x: self.adc1.jdr1().read().jdata().bits(),
+            ia: self.adc1.jdr2().read().jdata().bits(),
+            y: self.adc2.jdr1().read().jdata().bits(),
+            ib: self.adc2.jdr2().read().jdata().bits(),
+        };
+        self.adc1
+            .isr()
+            .write(|w| w.jeos().clear_bit_by_one().jeoc().clear_bit_by_one());
+        s
+    }
+}

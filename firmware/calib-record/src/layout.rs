@@ -1,0 +1,74 @@
+//! Flash geometry (STM32G474, RM0440 §3) and the record layout: the one place for
+//! these numbers.
+//!
+//! # Slots and pages
+//!
+//! Two slots, **one flash page each** (slot A = page n, slot B = page n + 1): a page is
+//! the erase unit, so erasing one slot never disturbs the other. Both pages must lie in
+//! bank 1, below 256 KiB (stm32g4xx-hal 0.1.0 computes wrong page numbers in bank 2).
+//! The addresses belong to `memory.x`; this crate only sees slots through
+//! [`crate::FlashSlots`].
+//!
+//! # Record (little-endian, [`RECORD_BYTES`] = 120 bytes at the start of a slot)
+//!
+//! | offset | size | field |
+//! |---:|---:|---|
+//! | 0 | 4 | magic [`MAGIC`] ("MRAS" read as a big-endian u32) |
+//! | 4 | 2 | format version [`FORMAT_VERSION`] |
+//! | 6 | 1 | path count (≤ `MAX_PATHS` = 8) |
+//! | 7 | 1 | reserved, written 0 |
+//! | 8 | 4 | sequence number (serial-number arithmetic, wraps) |
+//! | 12 | 4 | configuration hash ([`crate::config_hash`]) |
+//! | 16 + 12·i | 12 | path i: kind tag (u8), h (i8), 2 reserved (0), re (f32 bits), im (f32 bits) |
+//! | 112 | 4 | CRC-32/ISO-HDLC over bytes 0..112 |
+//! | 116 | 4 | commit mark [`COMMIT_MARK`] |
+//!
+//! All eight path entries are always present (unused ones are zero), so the CRC sits at
+//! a fixed offset that does not depend on the (untrusted) path count. The last double
+//! word (CRC + commit mark) is programmed last; since the mark is not 0xFFFF_FFFF, a
+//! write interrupted before it can never look complete, whatever the CRC value.
+
+use mras::MAX_PATHS;
+
+/// Flash page in dual-bank mode (DBANK = 1, the default): the erase unit.
+pub const PAGE_BYTES: usize = 2048;
+/// Programming unit: a 64-bit double word, programmable once after an erase (the
+/// flash stores its ECC with it).
+pub const DOUBLE_WORD_BYTES: usize = 8;
+/// Every byte of an erased page.
+pub const ERASED_BYTE: u8 = 0xFF;
+/// Double words per page.
+pub const DOUBLE_WORDS_PER_PAGE: usize = PAGE_BYTES / DOUBLE_WORD_BYTES;
+
+/// "MRAS" as a big-endian u32; stored little-endian.
+pub const MAGIC: u32 = 0x4D52_4153;
+/// Bumped whenever the layout or the meaning of a field (or of the config hash) changes.
+pub const FORMAT_VERSION: u16 = 1;
+/// Second half of the last double word: any value other than all-ones proves that the
+/// last double word was programmed.
+pub const COMMIT_MARK: u32 = !MAGIC;
+
+/// Magic, version, count, reserved, sequence, hash.
+pub const HEADER_BYTES: usize = 16;
+/// Tag, h, 2 reserved, re, im.
+pub const PATH_ENTRY_BYTES: usize = 12;
+/// Offset of the CRC, i.e. length of the CRC-protected part.
+pub const CRC_OFFSET: usize = HEADER_BYTES + MAX_PATHS * PATH_ENTRY_BYTES;
+/// The last double word (CRC + commit mark) starts here; it is programmed last.
+pub const COMMIT_OFFSET: usize = CRC_OFFSET;
+/// Size of an encoded record: a whole number of double words.
+pub const RECORD_BYTES: usize = COMMIT_OFFSET + DOUBLE_WORD_BYTES;
+
+/// [`crate::PathKind`] tags in the record (and in the configuration hash).
+pub(crate) const TAG_OFFSET: u8 = 0;
+pub(crate) const TAG_AMPLITUDE_QUADRATURE: u8 = 1;
+pub(crate) const TAG_HARMONIC: u8 = 2;
+
+const _: () = {
+    assert!(COMMIT_OFFSET % DOUBLE_WORD_BYTES == 0);
+    assert!(RECORD_BYTES % DOUBLE_WORD_BYTES == 0);
+    assert!(RECORD_BYTES <= PAGE_BYTES);
+    assert!(RECORD_BYTES < 1024);
+    assert!(COMMIT_MARK != u32::MAX);
+    assert!(MAX_PATHS <= u8::MAX as usize);
+};

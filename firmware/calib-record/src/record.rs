@@ -1,0 +1,288 @@
+//! The record codec and the configuration hash.
+//!
+//! Flash content is untrusted input: [`decode`] checks everything (length, erased
+//! state, magic, version, commit mark, CRC, path list, finiteness, configuration) and
+//! never panics. Values are not range-checked against the coefficient limit: that
+//! limit depends on the health configuration, and `mras::Tracker::set_coefficients`
+//! enforces it when the record is applied.
+
+use crc::{Crc, NoTable, CRC_32_ISO_HDLC};
+use mras::config::MAX_HARMONIC;
+use mras::{Coefficients, Config, Cplx, PathKind, MAX_PATHS};
+
+use crate::layout::{
+    COMMIT_MARK, COMMIT_OFFSET, CRC_OFFSET, DOUBLE_WORD_BYTES, ERASED_BYTE, FORMAT_VERSION,
+    HEADER_BYTES, MAGIC, PATH_ENTRY_BYTES, RECORD_BYTES, TAG_AMPLITUDE_QUADRATURE, TAG_HARMONIC,
+    TAG_OFFSET,
+};
+
+/// Bitwise CRC (no 1 KiB table in flash): the record is checked once per boot.
+const CRC32: Crc<u32, NoTable> = Crc::<u32, NoTable>::new(&CRC_32_ISO_HDLC);
+
+/// A decoded, fully validated record.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Record {
+    pub coefficients: Coefficients,
+    /// Store counter; the newer of two records wins (serial-number arithmetic).
+    pub sequence: u32,
+    /// [`config_hash`] of the configuration that produced the coefficients.
+    pub config_hash: u32,
+}
+
+/// Why bytes are not a usable record.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RecordError {
+    /// Fewer than [`RECORD_BYTES`] bytes.
+    Truncated,
+    /// Every byte is 0xFF: nothing was ever written (or the slot was just erased).
+    Erased,
+    /// Not a calibration record (or a partial erase).
+    BadMagic,
+    /// Written by another format version; its layout cannot be trusted.
+    UnsupportedVersion { found: u16 },
+    /// The last double word is still erased: a write was interrupted.
+    Incomplete,
+    /// CRC or commit mark wrong: corrupted bits or a torn write.
+    BadCrc,
+    /// Path count above `MAX_PATHS`, unknown kind tag, a kind the core refuses, or two
+    /// paths nulling the same error harmonic.
+    BadPathList,
+    /// A coefficient is NaN or infinite.
+    NonFiniteValue,
+    /// Intact, but produced under another configuration (sensor periods, input
+    /// scaling or path list differ).
+    ConfigMismatch { stored: u32, expected: u32 },
+}
+
+/// Hash of the configuration fields that give the coefficients their meaning.
+///
+/// Covered: `sensor_periods`, the input scaling offsets and gains (coefficients are in
+/// scaled units) and the path list (count, kinds, order). Not covered: sample period,
+/// observer, adaptation law, gates, health and convergence settings, and
+/// `input.raw_limit`: retuning those must not throw away a calibration.
+///
+/// CRC-32/ISO-HDLC over, little-endian: `sensor_periods` (u16); `offset_x`,
+/// `offset_y`, `gain_x`, `gain_y` (f32 bits, `-0.0` as `0.0`); path count (u8); per
+/// path its (tag, h) bytes as in the record. Changing this requires a new
+/// [`FORMAT_VERSION`].
+pub fn config_hash(cfg: &Config) -> u32 {
+    let mut d = CRC32.digest();
+    d.update(&cfg.sensor_periods.to_le_bytes());
+    let i = &cfg.input;
+    for v in [i.offset_x, i.offset_y, i.gain_x, i.gain_y] {
+        d.update(&canonical_bits(v).to_le_bytes());
+    }
+    let paths = cfg.paths();
+    // `paths()` holds at most MAX_PATHS (8) entries.
+    d.update(&[paths.len() as u8]);
+    for &k in paths {
+        d.update(&kind_bytes(k));
+    }
+    d.finalize()
+}
+
+fn canonical_bits(v: f32) -> u32 {
+    if v == 0.0 {
+        0
+    } else if v.is_nan() {
+        f32::NAN.to_bits()
+    } else {
+        v.to_bits()
+    }
+}
+
+/// Tag and h byte of a path kind.
+fn kind_bytes(k: PathKind) -> [u8; 2] {
+    match k {
+        PathKind::Offset => [TAG_OFFSET, 0],
+        PathKind::AmplitudeQuadrature => [TAG_AMPLITUDE_QUADRATURE, 0],
+        PathKind::Harmonic(h) => [TAG_HARMONIC, h as u8],
+    }
+}
+
+/// Inverse of [`kind_bytes`], accepting only kinds the core accepts (non-canonical
+/// encodings such as an offset with h ≠ 0 are refused).
+fn kind_from_bytes(tag: u8, h: u8) -> Option<PathKind> {
+    match (tag, h) {
+        (TAG_OFFSET, 0) => Some(PathKind::Offset),
+        (TAG_AMPLITUDE_QUADRATURE, 0) => Some(PathKind::AmplitudeQuadrature),
+        (TAG_HARMONIC, h) => {
+            let h = h as i8;
+            // Same rule as `mras::Config::validate`.
+            let valid = !(0..=3).contains(&h) && h.unsigned_abs() <= MAX_HARMONIC.unsigned_abs();
+            valid.then_some(PathKind::Harmonic(h))
+        }
+        _ => None,
+    }
+}
+
+/// Encode a record into `buf`; returns the number of bytes to program ([`RECORD_BYTES`]).
+///
+/// Does not validate: a snapshot with non-finite values or an invalid path list
+/// encodes, and [`decode`] refuses it ([`crate::store`] checks before erasing anything).
+pub fn encode(
+    coefs: &Coefficients,
+    seq: u32,
+    cfg_hash: u32,
+    buf: &mut [u8; RECORD_BYTES],
+) -> usize {
+    buf.fill(0);
+    let mut w = Writer { rest: &mut buf[..] };
+    w.put(MAGIC.to_le_bytes());
+    w.put(FORMAT_VERSION.to_le_bytes());
+    // `Coefficients` holds at most MAX_PATHS (8) paths.
+    w.put([coefs.len() as u8, 0]);
+    w.put(seq.to_le_bytes());
+    w.put(cfg_hash.to_le_bytes());
+    for (kind, v) in coefs.iter() {
+        let [tag, h] = kind_bytes(kind);
+        w.put([tag, h, 0, 0]);
+        w.put(v.re.to_bits().to_le_bytes());
+        w.put(v.im.to_bits().to_le_bytes());
+    }
+    let crc = crc_of(buf);
+    if let Some(commit) = buf.get_mut(COMMIT_OFFSET..RECORD_BYTES) {
+        let mut w = Writer { rest: commit };
+        w.put(crc.to_le_bytes());
+        w.put(COMMIT_MARK.to_le_bytes());
+    }
+    RECORD_BYTES
+}
+
+/// Decode and validate a record read from flash (`bytes` may be longer, e.g. a page).
+///
+/// Checks, in order: length, erased, magic, version (it fixes the layout), commit
+/// double word programmed, CRC and commit mark, path list, finite values, and last the
+/// configuration hash.
+pub fn decode(bytes: &[u8], expected_hash: u32) -> Result<Record, RecordError> {
+    let rec = decode_intact(bytes)?;
+    if rec.config_hash != expected_hash {
+        return Err(RecordError::ConfigMismatch {
+            stored: rec.config_hash,
+            expected: expected_hash,
+        });
+    }
+    Ok(rec)
+}
+
+/// Everything [`decode`] checks except the configuration hash.
+pub(crate) fn decode_intact(bytes: &[u8]) -> Result<Record, RecordError> {
+    let rec = bytes.get(..RECORD_BYTES).ok_or(RecordError::Truncated)?;
+    if rec.iter().all(|&b| b == ERASED_BYTE) {
+        return Err(RecordError::Erased);
+    }
+    let mut r = Reader { rest: rec };
+    if r.u32()? != MAGIC {
+        return Err(RecordError::BadMagic);
+    }
+    // The version decides the layout, so it is checked before the CRC location is trusted.
+    let version = r.u16()?;
+    if version != FORMAT_VERSION {
+        return Err(RecordError::UnsupportedVersion { found: version });
+    }
+    let commit = rec
+        .get(COMMIT_OFFSET..RECORD_BYTES)
+        .ok_or(RecordError::Truncated)?;
+    if commit.iter().all(|&b| b == ERASED_BYTE) {
+        return Err(RecordError::Incomplete);
+    }
+    let mut c = Reader { rest: commit };
+    if c.u32()? != crc_of(rec) || c.u32()? != COMMIT_MARK {
+        return Err(RecordError::BadCrc);
+    }
+
+    let count = usize::from(r.u8()?);
+    let _reserved = r.u8()?;
+    let sequence = r.u32()?;
+    let config_hash = r.u32()?;
+    if count > MAX_PATHS {
+        return Err(RecordError::BadPathList);
+    }
+    let mut kinds = [PathKind::Offset; MAX_PATHS];
+    let mut values = [Cplx::ZERO; MAX_PATHS];
+    for (kind, value) in kinds.iter_mut().zip(values.iter_mut()).take(count) {
+        let [tag, h, _, _] = r.take::<4>()?;
+        *kind = kind_from_bytes(tag, h).ok_or(RecordError::BadPathList)?;
+        *value = Cplx::new(f32::from_bits(r.u32()?), f32::from_bits(r.u32()?));
+    }
+    let kinds = kinds.get(..count).ok_or(RecordError::BadPathList)?;
+    let values = values.get(..count).ok_or(RecordError::BadPathList)?;
+    // Same rule as `mras::Config::validate`: one path per error harmonic.
+    for (n, k) in kinds.iter().enumerate() {
+        let earlier = kinds.get(..n).unwrap_or_default();
+        if earlier
+            .iter()
+            .any(|e| e.error_harmonic() == k.error_harmonic())
+        {
+            return Err(RecordError::BadPathList);
+        }
+    }
+    if values
+        .iter()
+        .any(|v| !(v.re.is_finite() && v.im.is_finite()))
+    {
+        return Err(RecordError::NonFiniteValue);
+    }
+    let mut coefficients = Coefficients::zeros(kinds);
+    for (&k, &v) in kinds.iter().zip(values) {
+        // Kinds are distinct (distinct error harmonics), so every `set` finds its path.
+        if !coefficients.set(k, v) {
+            return Err(RecordError::BadPathList);
+        }
+    }
+    Ok(Record {
+        coefficients,
+        sequence,
+        config_hash,
+    })
+}
+
+fn crc_of(record: &[u8]) -> u32 {
+    CRC32.checksum(record.get(..CRC_OFFSET).unwrap_or(record))
+}
+
+/// Panic-free little-endian cursor over untrusted bytes.
+struct Reader<'a> {
+    rest: &'a [u8],
+}
+
+impl Reader<'_> {
+    fn take<const N: usize>(&mut self) -> Result<[u8; N], RecordError> {
+        let (head, tail) = self
+            .rest
+            .split_first_chunk::<N>()
+            .ok_or(RecordError::Truncated)?;
+        self.rest = tail;
+        Ok(*head)
+    }
+
+    fn u8(&mut self) -> Result<u8, RecordError> {
+        self.take::<1>().map(|[b]| b)
+    }
+
+    fn u16(&mut self) -> Result<u16, RecordError> {
+        self.take().map(u16::from_le_bytes)
+    }
+
+    fn u32(&mut self) -> Result<u32, RecordError> {
+        self.take().map(u32::from_le_bytes)
+    }
+}
+
+/// Cursor for [`encode`]; the layout constants guarantee the record fits, and a write
+/// past the end is dropped rather than panicking.
+struct Writer<'a> {
+    rest: &'a mut [u8],
+}
+
+impl Writer<'_> {
+    fn put<const N: usize>(&mut self, bytes: [u8; N]) {
+        if let Some((head, tail)) = core::mem::take(&mut self.rest).split_first_chunk_mut::<N>() {
+            *head = bytes;
+            self.rest = tail;
+        }
+    }
+}
+
+// The field sizes written above (4+2+1+1+4+4, 4+4+4, 4+4) match the layout.
+const _: () = assert!(HEADER_BYTES == 16 && PATH_ENTRY_BYTES == 12 && DOUBLE_WORD_BYTES == 8);
