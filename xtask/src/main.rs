@@ -8,16 +8,23 @@ use std::process::{Command, ExitCode};
 
 /// The one owner of the MCU target triple for automation.
 const TARGET: &str = "thumbv7em-none-eabihf";
-/// Portable crates that must build for the MCU.
-const CORE_CRATES: &[&str] = &["mras"];
+/// Portable crates that must build for the MCU (and are tested on the host).
+const CORE_CRATES: &[&str] = &["mras", "drive", "calib-record"];
+/// The firmware binary (target only).
+const FIRMWARE: &str = "drive-fw";
+/// Budgets of the size report.
+const FLASH_BUDGET_BYTES: u64 = 64 * 1024;
+const RAM_BUDGET_BYTES: u64 = 16 * 1024;
 
 const HELP: &str = "\
 cargo xtask <command>
 
   ci            everything CI checks: fmt, clippy (host and target), host tests,
-                cross-build of the core for thumbv7em-none-eabihf
+                cross-build of the portable crates and the firmware, size report
   test-host     host tests only
-  build-cross   release cross-build of the portable core(s) for the MCU
+  build-cross   release cross-build of the portable crates and the firmware, size report
+  size          size report of the firmware (flash and static RAM against budgets)
+  flash         build, flash and attach to the RTT stream (probe-rs, board attached)
   docs-tables   regenerate the tables of docs/theory.md (prints markdown)
 ";
 
@@ -27,6 +34,8 @@ fn main() -> ExitCode {
         Some("ci") => ci(),
         Some("test-host") => test_host(),
         Some("build-cross") => setup().and_then(|_| build_cross()),
+        Some("size") => setup().and_then(|_| build_cross()),
+        Some("flash") => setup().and_then(|_| flash()),
         Some("docs-tables") => docs_tables(),
         Some("-h" | "--help" | "help") | None => {
             print!("{HELP}");
@@ -97,12 +106,12 @@ fn setup() -> Result<(), String> {
 
 fn test_host() -> Result<(), String> {
     let mut c = cargo();
-    c.args(["test", "--workspace", "--locked"]);
+    c.args(["test", "--workspace", "--exclude", FIRMWARE, "--locked"]);
     run(c)
 }
 
 fn build_cross() -> Result<(), String> {
-    for krate in CORE_CRATES {
+    for krate in CORE_CRATES.iter().chain([&FIRMWARE]) {
         let mut c = cargo();
         c.args([
             "build",
@@ -115,7 +124,74 @@ fn build_cross() -> Result<(), String> {
         ]);
         run(c)?;
     }
+    size_report()
+}
+
+/// Flash (ROM) and static RAM of the firmware ELF, from its allocated sections.
+fn size_report() -> Result<(), String> {
+    use object::{Object, ObjectSection, SectionFlags, SectionKind};
+    const SHF_ALLOC: u64 = 0x2;
+    let elf = root()
+        .join("target")
+        .join(TARGET)
+        .join("release")
+        .join(FIRMWARE);
+    let data = std::fs::read(&elf).map_err(|e| format!("{}: {e}", elf.display()))?;
+    let file = object::File::parse(&*data).map_err(|e| format!("{}: {e}", elf.display()))?;
+    let (mut flash, mut ram) = (0u64, 0u64);
+    eprintln!("\nsize of {FIRMWARE} ({}):", elf.display());
+    for s in file.sections() {
+        let SectionFlags::Elf { sh_flags } = s.flags() else {
+            continue;
+        };
+        if sh_flags & SHF_ALLOC == 0 || s.size() == 0 {
+            continue;
+        }
+        let name = s.name().unwrap_or("?");
+        let in_ram = (0x2000_0000..0x2002_0000).contains(&s.address());
+        let nobits = s.kind() == SectionKind::UninitializedData;
+        if in_ram {
+            ram += s.size();
+            // .data occupies RAM and, as its initial image, flash too.
+            if !nobits && !name.starts_with(".uninit") {
+                flash += s.size();
+            }
+        } else {
+            flash += s.size();
+        }
+        eprintln!(
+            "  {name:<16} {:>8} bytes at {:#010x}",
+            s.size(),
+            s.address()
+        );
+    }
+    eprintln!(
+        "  flash {flash} bytes of {FLASH_BUDGET_BYTES} ({:.0} %), static RAM {ram} bytes of {RAM_BUDGET_BYTES} ({:.0} %)",
+        100.0 * flash as f64 / FLASH_BUDGET_BYTES as f64,
+        100.0 * ram as f64 / RAM_BUDGET_BYTES as f64
+    );
+    if flash > FLASH_BUDGET_BYTES || ram > RAM_BUDGET_BYTES {
+        return Err("firmware over its size budget".into());
+    }
     Ok(())
+}
+
+fn flash() -> Result<(), String> {
+    if output_of("probe-rs", &["--version"]).is_none() {
+        return Err("probe-rs not found: `cargo install probe-rs-tools` (docs/hardware.md)".into());
+    }
+    // The runner in .cargo/config.toml flashes and attaches to the RTT stream.
+    let mut c = cargo();
+    c.args([
+        "run",
+        "--locked",
+        "--release",
+        "--target",
+        TARGET,
+        "-p",
+        FIRMWARE,
+    ]);
+    run(c)
 }
 
 fn ci() -> Result<(), String> {
@@ -128,19 +204,21 @@ fn ci() -> Result<(), String> {
         "clippy",
         "--locked",
         "--workspace",
+        "--exclude",
+        FIRMWARE,
         "--all-targets",
         "--",
         "-D",
         "warnings",
     ]);
     run(c)?;
-    for krate in CORE_CRATES {
-        let mut c = cargo();
-        c.args([
-            "clippy", "--locked", "--target", TARGET, "-p", krate, "--", "-D", "warnings",
-        ]);
-        run(c)?;
+    let mut c = cargo();
+    c.args(["clippy", "--locked", "--target", TARGET]);
+    for krate in CORE_CRATES.iter().chain([&FIRMWARE]) {
+        c.args(["-p", krate]);
     }
+    c.args(["--", "-D", "warnings"]);
+    run(c)?;
     build_cross()?;
     test_host()?;
     eprintln!("\nxtask ci: all checks passed");
