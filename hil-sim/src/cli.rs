@@ -63,6 +63,22 @@ pub fn scenario(a: &ScenarioArgs) -> Result<(), String> {
     if !f.cases.is_empty() {
         return table1(&sc, duration);
     }
+    if f.commissioning.is_some() {
+        let (first, second) = crate::power_up::run(&sc, duration)?;
+        let text = crate::power_up::report(
+            &sc,
+            &[
+                ("1 (flash erased)", &first),
+                ("2 (calibration in flash)", &second),
+            ],
+        );
+        print!("{text}");
+        std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        std::fs::write(dir.join("summary.txt"), &text)
+            .map_err(|e| format!("{}: {e}", dir.display()))?;
+        println!("  output: {}", dir.join("summary.txt").display());
+        return Ok(());
+    }
     let mut variants = vec![];
     if f.paper.is_some() {
         variants.push(Variant::Paper);

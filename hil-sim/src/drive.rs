@@ -181,6 +181,20 @@ impl Reference {
     }
 }
 
+/// What the loops do, as the firmware's commissioning state machine commands it
+/// (`drive::commissioning::Setpoint`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Mode {
+    /// Follow the scenario's reference (the application).
+    Reference,
+    /// PWM outputs off: the windings are open, the rotor coasts.
+    Off,
+    /// d-axis current at electrical angle 0, open loop.
+    Align { current_a: f64 },
+    /// Closed-loop speed on the estimate (velocity loop at the control bandwidth).
+    Speed { omega_rad_s: f64 },
+}
+
 /// Whether the motion loop closes on position (PID) or on velocity (PI).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LoopMode {
@@ -303,6 +317,9 @@ pub struct Drive {
     /// θ̂ - θ*(0) at the first good estimate: the reference is homed to the measured
     /// angle, as a drive does at enable (an N-period sensor knows θrm only modulo 2π/N).
     reference_offset_rad: Option<f64>,
+    pub mode: Mode,
+    /// The velocity loop used in `Mode::Speed`.
+    speed_loop: MotionController,
 }
 
 /// Substep constants, computed once (divisions are slow in the inner loop).
@@ -371,6 +388,14 @@ impl Drive {
             torque_cmd_nm: 0.0,
             last_torque_nm: 0.0,
             reference_offset_rad: None,
+            mode: Mode::Reference,
+            speed_loop: MotionController::new(
+                &ControlParams {
+                    mode: LoopMode::Velocity,
+                    ..control
+                },
+                j_hat_kg_m2,
+            ),
         })
     }
 
@@ -430,22 +455,33 @@ impl Drive {
         }
         r.0 += self.reference_offset_rad.unwrap_or(0.0);
         let t_max = m.peak_torque_nm();
-        let torque_cmd = self
-            .motion
-            .torque(r, theta_hat, omega_hat, self.t_s)
-            .clamp(-t_max, t_max);
+        let (torque_cmd, id_ref, th_e) = match self.mode {
+            Mode::Reference => (
+                self.motion.torque(r, theta_hat, omega_hat, self.t_s),
+                0.0,
+                p * est.theta_rad as f64,
+            ),
+            Mode::Speed { omega_rad_s } => (
+                self.speed_loop
+                    .torque((0.0, omega_rad_s, 0.0), 0.0, omega_hat, self.t_s),
+                0.0,
+                p * est.theta_rad as f64,
+            ),
+            Mode::Align { current_a } => (0.0, current_a, 0.0),
+            Mode::Off => (0.0, 0.0, 0.0),
+        };
+        let torque_cmd = torque_cmd.clamp(-t_max, t_max);
         let iq_ref = torque_cmd / m.torque_constant_nm_a();
 
         // 4. Current control in the estimated frame; the voltage acts during the next
         //    period, so rotate it by the angle travelled until the middle of that period.
-        let th_e = p * est.theta_rad as f64;
         let (s, c) = th_e.sin_cos();
         let id = c * i_meas[0] + s * i_meas[1];
         let iq = -s * i_meas[0] + c * i_meas[1];
         let wc = TAU * self.control.current_bandwidth_hz;
         let (kp, ki) = (m.l_h * wc, m.r_ohm * wc);
         let we_hat = p * omega_hat;
-        let (ed, eq) = (0.0 - id, iq_ref - iq);
+        let (ed, eq) = (id_ref - id, iq_ref - iq);
         self.id_int += ki * ed * self.t_s;
         self.iq_int += ki * eq * self.t_s;
         let mut vd = kp * ed + self.id_int - we_hat * m.l_h * iq;
@@ -460,7 +496,14 @@ impl Drive {
             self.iq_int -= ki * eq * self.t_s;
         }
         let (s2, c2) = rotate((s, c), sin_cos_small(1.5 * we_hat * self.t_s));
-        let v_cmd = [c2 * vd - s2 * vq, s2 * vd + c2 * vq];
+        let v_cmd = if self.mode == Mode::Off {
+            self.id_int = 0.0;
+            self.iq_int = 0.0;
+            [0.0; 2]
+        } else {
+            [c2 * vd - s2 * vq, s2 * vd + c2 * vq]
+        };
+        let open = self.mode == Mode::Off;
 
         // 5. Plant over one period with the voltage commanded one period ago.
         let c = &self.consts;
@@ -482,7 +525,12 @@ impl Drive {
             let we_flux = p * self.omega_rm * m.flux_wb;
             let e = [-we_flux * se, we_flux * ce];
             for (i, (v, e)) in self.i_ab.iter_mut().zip(self.v_ab_applied.iter().zip(e)) {
-                *i = (*i + c.h_over_l * (v - e)) * c.k_r;
+                // Outputs off: open windings (the freewheel transient is not modelled).
+                *i = if open {
+                    0.0
+                } else {
+                    (*i + c.h_over_l * (v - e)) * c.k_r
+                };
             }
             // T = 1.5·p·λ·(iβ cos θe - iα sin θe).
             let te = c.kt * (self.i_ab[1] * ce - self.i_ab[0] * se);

@@ -6,6 +6,7 @@ pub mod commission;
 pub mod core_config;
 pub mod drive;
 pub mod plots;
+pub mod power_up;
 pub mod replay;
 pub mod report;
 pub mod rtt_log;

@@ -38,8 +38,9 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        // The README's main job: the paper's Fig. 9 self-commissioning on the simulated drive.
-        None => cmd::scenario(&cmd::ScenarioArgs::named("paper-fig9")),
+        // The README's main job: the firmware's power-up self-commissioning on the
+        // simulated drive (two power-ups: erased flash, then stored calibration).
+        None => cmd::scenario(&cmd::ScenarioArgs::named("commissioning")),
         Some(Command::Commission(a)) => commission::run(&a),
         Some(Command::CompareLaws(a)) => study::compare_laws(&a),
         Some(Command::GainSweep(a)) => study::gain_sweep(&a),

@@ -66,6 +66,35 @@ pub struct ScenarioFile {
     /// Table I: each error alone (no adaptation), spectrum of the raw error.
     #[serde(default)]
     pub cases: Vec<CaseToml>,
+    /// Present: run the firmware's power-up state machine (two power-ups).
+    pub commissioning: Option<CommissioningToml>,
+}
+
+/// `drive::commissioning::Params` in the scenario file (defaults from there).
+#[derive(Clone, Copy, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CommissioningToml {
+    pub speed_rev_s: Option<f64>,
+    pub align_current_a: Option<f64>,
+    pub adapt_timeout_s: Option<f64>,
+    pub verify_residual_rad: Option<f64>,
+    pub slow_tracking: Option<bool>,
+}
+
+impl CommissioningToml {
+    pub fn params(&self) -> drive::commissioning::Params {
+        let d = drive::commissioning::Params::default();
+        drive::commissioning::Params {
+            speed_rad_s: self.speed_rev_s.map_or(d.speed_rad_s, |v| (v * TAU) as f32),
+            align_current_a: self.align_current_a.map_or(d.align_current_a, |v| v as f32),
+            adapt_timeout_s: self.adapt_timeout_s.map_or(d.adapt_timeout_s, |v| v as f32),
+            verify_residual_rad: self
+                .verify_residual_rad
+                .map_or(d.verify_residual_rad, |v| v as f32),
+            slow_tracking: self.slow_tracking.unwrap_or(d.slow_tracking),
+            ..d
+        }
+    }
 }
 
 fn default_rate() -> f64 {
@@ -526,8 +555,9 @@ pub struct WindowStats {
 
 pub const SPECTRUM_HARMONICS: u32 = 16;
 
+/// Spatial and tracking error over a time window of a run.
 #[derive(Clone, Debug)]
-struct Window {
+pub(crate) struct Window {
     from_s: f64,
     to_s: f64,
     raw: SpatialError<360>,
@@ -537,7 +567,7 @@ struct Window {
 }
 
 impl Window {
-    fn new(from_s: f64, to_s: f64) -> Self {
+    pub(crate) fn new(from_s: f64, to_s: f64) -> Self {
         Self {
             from_s,
             to_s,
@@ -548,7 +578,7 @@ impl Window {
         }
     }
 
-    fn add(&mut self, s: &DriveSample, n: f64) {
+    pub(crate) fn add(&mut self, s: &DriveSample, n: f64) {
         if s.t_s < self.from_s || s.t_s >= self.to_s {
             return;
         }
@@ -560,7 +590,7 @@ impl Window {
         self.track_max = self.track_max.max(e);
     }
 
-    fn stats(&self) -> WindowStats {
+    pub(crate) fn stats(&self) -> WindowStats {
         let spec = |e: &SpatialError<360>| {
             (1..=SPECTRUM_HARMONICS)
                 .map(|k| e.harmonic_amplitude_rad(k) * 1e3)

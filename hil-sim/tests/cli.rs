@@ -29,7 +29,17 @@ fn number_after(text: &str, label: &str) -> f64 {
 }
 
 #[test]
-fn default_run_is_the_fig9_scenario_with_its_output_location() {
+fn default_run_is_the_power_up_commissioning() {
+    let (ok, out, err) = hil_sim(&[]);
+    assert!(ok, "{out}\n{err}");
+    assert!(out.contains("scenario commissioning"), "{out}");
+    assert!(out.contains("calibration commissioned and stored"), "{out}");
+    assert!(out.contains("calibration loaded from flash"), "{out}");
+    assert!(out.contains("output: "), "{out}");
+}
+
+#[test]
+fn fig9_scenario_writes_its_outputs() {
     let dir = tempfile::tempdir().unwrap();
     let out_dir = dir.path().join("fig9");
     let (ok, out, err) = hil_sim(&[

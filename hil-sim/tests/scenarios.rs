@@ -137,3 +137,76 @@ fn documented_example_parses() {
     assert_eq!(sc.file.sensor.harmonics.len(), 2);
     assert!(sc.file.paper.is_some());
 }
+
+/// The firmware's power-up sequence end to end on the simulated drive: erased flash →
+/// every commissioning state in order → Run, stored; second power-up loads and runs.
+#[test]
+fn commissioning_scenario_commissions_stores_and_reloads() {
+    use drive::commissioning::State::*;
+    let sc = Scenario::load("commissioning").unwrap();
+    let (first, second) = hil_sim::power_up::run(&sc, sc.file.ci_duration_s.unwrap()).unwrap();
+    let states: Vec<_> = first.transitions.iter().map(|(_, s)| *s).collect();
+    assert_eq!(
+        states,
+        [
+            CheckSensor,
+            LoadCalibration,
+            Align,
+            SpinUp,
+            Adapt,
+            Verify,
+            Store,
+            Run
+        ]
+    );
+    assert_eq!(first.cause, None);
+    assert!(!first.loaded_from_flash);
+    assert_eq!(first.faulted_samples, 0);
+    let run = first.run.as_ref().unwrap();
+    assert!(
+        run.raw_pk_pk_mrad / run.estimate_pk_pk_mrad > 100.0,
+        "{run:?}"
+    );
+    assert!(first.adapt_revs.unwrap() < 10.0, "{:?}", first.adapt_revs);
+
+    let states: Vec<_> = second.transitions.iter().map(|(_, s)| *s).collect();
+    assert_eq!(states, [CheckSensor, LoadCalibration, Run]);
+    assert!(second.loaded_from_flash);
+    let run = second.run.as_ref().unwrap();
+    assert!(
+        run.raw_pk_pk_mrad / run.estimate_pk_pk_mrad > 100.0,
+        "{run:?}"
+    );
+    // The reloaded coefficients are the stored ones (slow tracking moves them little).
+    for ((n, a, b), (_, c, d)) in first.coefficients.iter().zip(&second.coefficients) {
+        assert!((a - c).hypot(b - d) < 2e-3, "{n}");
+    }
+}
+
+/// A disconnected sensor at power-up: the safe state with its cause, PWM never enabled.
+#[test]
+fn commissioning_with_a_dead_sensor_ends_safe() {
+    let text = std::fs::read_to_string(scenario::scenario_dir().join("commissioning.toml"))
+        .unwrap()
+        .replace("bx1 = 1.2", "bx1 = 0.05\nby1 = 0.05")
+        .replace("ax = 0.10", "ax = 0.0")
+        .replace("ay = -0.08", "ay = 0.0")
+        .replace("harmonics = [", "harmonics_unused = [");
+    let text = text
+        .lines()
+        .filter(|l| {
+            !l.contains("harmonics_unused")
+                && !l.trim_start().starts_with("{ h =")
+                && l.trim() != "]"
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let sc = Scenario::parse(&text, "dead-sensor.toml").unwrap();
+    let (first, _) = hil_sim::power_up::run(&sc, 0.5).unwrap();
+    assert_eq!(first.final_state, drive::commissioning::State::Safe);
+    assert_eq!(
+        first.cause,
+        Some(drive::commissioning::Cause::Sensor(mras::Fault::SensorLost))
+    );
+    assert!(first.entered(drive::commissioning::State::Align).is_none());
+}

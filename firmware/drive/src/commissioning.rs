@@ -74,6 +74,9 @@ pub struct Params {
     pub speed_rad_s: f32,
     pub speed_tolerance: f32,
     pub speed_settle_s: f32,
+    /// Time constant of the low-pass on ω̂ for that check: on the uncorrected sensor ω̂
+    /// ripples with the sensor error's derivative (tens of % at speed).
+    pub speed_filter_s: f32,
     pub spin_up_timeout_s: f32,
     pub adapt_timeout_s: f32,
     /// Verification: coefficients frozen this long, residual below the limit (rad, sensor
@@ -93,6 +96,7 @@ impl Default for Params {
             speed_rad_s: 20.0 * core::f32::consts::TAU,
             speed_tolerance: 0.1,
             speed_settle_s: 0.2,
+            speed_filter_s: 0.05,
             spin_up_timeout_s: 2.0,
             adapt_timeout_s: 5.0,
             verify_s: 0.2,
@@ -206,6 +210,8 @@ pub struct Commissioning {
     held_s: f32,
     /// Whether the coefficients in use came from flash (for reporting).
     loaded: bool,
+    /// Low-passed ω̂ (see `Params::speed_filter_s`).
+    speed_lp_rad_s: f32,
 }
 
 impl Commissioning {
@@ -217,6 +223,7 @@ impl Commissioning {
             in_state_s: 0.0,
             held_s: 0.0,
             loaded: false,
+            speed_lp_rad_s: 0.0,
         }
     }
 
@@ -262,6 +269,12 @@ impl Commissioning {
                 self.force_safe(Cause::Sensor(f));
             } else {
                 self.in_state_s += i.dt_s;
+                let a = if self.params.speed_filter_s > 0.0 {
+                    (i.dt_s / self.params.speed_filter_s).min(1.0)
+                } else {
+                    1.0
+                };
+                self.speed_lp_rad_s += (i.omega_rad_s - self.speed_lp_rad_s) * a;
                 self.advance(i);
             }
         }
@@ -290,7 +303,7 @@ impl Commissioning {
                 }
             }
             State::SpinUp => {
-                let err = libm::fabsf(i.omega_rad_s - p.speed_rad_s);
+                let err = libm::fabsf(self.speed_lp_rad_s - p.speed_rad_s);
                 if err <= p.speed_tolerance * libm::fabsf(p.speed_rad_s) {
                     self.held_s += i.dt_s;
                 } else {

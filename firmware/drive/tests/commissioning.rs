@@ -213,11 +213,14 @@ fn spin_up_timeout_and_settling() {
     let mut c = drive_to(State::SpinUp);
     // In the band, out of it, in again: settling restarts.
     let mut i = hardware(&c);
-    for _ in 0..((p.speed_settle_s / DT) as usize - 5) {
+    for _ in 0..((p.speed_settle_s / DT) as usize - 30) {
         c.step(&i);
     }
+    // Out of the band for 0.1 s (twice the speed filter's time constant).
     i.omega_rad_s = 0.5 * p.speed_rad_s;
-    c.step(&i);
+    for _ in 0..100 {
+        c.step(&i);
+    }
     i.omega_rad_s = p.speed_rad_s;
     for _ in 0..10 {
         c.step(&i);
@@ -235,6 +238,24 @@ fn spin_up_timeout_and_settling() {
     };
     run_until(&mut c, State::Safe, p.spin_up_timeout_s + 0.1, |_| slow);
     assert_eq!(c.cause(), Some(Cause::Timeout(State::SpinUp)));
+}
+
+#[test]
+fn speed_ripple_of_the_uncorrected_sensor_does_not_block_spin_up() {
+    // ω̂ on an uncorrected sensor: ±35 % ripple at 40 Hz around the target.
+    let p = params();
+    let mut c = drive_to(State::SpinUp);
+    let mut t = 0.0f32;
+    while c.state() == State::SpinUp {
+        let w = p.speed_rad_s * (1.0 + 0.35 * libm::sinf(core::f32::consts::TAU * 40.0 * t));
+        c.step(&Inputs {
+            omega_rad_s: w,
+            ..healthy()
+        });
+        t += DT;
+        assert!(t < 1.0, "spin-up never settled");
+    }
+    assert_eq!(c.state(), State::Adapt);
 }
 
 #[test]
