@@ -62,7 +62,7 @@ const MAX_REPORTED: u64 = 20;
 const MAX_FAULTS_PRINTED: usize = 20;
 
 /// CSV columns before the coefficients.
-const FIXED_COLUMNS: [&str; 9] = [
+const FIXED_COLUMNS: [&str; 11] = [
     "t_s",
     "state",
     "faults",
@@ -72,7 +72,11 @@ const FIXED_COLUMNS: [&str; 9] = [
     "revs",
     "residual_max_rad",
     "cycles_max",
+    "cycles_mean",
+    "cycles_min",
 ];
+/// Keys of a `mras` line that may be absent (older firmware): empty CSV field.
+const OPTIONAL_DATA_KEYS: [&str; 2] = ["cycles_mean", "cycles_min"];
 /// Keys of a `mras` line (all required).
 const DATA_KEYS: [&str; 10] = [
     "t_ms",
@@ -117,6 +121,8 @@ struct Row {
     revs: u32,
     residual_max_rad: f32,
     cycles_max: u32,
+    cycles_mean: Option<u32>,
+    cycles_min: Option<u32>,
     line: u64,
 }
 
@@ -327,7 +333,18 @@ impl Parser {
 
     fn on_data(&mut self, rest: &str, no: u64) -> Result<(), FieldError> {
         let kv = key_values(rest)?;
-        self.note_unknown_keys(&kv, &DATA_KEYS, Kind::Data, no);
+        let known: Vec<&str> = DATA_KEYS
+            .iter()
+            .chain(&OPTIONAL_DATA_KEYS)
+            .copied()
+            .collect();
+        self.note_unknown_keys(&kv, &known, Kind::Data, no);
+        let optional = |key: &'static str| -> Result<Option<u32>, FieldError> {
+            kv.iter()
+                .find(|(k, _)| *k == key)
+                .map(|(_, v)| parse_uint(v, key, u32::MAX.into()).map(|x| x as u32))
+                .transpose()
+        };
         let row = Row {
             t_ms: parse_uint(get(&kv, "t_ms")?, "t_ms", u64::MAX)?,
             state: parse_word(get(&kv, "state")?, "state")?,
@@ -338,6 +355,8 @@ impl Parser {
             revs: parse_uint(get(&kv, "revs")?, "revs", u32::MAX.into())? as u32,
             residual_max_rad: parse_f32(get(&kv, "residual_max_rad")?, "residual_max_rad")?,
             cycles_max: parse_uint(get(&kv, "cycles_max")?, "cycles_max", u32::MAX.into())? as u32,
+            cycles_mean: optional("cycles_mean")?,
+            cycles_min: optional("cycles_min")?,
             line: no,
         };
         let coefs = parse_coefs(get(&kv, "coef")?)?;
@@ -901,6 +920,12 @@ fn write_segment(seg: &Segment, dest: &Path) -> Result<Pending, String> {
         put(&mut w, &mut buf, r.revs).map_err(io)?;
         put(&mut w, &mut buf, r.residual_max_rad).map_err(io)?;
         put(&mut w, &mut buf, r.cycles_max).map_err(io)?;
+        for c in [r.cycles_mean, r.cycles_min] {
+            match c {
+                Some(c) => put(&mut w, &mut buf, c).map_err(io)?,
+                None => w.write_field("").map_err(io)?,
+            }
+        }
         for c in seg.row_coefs(k) {
             put(&mut w, &mut buf, c).map_err(io)?;
         }

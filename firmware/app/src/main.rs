@@ -489,7 +489,7 @@ mod app {
             n += 2;
         }
         defmt::info!(
-            "mras t_ms={=u32} state={=str} faults={=u8} omega_rad_s={=f32} amplitude={=f32} converged={=bool} revs={=u32} residual_max_rad={=f32} cycles_max={=u32} cycles_mean={=u32} coef={=[?]}",
+            "mras t_ms={=u32} state={=str} faults={=u8} omega_rad_s={=f32} amplitude={=f32} converged={=bool} revs={=u32} residual_max_rad={=f32} cycles_max={=u32} cycles_mean={=u32} cycles_min={=u32} coef={=[?]}",
             tm.ticks / (board::PWM_HZ / 1000),
             tm.state.name(),
             tm.faults_latched,
@@ -500,6 +500,7 @@ mod app {
             tm.residual_max_rad,
             cycles.max,
             cycles.mean(),
+            if cycles.count == 0 { 0 } else { cycles.min },
             &coef[..n]
         );
     }
