@@ -382,3 +382,35 @@ fn plots_are_written_per_segment_when_asked() {
     }
     assert!(stdout.contains("plots: 8 files in"), "{stdout}");
 }
+
+/// The firmware's own format strings (firmware/app/src/main.rs), filled with sample
+/// values, parse without notes: stream and parser cannot drift apart unnoticed.
+#[test]
+fn the_firmware_stream_format_parses() {
+    let src = include_str!("../../firmware/app/src/main.rs");
+    let start = src.find("\"mras t_ms=").expect("stream format in main.rs") + 1;
+    let end = start + src[start..].find('"').unwrap();
+    let line = src[start..end]
+        .replace("{=u32}", "7")
+        .replace("{=u8}", "0")
+        .replace("{=f32}", "0.5")
+        .replace("{=bool}", "true")
+        .replace("{=str}", "Run")
+        .replace("{=[?]}", "[0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8]");
+    assert!(!line.contains('{'), "unhandled placeholder in {line}");
+    let paths = src
+        .lines()
+        .find(|l| l.contains("const PATH_NAMES"))
+        .and_then(|l| l.split('"').nth(1))
+        .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("fw.log");
+    fs::write(&log, format!("INFO  mras-paths {paths}\nINFO  {line}\n")).unwrap();
+    let out = dir.path().join("fw.csv");
+    let (ok, stdout, stderr) = rtt_log(&log, &out, &[]);
+    assert!(ok, "{stdout}\n{stderr}");
+    assert!(!stderr.contains("unknown key"), "{stderr}");
+    let (header, rows) = read_csv(&out);
+    assert_eq!(rows.len(), 1);
+    assert_eq!(header.len(), 11 + 8);
+}
