@@ -58,5 +58,6 @@ pub const SPEED_BANDWIDTH_HZ: f32 = 10.0;
 /// RTT stream and supervisor rates, as divisors of the control rate.
 pub const SUPERVISOR_DIVIDER: u32 = 20; // 1 kHz
 pub const STREAM_DIVIDER: u32 = 200; // 100 Hz
-/// Independent watchdog timeout, fed by the supervisor.
-pub const WATCHDOG_TIMEOUT_US: u32 = 20_000;
+/// Independent watchdog timeout, fed by the supervisor (1 kHz). Longer than a flash
+/// page erase plus programming (~25 ms, interrupts masked) in the Store state.
+pub const WATCHDOG_TIMEOUT_US: u32 = 100_000;

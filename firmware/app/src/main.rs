@@ -419,6 +419,7 @@ mod app {
                 };
             }
             Request::StoreCalibration if *l.store == StoreStatus::Pending => {
+                l.watchdog.feed();
                 *l.store = if calibration::store(&coefs, &core_config()) {
                     StoreStatus::Done
                 } else {
