@@ -13,6 +13,7 @@ pub mod rtt_log;
 pub mod scenario;
 pub mod sensor;
 pub mod study;
+pub mod vector;
 
 use clap::ValueEnum;
 use mras::{AdaptationLaw, Config};

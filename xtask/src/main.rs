@@ -3,15 +3,19 @@
 //! Every command does its own set-up (the thumbv7em target, rustfmt and clippy) so that
 //! it runs on a fresh machine.
 
+mod qemu;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 
 /// The one owner of the MCU target triple for automation.
-const TARGET: &str = "thumbv7em-none-eabihf";
+pub(crate) const TARGET: &str = "thumbv7em-none-eabihf";
 /// Portable crates that must build for the MCU (and are tested on the host).
 const CORE_CRATES: &[&str] = &["mras", "drive", "calib-record"];
 /// The firmware binary (target only).
 const FIRMWARE: &str = "drive-fw";
+/// The emulator image of the core (target only, built by `xtask qemu`).
+const QEMU_IMAGE: &str = "mras-qemu";
 /// Budgets of the size report.
 const FLASH_BUDGET_BYTES: u64 = 64 * 1024;
 const RAM_BUDGET_BYTES: u64 = 16 * 1024;
@@ -25,6 +29,8 @@ cargo xtask <command>
   build-cross   release cross-build of the portable crates and the firmware, size report
   size          size report of the firmware (flash and static RAM against budgets)
   flash         build, flash and attach to the RTT stream (probe-rs, board attached)
+  qemu          the core on an emulated Cortex-M4F: bit-exact against the host
+  cycles        instructions and estimated cycles per core step (emulator trace)
   docs-tables   regenerate the tables of docs/theory.md (prints markdown)
 ";
 
@@ -37,6 +43,8 @@ fn main() -> ExitCode {
         Some("size") => setup().and_then(|_| build_cross()),
         Some("flash") => setup().and_then(|_| flash()),
         Some("docs-tables") => docs_tables(),
+        Some("qemu") => setup().and_then(|_| qemu::bit_exact()),
+        Some("cycles") => setup().and_then(|_| qemu::cycles()),
         Some("-h" | "--help" | "help") | None => {
             print!("{HELP}");
             Ok(())
@@ -52,21 +60,21 @@ fn main() -> ExitCode {
     }
 }
 
-fn root() -> PathBuf {
+pub(crate) fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .parent()
         .expect("xtask lives one level below the workspace root")
         .to_path_buf()
 }
 
-fn cargo() -> Command {
+pub(crate) fn cargo() -> Command {
     let mut c = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
     c.current_dir(root());
     c
 }
 
 /// Run a command, echoing it; error with its exit status.
-fn run(mut c: Command) -> Result<(), String> {
+pub(crate) fn run(mut c: Command) -> Result<(), String> {
     let shown = format!("{c:?}").replace('"', "");
     eprintln!("\n$ {shown}");
     let status = c
@@ -79,7 +87,7 @@ fn run(mut c: Command) -> Result<(), String> {
     }
 }
 
-fn output_of(program: &str, args: &[&str]) -> Option<String> {
+pub(crate) fn output_of(program: &str, args: &[&str]) -> Option<String> {
     let out = Command::new(program).args(args).output().ok()?;
     out.status
         .success()
@@ -106,7 +114,15 @@ fn setup() -> Result<(), String> {
 
 fn test_host() -> Result<(), String> {
     let mut c = cargo();
-    c.args(["test", "--workspace", "--exclude", FIRMWARE, "--locked"]);
+    c.args([
+        "test",
+        "--workspace",
+        "--exclude",
+        FIRMWARE,
+        "--exclude",
+        QEMU_IMAGE,
+        "--locked",
+    ]);
     run(c)
 }
 
@@ -206,6 +222,8 @@ fn ci() -> Result<(), String> {
         "--workspace",
         "--exclude",
         FIRMWARE,
+        "--exclude",
+        QEMU_IMAGE,
         "--all-targets",
         "--",
         "-D",
@@ -214,12 +232,13 @@ fn ci() -> Result<(), String> {
     run(c)?;
     let mut c = cargo();
     c.args(["clippy", "--locked", "--target", TARGET]);
-    for krate in CORE_CRATES.iter().chain([&FIRMWARE]) {
+    for krate in CORE_CRATES.iter().chain([&FIRMWARE, &QEMU_IMAGE]) {
         c.args(["-p", krate]);
     }
     c.args(["--", "-D", "warnings"]);
     run(c)?;
     build_cross()?;
+    qemu::bit_exact()?;
     test_host()?;
     eprintln!("\nxtask ci: all checks passed");
     Ok(())

@@ -43,7 +43,7 @@ impl Cplx {
 
     #[inline]
     pub fn abs(self) -> f32 {
-        libm::sqrtf(self.norm_sqr())
+        crate::trig::sqrt_f32(self.norm_sqr())
     }
 
     #[inline]

@@ -9,6 +9,7 @@
 use crate::complex::Cplx;
 use crate::config::{AdaptationLaw, Config, PathKind, MAX_PATHS};
 use crate::observer::ObserverGains;
+use crate::trig::{max_f32, min_f32};
 use core::f32::consts::TAU;
 
 /// |H| floor used for the residual measure when the law itself has none (paper-literal):
@@ -141,8 +142,8 @@ impl PathBank {
         let n = cfg.sensor_periods as f32;
         let d_theta_e = n * libm::fabsf(cx.omega_smooth_rad_s) * cfg.sample_period_s;
         let limit = cfg.health.coefficient_limit * cx.amplitude;
-        let residual_alpha = (d_theta_e / RESIDUAL_WINDOW_RAD).min(1.0);
-        let g_alpha = (d_theta_e / G_WINDOW_RAD).min(1.0);
+        let residual_alpha = min_f32(d_theta_e * (1.0 / RESIDUAL_WINDOW_RAD), 1.0);
+        let g_alpha = min_f32(d_theta_e * (1.0 / G_WINDOW_RAD), 1.0);
         let h_floor = match cfg.law {
             AdaptationLaw::Compensated { h_floor, .. } => h_floor,
             AdaptationLaw::PaperLiteral { .. } => METRIC_H_FLOOR,
@@ -164,7 +165,7 @@ impl PathBank {
                 let h = gains.error_transfer(m as f32 * n * w);
                 s.h_abs = h.abs();
                 s.comp = if s.h_abs > 0.0 {
-                    h.conj().scale(2.0 / (s.h_abs * s.h_abs.max(h_floor)))
+                    h.conj().scale(2.0 / (s.h_abs * max_f32(s.h_abs, h_floor)))
                 } else {
                     Cplx::ZERO
                 };
@@ -209,7 +210,7 @@ impl PathBank {
             }
             let a2 = s.coef.norm_sqr();
             if a2 > limit * limit {
-                s.coef = s.coef.scale(limit / libm::sqrtf(a2));
+                s.coef = s.coef.scale(limit / crate::trig::sqrt_f32(a2));
             }
             adapted = true;
         }

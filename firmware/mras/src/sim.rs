@@ -654,3 +654,55 @@ pub fn revs_to_reduction(per_rev_pk_pk: &[f64], raw_pk_pk: f64, factor: f64) -> 
         Some(i) => Some(i + 2),
     }
 }
+
+/// Bytes per step of an input vector: x, y, torque feedforward as little-endian f32.
+pub const VECTOR_RECORD_BYTES: usize = 12;
+
+/// One input-vector record.
+pub fn encode_vector_record(x: f32, y: f32, torque_nm: f32) -> [u8; VECTOR_RECORD_BYTES] {
+    let mut b = [0u8; VECTOR_RECORD_BYTES];
+    b[0..4].copy_from_slice(&x.to_bits().to_le_bytes());
+    b[4..8].copy_from_slice(&y.to_bits().to_le_bytes());
+    b[8..12].copy_from_slice(&torque_nm.to_bits().to_le_bytes());
+    b
+}
+
+/// Inverse of [`encode_vector_record`]; short input reads as zeros.
+pub fn decode_vector_record(b: &[u8]) -> (f32, f32, f32) {
+    let word = |i: usize| {
+        let mut w = [0u8; 4];
+        for (j, v) in w.iter_mut().enumerate() {
+            *v = b.get(4 * i + j).copied().unwrap_or(0);
+        }
+        f32::from_bits(u32::from_le_bytes(w))
+    };
+    (word(0), word(1), word(2))
+}
+
+/// One line of the bit-exactness trace: step index, result (0 or the fault's bit),
+/// then θ̂, ω̂, ε, the tracked amplitude and every coefficient as f32 bit patterns.
+/// The same function runs on the host and on the emulated Cortex-M4F.
+pub fn write_trace_line<W: core::fmt::Write, T: Trig>(
+    w: &mut W,
+    k: usize,
+    result: &Result<Estimate, Fault>,
+    tracker: &Tracker<T>,
+) -> core::fmt::Result {
+    let fault = match result {
+        Ok(_) => 0u8,
+        Err(f) => 1u8 << (*f as u8),
+    };
+    let e = tracker.last_estimate();
+    write!(
+        w,
+        "{k} {fault:02x} {:08x} {:08x} {:08x} {:08x}",
+        e.theta_rad.to_bits(),
+        e.omega_rad_s.to_bits(),
+        e.epsilon_rad.to_bits(),
+        e.amplitude.to_bits()
+    )?;
+    for (_, c) in tracker.coefficients().iter() {
+        write!(w, " {:08x} {:08x}", c.re.to_bits(), c.im.to_bits())?;
+    }
+    writeln!(w)
+}

@@ -6,7 +6,7 @@ use crate::config::{Config, ConfigError, MAX_HARMONIC};
 use crate::decoupler::{PathBank, StepContext};
 use crate::health::{Fault, Faults};
 use crate::observer::{ObserverGains, ObserverState};
-use crate::trig::{LibmTrig, Trig};
+use crate::trig::{max_f32, min_f32, sqrt_f32, F32Trig, Trig};
 use crate::{Coefficients, MAX_PATHS};
 use core::f32::consts::TAU;
 
@@ -53,7 +53,7 @@ impl Estimate {
 
 /// Observer + MRAS decoupler + health monitor.
 #[derive(Clone, Debug)]
-pub struct Tracker<T: Trig = LibmTrig> {
+pub struct Tracker<T: Trig = F32Trig> {
     cfg: Config,
     trig: T,
     gains: ObserverGains,
@@ -105,10 +105,10 @@ impl Smoothed {
     }
 }
 
-impl Tracker<LibmTrig> {
+impl Tracker<F32Trig> {
     /// A tracker with the portable trigonometry.
     pub fn new(cfg: Config) -> Result<Self, ConfigError> {
-        Self::with_trig(cfg, LibmTrig)
+        Self::with_trig(cfg, F32Trig)
     }
 }
 
@@ -189,7 +189,7 @@ impl<T: Trig> Tracker<T> {
             // Coefficients plus input cancel the vector: nothing to track on.
             return self.reject(Fault::SensorLost);
         }
-        let inv_zd = 1.0 / libm::sqrtf(zd2);
+        let inv_zd = 1.0 / sqrt_f32(zd2);
         let eps_e_rad = (zd.im * c - zd.re * s) * inv_zd;
         let cos_err = (zd.re * c + zd.im * s) * inv_zd;
         let lock_lost = cos_err < self.cos_lock;
@@ -208,12 +208,16 @@ impl<T: Trig> Tracker<T> {
         if !next.is_finite() {
             return self.reject(Fault::NumericalOverflow);
         }
-        let amplitude = libm::sqrtf(zd2);
+        let amplitude = sqrt_f32(zd2);
         let o = &self.obs;
         let t_s = self.cfg.sample_period_s;
-        let alpha = (n as f32 * libm::fabsf(o.omega_rad_s) * t_s / SMOOTH_WINDOW_RAD)
-            .max(t_s / SMOOTH_MAX_TAU_S)
-            .min(1.0);
+        let alpha = min_f32(
+            max_f32(
+                n as f32 * libm::fabsf(o.omega_rad_s) * t_s * (1.0 / SMOOTH_WINDOW_RAD),
+                t_s * (1.0 / SMOOTH_MAX_TAU_S),
+            ),
+            1.0,
+        );
         let smooth = self.smooth.updated(o.omega_rad_s, amplitude, alpha);
 
         let g = &self.cfg.gates;

@@ -1,0 +1,121 @@
+//! The portable core on an emulated Cortex-M4F: runs the input vector embedded at build
+//! time through `Tracker::step` and prints every step's outputs as f32 bit patterns over
+//! semihosting (`mras::sim::write_trace_line`), for comparison with the host.
+//!
+//! Linked with the drive's own `memory.x` and built with the firmware's release profile.
+//! Runs on QEMU's `netduinoplus2` (STM32F405: a Cortex-M4F with the same flash and SRAM
+//! addresses as the STM32G474), see docs/performance.md.
+#![no_std]
+#![no_main]
+
+use cortex_m_rt::entry;
+use cortex_m_semihosting::debug;
+#[cfg(not(cycles_mode))]
+use cortex_m_semihosting::hio;
+use mras::{Config, Tracker};
+
+static VECTOR: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/vector.bin"));
+
+#[panic_handler]
+fn panic(_: &core::panic::PanicInfo) -> ! {
+    debug::exit(debug::EXIT_FAILURE);
+    loop {}
+}
+
+/// `core::fmt::Write` over the semihosting console.
+#[cfg(not(cycles_mode))]
+struct Console(hio::HostStream);
+
+#[cfg(not(cycles_mode))]
+impl core::fmt::Write for Console {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        self.0.write_all(s.as_bytes()).map_err(|_| core::fmt::Error)
+    }
+}
+
+/// Steps run before the measured ones (spin-up and adaptation under way), and measured.
+#[cfg(cycles_mode)]
+const WARMUP_STEPS: usize = 1400;
+#[cfg(cycles_mode)]
+const MEASURED_STEPS: usize = 40;
+
+/// Markers around each measured `Tracker::step`: the instruction trace counts what runs
+/// between a call to `mras_step_begin` and the next call to `mras_step_end`.
+#[cfg(cycles_mode)]
+#[inline(never)]
+#[no_mangle]
+pub extern "C" fn mras_step_begin(config: u32) {
+    core::hint::black_box(config);
+}
+
+#[cfg(cycles_mode)]
+#[inline(never)]
+#[no_mangle]
+pub extern "C" fn mras_step_end() {
+    core::hint::black_box(());
+}
+
+#[cfg(cycles_mode)]
+#[entry]
+fn main() -> ! {
+    use mras::PathKind;
+    let all = [
+        PathKind::Offset,
+        PathKind::AmplitudeQuadrature,
+        PathKind::Harmonic(4),
+        PathKind::Harmonic(5),
+    ];
+    for (config, paths) in [0usize, 2, 4].into_iter().enumerate() {
+        let mut cfg = Config::default();
+        if cfg.set_paths(&all[..paths]).is_err() {
+            debug::exit(debug::EXIT_FAILURE);
+        }
+        let Ok(mut tracker) = Tracker::new(cfg) else {
+            debug::exit(debug::EXIT_FAILURE);
+            loop {}
+        };
+        let records = VECTOR.chunks_exact(mras::sim::VECTOR_RECORD_BYTES);
+        for (k, rec) in records.take(WARMUP_STEPS + MEASURED_STEPS).enumerate() {
+            let (x, y, tq) = mras::sim::decode_vector_record(rec);
+            if k >= WARMUP_STEPS {
+                mras_step_begin(config as u32);
+                let r = tracker.step(x, y, tq);
+                mras_step_end();
+                core::hint::black_box(r.is_ok());
+            } else {
+                let _ = tracker.step(x, y, tq);
+            }
+        }
+    }
+    debug::exit(debug::EXIT_SUCCESS);
+    loop {}
+}
+
+#[cfg(not(cycles_mode))]
+#[entry]
+fn main() -> ! {
+    let Ok(out) = hio::hstdout() else {
+        debug::exit(debug::EXIT_FAILURE);
+        loop {}
+    };
+    let mut console = Console(out);
+    let mut tracker = match Tracker::new(Config::default()) {
+        Ok(t) => t,
+        Err(_) => {
+            debug::exit(debug::EXIT_FAILURE);
+            loop {}
+        }
+    };
+    for (k, rec) in VECTOR
+        .chunks_exact(mras::sim::VECTOR_RECORD_BYTES)
+        .enumerate()
+    {
+        let (x, y, tq) = mras::sim::decode_vector_record(rec);
+        let result = tracker.step(x, y, tq);
+        if mras::sim::write_trace_line(&mut console, k, &result, &tracker).is_err() {
+            debug::exit(debug::EXIT_FAILURE);
+        }
+    }
+    debug::exit(debug::EXIT_SUCCESS);
+    loop {}
+}

@@ -1,0 +1,364 @@
+//! The core on an emulated Cortex-M4F (QEMU `netduinoplus2`, an STM32F405: same core,
+//! FPU and flash/SRAM addresses as the STM32G474, so the image links with the drive's
+//! own memory.x).
+//!
+//! `bit_exact`: hil-sim writes an input vector and the host core's trace over it; the
+//! emulated image runs the same vector and prints the same trace; they must be equal.
+//! `cycles`: the image runs the three path configurations with markers around each
+//! measured step under a one-instruction-per-block execution trace; instructions are
+//! counted between the markers and weighted by Cortex-M4 cycle counts (TRM r0p1 §3.3).
+
+use crate::{cargo, output_of, root, run, TARGET};
+use std::collections::HashMap;
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+
+const MACHINE: &str = "netduinoplus2";
+const IMAGE: &str = "mras-qemu";
+const CONFIGS: [&str; 3] = [
+    "observer only",
+    "observer + offset + amplitude/quadrature",
+    "observer + offset + amplitude/quadrature + h4 + h5",
+];
+
+fn dir() -> PathBuf {
+    root().join("target").join("qemu")
+}
+
+/// Install a Debian package when its command is missing (the machines here run as root).
+fn ensure(command: &str, package: &str) -> Result<(), String> {
+    if output_of("which", &[command]).is_some() {
+        return Ok(());
+    }
+    eprintln!("xtask: installing {package} (provides {command})");
+    let ok = Command::new("apt-get")
+        .args(["install", "-y", "-qq", package])
+        .env("DEBIAN_FRONTEND", "noninteractive")
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false)
+        || (Command::new("apt-get")
+            .args(["update", "-qq"])
+            .status()
+            .is_ok()
+            && Command::new("apt-get")
+                .args(["install", "-y", "-qq", package])
+                .env("DEBIAN_FRONTEND", "noninteractive")
+                .status()
+                .map(|s| s.success())
+                .unwrap_or(false));
+    if ok && output_of("which", &[command]).is_some() {
+        Ok(())
+    } else {
+        Err(format!(
+            "{command} not found and `apt-get install {package}` failed: install it (root needed)"
+        ))
+    }
+}
+
+fn vector() -> Result<(PathBuf, PathBuf), String> {
+    let (v, t) = (dir().join("vector.bin"), dir().join("host-trace.txt"));
+    let mut c = cargo();
+    c.args([
+        "run",
+        "--locked",
+        "--release",
+        "-q",
+        "-p",
+        "hil-sim",
+        "--",
+        "qemu-vector",
+    ]);
+    c.arg("--vector").arg(&v).arg("--trace").arg(&t);
+    run(c)?;
+    Ok((v, t))
+}
+
+/// Build the image for `mode` ("trace" or "cycles") and copy it aside.
+fn image(vector: &PathBuf, mode: &str) -> Result<PathBuf, String> {
+    let mut c = cargo();
+    c.args([
+        "build",
+        "--locked",
+        "--release",
+        "--target",
+        TARGET,
+        "-p",
+        IMAGE,
+    ]);
+    c.env("MRAS_QEMU_VECTOR", vector)
+        .env("MRAS_QEMU_MODE", mode);
+    run(c)?;
+    let built = root()
+        .join("target")
+        .join(TARGET)
+        .join("release")
+        .join(IMAGE);
+    let out = dir().join(format!("{IMAGE}-{mode}"));
+    std::fs::copy(&built, &out).map_err(|e| format!("{}: {e}", out.display()))?;
+    Ok(out)
+}
+
+fn qemu(image: &PathBuf) -> Command {
+    let mut c = Command::new("qemu-system-arm");
+    c.args([
+        "-M",
+        MACHINE,
+        "-nographic",
+        "-semihosting-config",
+        "enable=on,target=native",
+    ]);
+    c.arg("-kernel").arg(image);
+    c
+}
+
+pub fn bit_exact() -> Result<(), String> {
+    ensure("qemu-system-arm", "qemu-system-arm")?;
+    let (v, host_trace) = vector()?;
+    let img = image(&v, "trace")?;
+    eprintln!(
+        "\n$ qemu-system-arm -M {MACHINE} ... -kernel {}",
+        img.display()
+    );
+    let out = qemu(&img)
+        .stderr(Stdio::inherit())
+        .output()
+        .map_err(|e| format!("qemu-system-arm: {e}"))?;
+    if !out.status.success() {
+        return Err(format!("the emulated image failed ({})", out.status));
+    }
+    let target = String::from_utf8_lossy(&out.stdout);
+    std::fs::write(dir().join("target-trace.txt"), target.as_bytes()).map_err(|e| e.to_string())?;
+    let host = std::fs::read_to_string(&host_trace).map_err(|e| e.to_string())?;
+    let (h, t): (Vec<&str>, Vec<&str>) = (host.lines().collect(), target.lines().collect());
+    if let Some(i) = (0..h.len().max(t.len())).find(|&i| h.get(i) != t.get(i)) {
+        return Err(format!(
+            "not bit-exact at step {i}:\n  host   {}\n  target {}",
+            h.get(i).unwrap_or(&"<missing>"),
+            t.get(i).unwrap_or(&"<missing>")
+        ));
+    }
+    eprintln!(
+        "xtask qemu: {} steps bit-exact between the host and the emulated Cortex-M4F (θ̂, ω̂, ε, |Z|, every coefficient)",
+        h.len()
+    );
+    Ok(())
+}
+
+/// One disassembled instruction.
+struct Insn {
+    mnemonic: String,
+    operands: String,
+    size: u32,
+}
+
+fn disassemble(image: &PathBuf) -> Result<HashMap<u32, Insn>, String> {
+    ensure("arm-none-eabi-objdump", "binutils-arm-none-eabi")?;
+    let out = Command::new("arm-none-eabi-objdump")
+        .arg("-d")
+        .arg(image)
+        .output()
+        .map_err(|e| e.to_string())?;
+    let mut map = HashMap::new();
+    for line in String::from_utf8_lossy(&out.stdout).lines() {
+        // " 8002090:\tb580      \tpush\t{r7, lr}"
+        let mut f = line.split('\t');
+        let (Some(addr), Some(hex), Some(mn)) = (f.next(), f.next(), f.next()) else {
+            continue;
+        };
+        let Ok(addr) = u32::from_str_radix(addr.trim().trim_end_matches(':'), 16) else {
+            continue;
+        };
+        let size = hex.split_whitespace().map(|w| w.len() as u32 / 2).sum();
+        map.insert(
+            addr,
+            Insn {
+                mnemonic: mn.trim().to_string(),
+                operands: f.next().unwrap_or("").trim().to_string(),
+                size,
+            },
+        );
+    }
+    Ok(map)
+}
+
+/// Registers in a `{r4, r5, lr}` / `{s16-s19}` / `{d8}` list (d counts as two words).
+fn reg_count(ops: &str) -> u32 {
+    let inner = ops
+        .split('{')
+        .nth(1)
+        .and_then(|s| s.split('}').next())
+        .unwrap_or("");
+    inner
+        .split(',')
+        .map(|r| {
+            let r = r.trim();
+            let w = if r.starts_with('d') { 2 } else { 1 };
+            match r.split_once('-') {
+                Some((a, b)) => {
+                    let n = |x: &str| {
+                        x.trim_start_matches(|c: char| c.is_alphabetic())
+                            .parse::<u32>()
+                            .unwrap_or(0)
+                    };
+                    w * (n(b).saturating_sub(n(a)) + 1)
+                }
+                None if r.is_empty() => 0,
+                None => w,
+            }
+        })
+        .sum()
+}
+
+/// Cortex-M4 cycles (TRM r0p1 table 3-1; P, the pipeline refill of a taken branch, = 2;
+/// SDIV/UDIV 2-12, counted as 7; loads and stores without the pipelining overlap).
+fn insn_cycles(i: &Insn, taken: bool) -> u32 {
+    let m = i.mnemonic.split('.').next().unwrap_or("");
+    let base = m.trim_end_matches('w');
+    let is_branch = matches!(base, "b" | "bl" | "bx" | "blx" | "cbz" | "cbnz")
+        || (base.starts_with('b')
+            && base.len() == 3
+            && !base.starts_with("bi")
+            && !base.starts_with("bf"));
+    let refill = if taken { 2 } else { 0 };
+    if is_branch {
+        return 1 + refill;
+    }
+    match base {
+        "push" | "stmdb" | "stm" | "stmia" => 1 + reg_count(&i.operands),
+        "pop" | "ldm" | "ldmia" | "ldmdb" => {
+            1 + reg_count(&i.operands) + if i.operands.contains("pc") { 2 } else { 0 }
+        }
+        "vpush" | "vpop" | "vldmia" | "vstmia" | "vldmdb" | "vstmdb" | "vldm" | "vstm" => {
+            1 + reg_count(&i.operands)
+        }
+        "vldr" | "vstr" => {
+            if i.operands.starts_with('d') {
+                3
+            } else {
+                2
+            }
+        }
+        "ldrd" | "strd" => 3,
+        "vdiv" | "vsqrt" => 14,
+        "vmla" | "vmls" | "vnmla" | "vnmls" | "vfma" | "vfms" | "vfnma" | "vfnms" => 3,
+        "sdiv" | "udiv" => 7,
+        _ if base.starts_with("ldr") || base.starts_with("str") => {
+            2 + if base.starts_with("ldr") && i.operands.starts_with("pc") {
+                2
+            } else {
+                0
+            }
+        }
+        "vmov" if i.operands.matches(',').count() >= 3 => 2,
+        _ => 1,
+    }
+}
+
+pub fn cycles() -> Result<(), String> {
+    ensure("qemu-system-arm", "qemu-system-arm")?;
+    let (v, _) = vector()?;
+    let img = image(&v, "cycles")?;
+    let insns = disassemble(&img)?;
+    eprintln!(
+        "\n$ qemu-system-arm -M {MACHINE} -singlestep -d exec,nochain ... (instruction trace)"
+    );
+    let mut child = qemu(&img)
+        .args(["-singlestep", "-d", "exec,nochain"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .map_err(|e| format!("qemu-system-arm: {e}"))?;
+    let stderr = child.stderr.take().ok_or("no trace")?;
+    // Per measured step: (instructions, cycles); per function: cycles of all steps.
+    let mut steps: Vec<(u64, u64)> = Vec::new();
+    let mut by_fn: Vec<HashMap<String, u64>> = vec![HashMap::new(); CONFIGS.len()];
+    let (mut counting, mut in_begin) = (false, false);
+    let (mut n, mut cyc) = (0u64, 0u64);
+    let mut prev: Option<(u32, String)> = None;
+    for line in BufReader::new(stderr).lines() {
+        let line = line.map_err(|e| e.to_string())?;
+        // "Trace 0: 0x7f.. [00800400/08002090/00000010/ff000201] mras_step_begin"
+        let Some(pc) = line
+            .split('/')
+            .nth(1)
+            .and_then(|p| u32::from_str_radix(p, 16).ok())
+        else {
+            continue;
+        };
+        let func = line.rsplit(' ').next().unwrap_or("").to_string();
+        // Charge the previous instruction now that we know whether it branched.
+        if let Some((ppc, pfunc)) = prev.take() {
+            if let Some(i) = insns.get(&ppc) {
+                let taken = pc != ppc + i.size;
+                let c = insn_cycles(i, taken) as u64;
+                cyc += c;
+                let config = (steps.len() / STEPS_PER_CONFIG).min(CONFIGS.len() - 1);
+                *by_fn[config].entry(pfunc).or_default() += c;
+            } else {
+                cyc += 1;
+            }
+        }
+        match func.as_str() {
+            "mras_step_begin" => in_begin = true,
+            "mras_step_end" if counting => {
+                steps.push((n, cyc));
+                counting = false;
+                (n, cyc) = (0, 0);
+            }
+            _ if in_begin => {
+                in_begin = false;
+                counting = true;
+            }
+            _ => {}
+        }
+        if counting {
+            n += 1;
+            prev = Some((pc, func));
+        }
+    }
+    let status = child.wait().map_err(|e| e.to_string())?;
+    if !status.success() || steps.len() != STEPS_PER_CONFIG * CONFIGS.len() {
+        return Err(format!(
+            "instruction trace incomplete: {} of {} steps ({status})",
+            steps.len(),
+            STEPS_PER_CONFIG * CONFIGS.len()
+        ));
+    }
+    println!("Core `Tracker::step` on the emulated Cortex-M4F (thumbv7em-none-eabihf, release),");
+    println!("{STEPS_PER_CONFIG} steps per configuration after spin-up, adaptation running:\n");
+    println!("| configuration | instructions/step (mean, max) | est. cycles/step (mean, max) | µs at 170 MHz | share of a 20 kHz period |");
+    println!("|---|---:|---:|---:|---:|");
+    for (k, name) in CONFIGS.iter().enumerate() {
+        let s = &steps[k * STEPS_PER_CONFIG..(k + 1) * STEPS_PER_CONFIG];
+        let mean = |f: fn(&(u64, u64)) -> u64| s.iter().map(f).sum::<u64>() as f64 / s.len() as f64;
+        let (im, cm) = (mean(|x| x.0), mean(|x| x.1));
+        let (ix, cx) = (
+            s.iter().map(|x| x.0).max().unwrap_or(0),
+            s.iter().map(|x| x.1).max().unwrap_or(0),
+        );
+        println!(
+            "| {name} | {im:.0}, {ix} | {cm:.0}, {cx} | {:.2} | {:.1} % |",
+            cm / 170.0,
+            100.0 * cm / (170e6 / 20e3)
+        );
+    }
+    println!(
+        "\nWhere the cycles go (four paths; cycles per step by function, incl. inlined code):\n"
+    );
+    let mut f: Vec<_> = by_fn[2].iter().collect();
+    f.sort_by(|a, b| b.1.cmp(a.1));
+    let total: u64 = f.iter().map(|x| *x.1).sum();
+    for (name, c) in f.iter().take(10) {
+        println!(
+            "| {name} | {:.0} | {:.0} % |",
+            **c as f64 / STEPS_PER_CONFIG as f64,
+            100.0 * **c as f64 / total as f64
+        );
+    }
+    Ok(())
+}
+
+/// Must match `MEASURED_STEPS` in firmware/qemu-test/src/main.rs.
+const STEPS_PER_CONFIG: usize = 40;
