@@ -16,10 +16,17 @@ use mras::{Config, Tracker};
 
 static VECTOR: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/vector.bin"));
 
+/// End the emulation with an exit code (semihosting), never return.
+fn exit(code: debug::ExitStatus) -> ! {
+    debug::exit(code);
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
 #[panic_handler]
 fn panic(_: &core::panic::PanicInfo) -> ! {
-    debug::exit(debug::EXIT_FAILURE);
-    loop {}
+    exit(debug::EXIT_FAILURE)
 }
 
 /// `core::fmt::Write` over the semihosting console.
@@ -68,11 +75,10 @@ fn main() -> ! {
     for (config, paths) in [0usize, 2, 4].into_iter().enumerate() {
         let mut cfg = Config::default();
         if cfg.set_paths(&all[..paths]).is_err() {
-            debug::exit(debug::EXIT_FAILURE);
+            exit(debug::EXIT_FAILURE);
         }
         let Ok(mut tracker) = Tracker::new(cfg) else {
-            debug::exit(debug::EXIT_FAILURE);
-            loop {}
+            exit(debug::EXIT_FAILURE)
         };
         let records = VECTOR.chunks_exact(mras::sim::VECTOR_RECORD_BYTES);
         for (k, rec) in records.take(WARMUP_STEPS + MEASURED_STEPS).enumerate() {
@@ -87,24 +93,19 @@ fn main() -> ! {
             }
         }
     }
-    debug::exit(debug::EXIT_SUCCESS);
-    loop {}
+    exit(debug::EXIT_SUCCESS)
 }
 
 #[cfg(not(cycles_mode))]
 #[entry]
 fn main() -> ! {
     let Ok(out) = hio::hstdout() else {
-        debug::exit(debug::EXIT_FAILURE);
-        loop {}
+        exit(debug::EXIT_FAILURE)
     };
     let mut console = Console(out);
     let mut tracker = match Tracker::new(Config::default()) {
         Ok(t) => t,
-        Err(_) => {
-            debug::exit(debug::EXIT_FAILURE);
-            loop {}
-        }
+        Err(_) => exit(debug::EXIT_FAILURE),
     };
     for (k, rec) in VECTOR
         .chunks_exact(mras::sim::VECTOR_RECORD_BYTES)
@@ -113,9 +114,8 @@ fn main() -> ! {
         let (x, y, tq) = mras::sim::decode_vector_record(rec);
         let result = tracker.step(x, y, tq);
         if mras::sim::write_trace_line(&mut console, k, &result, &tracker).is_err() {
-            debug::exit(debug::EXIT_FAILURE);
+            exit(debug::EXIT_FAILURE);
         }
     }
-    debug::exit(debug::EXIT_SUCCESS);
-    loop {}
+    exit(debug::EXIT_SUCCESS)
 }
