@@ -189,7 +189,8 @@ impl<T: Trig> Tracker<T> {
             // Coefficients plus input cancel the vector: nothing to track on.
             return self.reject(Fault::SensorLost);
         }
-        let inv_zd = 1.0 / sqrt_f32(zd2);
+        let zd_abs = sqrt_f32(zd2);
+        let inv_zd = 1.0 / zd_abs;
         let eps_e_rad = (zd.im * c - zd.re * s) * inv_zd;
         let cos_err = (zd.re * c + zd.im * s) * inv_zd;
         let lock_lost = cos_err < self.cos_lock;
@@ -208,7 +209,7 @@ impl<T: Trig> Tracker<T> {
         if !next.is_finite() {
             return self.reject(Fault::NumericalOverflow);
         }
-        let amplitude = sqrt_f32(zd2);
+        let amplitude = zd_abs;
         let o = &self.obs;
         let t_s = self.cfg.sample_period_s;
         let alpha = min_f32(
