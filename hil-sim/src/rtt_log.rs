@@ -62,7 +62,7 @@ const MAX_REPORTED: u64 = 20;
 const MAX_FAULTS_PRINTED: usize = 20;
 
 /// CSV columns before the coefficients.
-const FIXED_COLUMNS: [&str; 11] = [
+const FIXED_COLUMNS: [&str; 13] = [
     "t_s",
     "state",
     "faults",
@@ -74,9 +74,16 @@ const FIXED_COLUMNS: [&str; 11] = [
     "cycles_max",
     "cycles_mean",
     "cycles_min",
+    "step_cycles_max",
+    "step_cycles_mean",
 ];
 /// Keys of a `mras` line that may be absent (older firmware): empty CSV field.
-const OPTIONAL_DATA_KEYS: [&str; 2] = ["cycles_mean", "cycles_min"];
+const OPTIONAL_DATA_KEYS: [&str; 4] = [
+    "cycles_mean",
+    "cycles_min",
+    "step_cycles_max",
+    "step_cycles_mean",
+];
 /// Keys of a `mras` line (all required).
 const DATA_KEYS: [&str; 10] = [
     "t_ms",
@@ -121,8 +128,8 @@ struct Row {
     revs: u32,
     residual_max_rad: f32,
     cycles_max: u32,
-    cycles_mean: Option<u32>,
-    cycles_min: Option<u32>,
+    /// The optional keys, in `OPTIONAL_DATA_KEYS` order.
+    optional: [Option<u32>; 4],
     line: u64,
 }
 
@@ -355,8 +362,12 @@ impl Parser {
             revs: parse_uint(get(&kv, "revs")?, "revs", u32::MAX.into())? as u32,
             residual_max_rad: parse_f32(get(&kv, "residual_max_rad")?, "residual_max_rad")?,
             cycles_max: parse_uint(get(&kv, "cycles_max")?, "cycles_max", u32::MAX.into())? as u32,
-            cycles_mean: optional("cycles_mean")?,
-            cycles_min: optional("cycles_min")?,
+            optional: [
+                optional(OPTIONAL_DATA_KEYS[0])?,
+                optional(OPTIONAL_DATA_KEYS[1])?,
+                optional(OPTIONAL_DATA_KEYS[2])?,
+                optional(OPTIONAL_DATA_KEYS[3])?,
+            ],
             line: no,
         };
         let coefs = parse_coefs(get(&kv, "coef")?)?;
@@ -920,7 +931,7 @@ fn write_segment(seg: &Segment, dest: &Path) -> Result<Pending, String> {
         put(&mut w, &mut buf, r.revs).map_err(io)?;
         put(&mut w, &mut buf, r.residual_max_rad).map_err(io)?;
         put(&mut w, &mut buf, r.cycles_max).map_err(io)?;
-        for c in [r.cycles_mean, r.cycles_min] {
+        for c in r.optional {
             match c {
                 Some(c) => put(&mut w, &mut buf, c).map_err(io)?,
                 None => w.write_field("").map_err(io)?,

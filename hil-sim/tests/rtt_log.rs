@@ -72,7 +72,7 @@ fn corrupted_capture(dir: &Path, edits: &[(usize, &str, &str)]) -> PathBuf {
 }
 
 const HEADER4: &str = "t_s,state,faults,omega_rad_s,amplitude,converged,revs,residual_max_rad,\
-cycles_max,cycles_mean,cycles_min,offset_re,offset_im,amplitude_quadrature_re,amplitude_quadrature_im,h4_re,h4_im,\
+cycles_max,cycles_mean,cycles_min,step_cycles_max,step_cycles_mean,offset_re,offset_im,amplitude_quadrature_re,amplitude_quadrature_im,h4_re,h4_im,\
 h5_re,h5_im";
 
 #[test]
@@ -88,7 +88,7 @@ fn realistic_capture_gives_the_rows_the_values_and_the_fault_table() {
     assert_eq!(rows.len(), 120);
     assert_eq!(
         rows[0].join(","),
-        "0.01,Align,0,0,0.98065567,false,0,NaN,2179,,,0,0,0,0,0,0,0,0"
+        "0.01,Align,0,0,0.98065567,false,0,NaN,2179,,,,,0,0,0,0,0,0,0,0"
     );
     // Line 71 is ANSI-coloured.
     assert_eq!(
@@ -97,12 +97,12 @@ fn realistic_capture_gives_the_rows_the_values_and_the_fault_table() {
     );
     assert_eq!(
         rows[63].join(","),
-        "0.64,Adapt,4,31.415926,0.9976312,false,1,0.016793998,2112,,,0.010635376,-0.0038909912,\
+        "0.64,Adapt,4,31.415926,0.9976312,false,1,0.016793998,2112,,,,,0.010635376,-0.0038909912,\
          0.026977539,0.007522583,-0.00440979,0.0019887288,0.0013834635,-0.00077819824"
     );
     assert_eq!(
         rows[119].join(","),
-        "1.2,Tracking,0,31.415926,0.99963367,true,4,0.00079202955,2171,,,0.012284347,-0.004494273,\
+        "1.2,Tracking,0,31.415926,0.99963367,true,4,0.00079202955,2171,,,,,0.012284347,-0.004494273,\
          0.031160293,0.008688928,-0.00509351,0.002297073,0.0015979637,-0.00089885463"
     );
     for (k, r) in rows.iter().enumerate() {
@@ -148,7 +148,7 @@ fn board_reset_starts_a_second_csv() {
     assert_eq!(t1, ["0.01", "0.02", "0.03", "0.04", "0.05"]);
 
     let (h2, r2) = read_csv(&dir.path().join("r.2.csv"));
-    assert_eq!(h2.len(), 11 + 6);
+    assert_eq!(h2.len(), 13 + 6);
     assert_eq!(h2.last().unwrap(), "h4_im");
     let t2: Vec<&str> = r2.iter().map(|r| r[0].as_str()).collect();
     assert_eq!(t2, ["0.01", "0.02", "0.03", "0.04"]);
@@ -345,13 +345,20 @@ fn line_formats_of_probe_rs_and_defmt_print_are_all_accepted() {
     let (header, rows) = read_csv(&out);
     assert_eq!(
         &header[9..],
-        ["cycles_mean", "cycles_min", "h-2_re", "h-2_im"]
+        [
+            "cycles_mean",
+            "cycles_min",
+            "step_cycles_max",
+            "step_cycles_mean",
+            "h-2_re",
+            "h-2_im"
+        ]
     );
     let faults: Vec<&str> = rows.iter().map(|r| r[2].as_str()).collect();
     assert_eq!(faults, ["3", "4", "1", "0"]);
     assert_eq!(
         rows[3].join(","),
-        "0.04,Adapt,0,-inf,1,true,3,0.5,2000,,,1.5,-2.5"
+        "0.04,Adapt,0,-inf,1,true,3,0.5,2000,,,,,1.5,-2.5"
     );
     assert!(stdout.contains("non-finite values: 4"), "{stdout}");
     assert!(stderr.is_empty(), "{stderr}");
@@ -412,5 +419,5 @@ fn the_firmware_stream_format_parses() {
     assert!(!stderr.contains("unknown key"), "{stderr}");
     let (header, rows) = read_csv(&out);
     assert_eq!(rows.len(), 1);
-    assert_eq!(header.len(), 11 + 8);
+    assert_eq!(header.len(), 13 + 8);
 }

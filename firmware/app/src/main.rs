@@ -92,6 +92,8 @@ mod app {
         pub revs: u32,
         pub residual_max_rad: f32,
         pub cycles: CycleStats,
+        /// The core's `Tracker::step` alone (with the ADC scaling).
+        pub step_cycles: CycleStats,
         pub coefficients: Coefficients,
     }
 
@@ -254,6 +256,7 @@ mod app {
                     revs: 0,
                     residual_max_rad: f32::INFINITY,
                     cycles: CycleStats::EMPTY,
+                    step_cycles: CycleStats::EMPTY,
                     coefficients,
                 },
                 command,
@@ -302,11 +305,14 @@ mod app {
         }
         l.tracker.set_frozen(cmd.adaptation == Adaptation::Frozen);
 
-        // Sensor → core. A railed ADC is the core's SensorSaturated.
+        // Sensor → core. A railed ADC is the core's SensorSaturated. The core's step is
+        // timed on its own too: the figure docs/performance.md estimates on the emulator.
+        let t_step = DWT::cycle_count();
         let result = match scale_pair(s.x, s.y, &l.scaling.0, &l.scaling.1) {
             Ok((x, y)) => l.tracker.step(x, y, *l.torque_cmd_nm),
             Err(_) => Err(Fault::SensorSaturated),
         };
+        let step_cycles = DWT::cycle_count().wrapping_sub(t_step);
         let est = l.tracker.last_estimate();
 
         // Currents (shunts at mid-scale), torque and voltage.
@@ -376,6 +382,7 @@ mod app {
                 .iter()
                 .fold(0.0, |a, b| a.max(*b));
             tm.cycles.add(cycles);
+            tm.step_cycles.add(step_cycles);
             if snapshot {
                 tm.coefficients = coefs;
             }
@@ -477,10 +484,11 @@ mod app {
     /// The RTT coefficient stream (100 Hz); the grammar `hil-sim rtt-log` parses.
     #[task(priority = 1, shared = [telemetry])]
     async fn stream(mut cx: stream::Context) {
-        let (tm, cycles) = cx.shared.telemetry.lock(|tm| {
-            let c = tm.cycles;
+        let (tm, cycles, step) = cx.shared.telemetry.lock(|tm| {
+            let c = (tm.cycles, tm.step_cycles);
             tm.cycles = CycleStats::EMPTY;
-            (*tm, c)
+            tm.step_cycles = CycleStats::EMPTY;
+            (*tm, c.0, c.1)
         });
         let mut coef = [0.0f32; 2 * mras::MAX_PATHS];
         let mut n = 0;
@@ -490,7 +498,7 @@ mod app {
             n += 2;
         }
         defmt::info!(
-            "mras t_ms={=u32} state={=str} faults={=u8} omega_rad_s={=f32} amplitude={=f32} converged={=bool} revs={=u32} residual_max_rad={=f32} cycles_max={=u32} cycles_mean={=u32} cycles_min={=u32} coef={=[?]}",
+            "mras t_ms={=u32} state={=str} faults={=u8} omega_rad_s={=f32} amplitude={=f32} converged={=bool} revs={=u32} residual_max_rad={=f32} cycles_max={=u32} cycles_mean={=u32} cycles_min={=u32} step_cycles_max={=u32} step_cycles_mean={=u32} coef={=[?]}",
             tm.ticks / (board::PWM_HZ / 1000),
             tm.state.name(),
             tm.faults_latched,
@@ -502,6 +510,8 @@ mod app {
             cycles.max,
             cycles.mean(),
             if cycles.count == 0 { 0 } else { cycles.min },
+            step.max,
+            step.mean(),
             &coef[..n]
         );
     }
