@@ -5,6 +5,7 @@ pub mod cli;
 pub mod commission;
 pub mod core_config;
 pub mod drive;
+pub(crate) mod pending;
 pub mod plots;
 pub mod power_up;
 pub mod replay;

@@ -9,11 +9,12 @@
 //! destroys an existing one.
 
 use crate::core_config::{line_of_field, path_toml_name, CoreConfigToml};
+use crate::pending::Pending;
 use mras::sim::{wrap_pi, SpatialError};
 use mras::{Config, Fault, PathKind, Tracker};
 use serde::Serialize;
 use std::fmt::Write as _;
-use std::fs::{self, File, OpenOptions};
+use std::fs::{self, File};
 use std::io::{BufWriter, Write as _};
 use std::path::{Path, PathBuf};
 
@@ -307,59 +308,6 @@ fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<(Config, bool)
         format!("{at}: {e}{why}")
     })?;
     Ok((cfg, estimated))
-}
-
-/// An output written under a temporary name in its destination's directory and renamed
-/// into place by [`Pending::commit`]; dropped uncommitted, it removes itself.
-struct Pending {
-    tmp: PathBuf,
-    dest: PathBuf,
-    committed: bool,
-}
-
-impl Pending {
-    fn create(dest: &Path) -> Result<(Self, File), String> {
-        let dir = match dest.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        let file_name = dest
-            .file_name()
-            .ok_or_else(|| format!("{}: not a file name", dest.display()))?;
-        let tmp = dir.join(format!(
-            ".{}.{}.tmp",
-            file_name.to_string_lossy(),
-            std::process::id()
-        ));
-        let f = OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&tmp)
-            .map_err(|e| format!("{}: cannot create {}: {e}", dest.display(), tmp.display()))?;
-        Ok((
-            Self {
-                tmp,
-                dest: dest.to_path_buf(),
-                committed: false,
-            },
-            f,
-        ))
-    }
-
-    fn commit(mut self) -> Result<(), String> {
-        fs::rename(&self.tmp, &self.dest)
-            .map_err(|e| format!("{}: cannot write: {e}", self.dest.display()))?;
-        self.committed = true;
-        Ok(())
-    }
-}
-
-impl Drop for Pending {
-    fn drop(&mut self) {
-        if !self.committed {
-            let _ = fs::remove_file(&self.tmp);
-        }
-    }
 }
 
 /// Column name of a path in OUT.csv: `offset`, `amplitude_quadrature`, `h4`, `h-2`.

@@ -28,11 +28,12 @@
 //! `mras` lines are malformed. Outputs are written to temporary files and renamed into
 //! place only when everything succeeded, as `replay` does.
 
+use crate::pending::Pending;
 use crate::plots::{self, Series};
 use std::borrow::Cow;
 use std::collections::HashSet;
 use std::fmt::Write as _;
-use std::fs::{self, File, OpenOptions};
+use std::fs::{self, File};
 use std::io::{BufRead, BufReader, BufWriter};
 use std::path::{Path, PathBuf};
 
@@ -745,57 +746,6 @@ fn read_capture(path: &Path) -> Result<Capture, String> {
         parser.line(no, text.trim_end_matches(['\n', '\r']))?;
     }
     parser.finish()
-}
-
-/// An output written to a temporary file next to its destination and renamed into place
-/// by [`Pending::commit`]; dropped uncommitted, it removes itself.
-struct Pending {
-    tmp: PathBuf,
-    dest: PathBuf,
-    committed: bool,
-}
-
-impl Pending {
-    fn create(dest: &Path) -> Result<(Self, File), String> {
-        let dir = match dest.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        let file_name = dest
-            .file_name()
-            .ok_or_else(|| format!("{}: not a file name", dest.display()))?;
-        let tmp = dir.join(format!(
-            ".{}.{}.tmp",
-            file_name.to_string_lossy(),
-            std::process::id()
-        ));
-        let f = OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&tmp)
-            .map_err(|e| format!("{}: cannot create {}: {e}", dest.display(), tmp.display()))?;
-        let pending = Self {
-            tmp,
-            dest: dest.to_path_buf(),
-            committed: false,
-        };
-        Ok((pending, f))
-    }
-
-    fn commit(mut self) -> Result<(), String> {
-        fs::rename(&self.tmp, &self.dest)
-            .map_err(|e| format!("{}: cannot write: {e}", self.dest.display()))?;
-        self.committed = true;
-        Ok(())
-    }
-}
-
-impl Drop for Pending {
-    fn drop(&mut self) {
-        if !self.committed {
-            let _ = fs::remove_file(&self.tmp);
-        }
-    }
 }
 
 /// Plots rendered into a hidden directory inside DIR and moved into DIR on success, so a
