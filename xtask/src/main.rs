@@ -246,18 +246,15 @@ fn ci() -> Result<(), String> {
 
 fn docs_tables() -> Result<(), String> {
     for sub in ["compare-laws", "gain-sweep"] {
-        let mut c = cargo();
-        c.args([
-            "run",
-            "--locked",
-            "--release",
-            "-q",
-            "-p",
-            "hil-sim",
-            "--",
-            sub,
-        ]);
-        run(c)?;
+        run(hil_sim(&[sub]))?;
     }
     Ok(())
+}
+
+/// `cargo run --release -p hil-sim -- <args>`.
+pub(crate) fn hil_sim(args: &[&str]) -> Command {
+    let mut c = cargo();
+    c.args(["run", "--locked", "--release", "-q", "-p", "hil-sim", "--"]);
+    c.args(args);
+    c
 }

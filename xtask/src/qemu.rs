@@ -8,7 +8,7 @@
 //! measured step under a one-instruction-per-block execution trace; instructions are
 //! counted between the markers and weighted by Cortex-M4 cycle counts (TRM r0p1 §3.3).
 
-use crate::{cargo, output_of, root, run, TARGET};
+use crate::{cargo, hil_sim, output_of, root, run, TARGET};
 use std::collections::HashMap;
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
@@ -59,17 +59,7 @@ fn ensure(command: &str, package: &str) -> Result<(), String> {
 
 fn vector() -> Result<(PathBuf, PathBuf), String> {
     let (v, t) = (dir().join("vector.bin"), dir().join("host-trace.txt"));
-    let mut c = cargo();
-    c.args([
-        "run",
-        "--locked",
-        "--release",
-        "-q",
-        "-p",
-        "hil-sim",
-        "--",
-        "qemu-vector",
-    ]);
+    let mut c = hil_sim(&["qemu-vector"]);
     c.arg("--vector").arg(&v).arg("--trace").arg(&t);
     run(c)?;
     Ok((v, t))
