@@ -6,6 +6,7 @@
 
 use calib_record::{config_hash, FlashSlots, Slot, PAGE_BYTES};
 use core::cell::RefCell;
+use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m::interrupt::Mutex;
 use mras::{Coefficients, Config};
 use stm32g4xx_hal::stm32::FLASH;
@@ -20,6 +21,31 @@ const KEY1: u32 = 0x4567_0123;
 const KEY2: u32 = 0xCDEF_89AB;
 
 static FLASH_PERIPHERAL: Mutex<RefCell<Option<FLASH>>> = Mutex::new(RefCell::new(None));
+
+/// Set by the NMI handler when a flash read hit a double ECC error (RM0440 §3.3.4): a
+/// double word torn by a power cut during programming. `read` turns it into an error, so
+/// `calib_record::load` falls back to the other slot instead of the drive resetting
+/// forever on the same bad word.
+static ECC_FAULT: AtomicBool = AtomicBool::new(false);
+
+/// The value `FlashError` carries for an ECC double error (not an SR bit).
+const ECC_DOUBLE_ERROR: u32 = 1 << 31;
+
+#[cortex_m_rt::exception]
+unsafe fn NonMaskableInt() {
+    // SAFETY (of the handler, per cortex-m-rt): it touches only FLASH_ECCR, the atomic
+    // flag and, on the other path, TIM1's MOE before a reset.
+    let flash = &*FLASH::ptr();
+    if flash.eccr().read().eccd().bit_is_set() {
+        flash.eccr().modify(|_, w| w.eccd().set_bit());
+        ECC_FAULT.store(true, Ordering::SeqCst);
+    } else {
+        // Any other NMI source (clock security system): safe state, reset, reported at
+        // boot as a watchdog-less reset.
+        crate::pwm::disarm_from_anywhere();
+        cortex_m::peripheral::SCB::sys_reset();
+    }
+}
 
 pub fn init(flash: FLASH) {
     cortex_m::interrupt::free(|cs| FLASH_PERIPHERAL.borrow(cs).replace(Some(flash)));
@@ -76,11 +102,16 @@ impl FlashSlots for Pages<'_> {
 
     fn read(&self, slot: Slot, buf: &mut [u8]) -> Result<(), FlashError> {
         let base = slot_addr(slot) as *const u8;
+        ECC_FAULT.store(false, Ordering::SeqCst);
         for (i, b) in buf.iter_mut().take(PAGE_BYTES).enumerate() {
             // SAFETY: inside the calibration pages, which memory.x reserves.
             *b = unsafe { base.add(i).read_volatile() };
         }
-        Ok(())
+        if ECC_FAULT.swap(false, Ordering::SeqCst) {
+            Err(FlashError(ECC_DOUBLE_ERROR))
+        } else {
+            Ok(())
+        }
     }
 
     fn erase(&mut self, slot: Slot) -> Result<(), FlashError> {
