@@ -199,7 +199,11 @@ impl PathBank {
                     // Integrated over angle: gain per radian (docs/theory.md §3).
                     s.coef +=
                         coef_delta(kind, s.g_filtered, gain_per_rad * cx.amplitude * d_theta_e);
-                    s.coef_p = coef_delta(kind, s.g_filtered, proportional * cx.amplitude);
+                    s.coef_p = if proportional == 0.0 {
+                        Cplx::ZERO
+                    } else {
+                        coef_delta(kind, s.g_filtered, proportional * cx.amplitude)
+                    };
                 }
                 AdaptationLaw::PaperLiteral { k1_per_s, k2 } => {
                     // CPMRE = ε_m · sign(ω̂) · e^{-j m θ̂s}, PI in time (Fig. 6).

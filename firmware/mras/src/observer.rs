@@ -20,6 +20,8 @@ pub struct ObserverGains {
     pub k_so: f32,
     /// K_iso = Ĵ λ1λ2λ3 (N·m/(rad·s)).
     pub k_iso: f32,
+    /// 1/Ĵ, kept so that the control path does not divide.
+    pub inv_inertia: f32,
 }
 
 impl ObserverGains {
@@ -32,6 +34,7 @@ impl ObserverGains {
             b_o: inertia_kg_m2 * (l1 + l2 + l3),
             k_so: inertia_kg_m2 * (l1 * l2 + l1 * l3 + l2 * l3),
             k_iso: inertia_kg_m2 * l1 * l2 * l3,
+            inv_inertia: 1.0 / inertia_kg_m2,
         }
     }
 
@@ -80,7 +83,7 @@ impl ObserverState {
         t_s: f32,
         sensor_periods: u16,
     ) -> Self {
-        let inv_j = 1.0 / g.inertia_kg_m2;
+        let inv_j = g.inv_inertia;
         let disturbance_nm = self.disturbance_nm + g.k_iso * e_rad * t_s;
         let accel_rad_s2 = (torque_ff_nm + g.k_so * e_rad + disturbance_nm) * inv_j;
         let omega_int_rad_s = self.omega_int_rad_s + accel_rad_s2 * t_s;
@@ -88,7 +91,17 @@ impl ObserverState {
         let theta = self.theta_e_rad + sensor_periods as f32 * omega_rad_s * t_s;
         // Bounded wrap (no loop): an absurd speed must not hang the control path; a
         // non-finite result is caught by the caller through `is_finite`.
-        let turns = libm::floorf(theta / TAU);
+        // Usually at most one period per sample: skip the division and floor then (the
+        // result is the same bits as the general expression with turns = 0 or ±1).
+        let turns = if (0.0..TAU).contains(&theta) {
+            0.0
+        } else if (TAU..2.0 * TAU).contains(&theta) {
+            1.0
+        } else if (-TAU..0.0).contains(&theta) {
+            -1.0
+        } else {
+            libm::floorf(theta / TAU)
+        };
         let mut theta_e_rad = theta - turns * TAU;
         let mut periods = self.periods.wrapping_add(turns as i32);
         // Rounding can leave the result exactly at TAU or a hair below 0.

@@ -58,6 +58,8 @@ pub struct Tracker<T: Trig = F32Trig> {
     trig: T,
     gains: ObserverGains,
     obs: ObserverState,
+    /// Powers of the reference unit vector, `pw[i] = e^{j i θ̂s}` (pw[0] = 1).
+    pw: [Cplx; MAX_ORDER + 1],
     /// `obs.periods` split into (sensor period within the turn, turns); refreshed only
     /// when the period count changes, to keep integer division out of most samples.
     mech: (i32, i32),
@@ -122,6 +124,7 @@ impl<T: Trig> Tracker<T> {
                 cfg.observer.inertia_kg_m2,
             ),
             obs: ObserverState::default(),
+            pw: [Cplx::ONE; MAX_ORDER + 1],
             mech: (0, 0),
             bank: PathBank::new(&cfg),
             smooth: Smoothed::reset(0.0, 1.0),
@@ -176,14 +179,15 @@ impl<T: Trig> Tracker<T> {
 
         // Reference unit vector and its powers at the prior estimate θ̂s.
         let (s, c) = self.trig.sin_cos(self.obs.theta_e_rad);
-        let mut pw = [Cplx::ONE; MAX_ORDER + 1];
+        // Kept in the tracker: no 17-element initialisation per sample.
+        let pw = &mut self.pw;
         pw[1] = Cplx::new(c, s);
         for i in 2..=self.max_order {
             pw[i] = pw[i - 1] * pw[1];
         }
 
         // Decoupled vector and the cross-product error, normalised by |Zd|.
-        let zd = z + self.bank.decoupling_vector(&pw[..=self.max_order]);
+        let zd = z + self.bank.decoupling_vector(&self.pw[..=self.max_order]);
         let zd2 = zd.norm_sqr();
         if zd2 < 0.25 * h.amplitude_min * h.amplitude_min {
             // Coefficients plus input cancel the vector: nothing to track on.
@@ -233,7 +237,7 @@ impl<T: Trig> Tracker<T> {
             &self.gains,
             &StepContext {
                 eps_e_rad,
-                pw: &pw[..=self.max_order],
+                pw: &self.pw[..=self.max_order],
                 omega_rad_s: o.omega_rad_s,
                 omega_smooth_rad_s: w_f,
                 amplitude: smooth.amplitude,

@@ -42,7 +42,7 @@ impl core::fmt::Write for Console {
 
 /// Steps run before the measured ones (spin-up and adaptation under way), and measured.
 #[cfg(cycles_mode)]
-const WARMUP_STEPS: usize = 1400;
+const WARMUP_STEPS: usize = 4000;
 #[cfg(cycles_mode)]
 const MEASURED_STEPS: usize = 40;
 
