@@ -642,13 +642,8 @@ pub struct RunOutcome {
 /// Rows kept for CSV and plots.
 const MAX_ROWS: u64 = 20_000;
 
-pub fn path_name(kind: mras::PathKind) -> String {
-    match kind {
-        mras::PathKind::Offset => "offset".into(),
-        mras::PathKind::AmplitudeQuadrature => "amplitude_quadrature".into(),
-        mras::PathKind::Harmonic(h) => format!("h{h}"),
-    }
-}
+/// A path's column name in CSV and summaries (one owner: replay's published interface).
+pub use crate::replay::path_column_name as path_name;
 
 /// Run one variant for `duration_s`; `progress` prints to stderr every 10 %.
 pub fn run(
