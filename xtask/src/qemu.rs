@@ -201,9 +201,19 @@ fn reg_count(ops: &str) -> u32 {
         .sum()
 }
 
+/// Whether `i` is a single integer load or store (the ones the M4 pipelines, TRM §3.3.2).
+fn is_single_ldst(i: &Insn) -> bool {
+    let m = i.mnemonic.as_str();
+    (m.starts_with("ldr") || m.starts_with("str"))
+        && !m.starts_with("ldrd")
+        && !m.starts_with("strd")
+}
+
 /// Cortex-M4 cycles (TRM r0p1 table 3-1; P, the pipeline refill of a taken branch, = 2;
-/// SDIV/UDIV 2-12, counted as 7; loads and stores without the pipelining overlap).
-fn insn_cycles(i: &Insn, taken: bool) -> u32 {
+/// SDIV/UDIV 2-12, counted as 7). Single integer loads and stores per §3.3.2: a store
+/// with an immediate offset is one cycle, a load is two unless it follows another
+/// single load or store; FPU loads and stores are 2 (table 7-1, no overlap credited).
+fn insn_cycles(i: &Insn, taken: bool, after_ldst: bool) -> u32 {
     let m = i.mnemonic.split('.').next().unwrap_or("");
     let base = m.trim_end_matches('w');
     let is_branch = matches!(base, "b" | "bl" | "bx" | "blx" | "cbz" | "cbnz")
@@ -234,11 +244,21 @@ fn insn_cycles(i: &Insn, taken: bool) -> u32 {
         "vdiv" | "vsqrt" => 14,
         "vmla" | "vmls" | "vnmla" | "vnmls" | "vfma" | "vfms" | "vfnma" | "vfnms" => 3,
         "sdiv" | "udiv" => 7,
-        _ if base.starts_with("ldr") || base.starts_with("str") => {
-            2 + if base.starts_with("ldr") && i.operands.starts_with("pc") {
-                2
+        _ if base.starts_with("str") => {
+            if i.operands.contains('#') || !i.operands.contains(", r") {
+                1
             } else {
-                0
+                2
+            }
+        }
+        _ if base.starts_with("ldr") => {
+            if i.operands.contains("[pc") {
+                // A literal load contends with instruction fetch.
+                3
+            } else if after_ldst {
+                1
+            } else {
+                2
             }
         }
         "vmov" if i.operands.matches(',').count() >= 3 => 2,
@@ -264,9 +284,12 @@ pub fn cycles() -> Result<(), String> {
     // Per measured step: (instructions, cycles); per function: cycles of all steps.
     let mut steps: Vec<(u64, u64)> = Vec::new();
     let mut by_fn: Vec<HashMap<String, u64>> = vec![HashMap::new(); CONFIGS.len()];
+    // Cycles per instruction address in the last configuration, for the stage breakdown.
+    let mut by_pc: HashMap<u32, (u64, String)> = HashMap::new();
     let (mut counting, mut in_begin) = (false, false);
     let (mut n, mut cyc) = (0u64, 0u64);
     let mut prev: Option<(u32, String)> = None;
+    let mut after_ldst = false;
     for line in BufReader::new(stderr).lines() {
         let line = line.map_err(|e| e.to_string())?;
         // "Trace 0: 0x7f.. [00800400/08002090/00000010/ff000201] mras_step_begin"
@@ -282,9 +305,13 @@ pub fn cycles() -> Result<(), String> {
         if let Some((ppc, pfunc)) = prev.take() {
             if let Some(i) = insns.get(&ppc) {
                 let taken = pc != ppc + i.size;
-                let c = insn_cycles(i, taken) as u64;
+                let c = insn_cycles(i, taken, after_ldst) as u64;
+                after_ldst = is_single_ldst(i);
                 cyc += c;
                 let config = (steps.len() / STEPS_PER_CONFIG).min(CONFIGS.len() - 1);
+                if config == CONFIGS.len() - 1 {
+                    by_pc.entry(ppc).or_insert((0, pfunc.clone())).0 += c;
+                }
                 *by_fn[config].entry(pfunc).or_default() += c;
             } else {
                 cyc += 1;
@@ -335,19 +362,119 @@ pub fn cycles() -> Result<(), String> {
         );
     }
     println!(
-        "\nWhere the cycles go (four paths; cycles per step by function, incl. inlined code):\n"
+        "\nWhere the cycles go with four paths (each executed instruction charged to the \
+         innermost core stage it was inlined from, after its debug line info):\n"
     );
-    let mut f: Vec<_> = by_fn[2].iter().collect();
-    f.sort_by(|a, b| b.1.cmp(a.1));
-    let total: u64 = f.iter().map(|x| *x.1).sum();
-    for (name, c) in f.iter().take(10) {
+    println!("| stage | cycles/step | share |");
+    println!("|---|---:|---:|");
+    let stages = stages(&img, &by_pc)?;
+    // Per-address profile for whoever optimises next (`arm-none-eabi-objdump -d` beside it).
+    let mut pcs: Vec<_> = by_pc.iter().collect();
+    pcs.sort_by_key(|x| *x.0);
+    let profile: String = pcs
+        .iter()
+        .map(|(pc, (c, f))| format!("{pc:08x} {:.2} {f}\n", *c as f64 / STEPS_PER_CONFIG as f64))
+        .collect();
+    let profile_path = dir().join("cycles-by-address.txt");
+    std::fs::write(&profile_path, profile)
+        .map_err(|e| format!("{}: {e}", profile_path.display()))?;
+    let total: u64 = stages.iter().map(|x| x.1).sum();
+    for (name, c) in &stages {
         println!(
             "| {name} | {:.0} | {:.0} % |",
-            **c as f64 / STEPS_PER_CONFIG as f64,
-            100.0 * **c as f64 / total as f64
+            *c as f64 / STEPS_PER_CONFIG as f64,
+            100.0 * *c as f64 / total.max(1) as f64
         );
     }
+    println!(
+        "\nCycles per instruction address: {}",
+        profile_path.display()
+    );
     Ok(())
+}
+
+/// Core stages, matched against the inlined call chain of an instruction from the
+/// innermost frame outwards: the first frame naming one of them gets the cycles.
+const STAGES: [(&str, &str); 10] = [
+    ("sin_cos", "reference vector: sin/cos"),
+    ("sqrt", "square roots (VSQRT)"),
+    (
+        "inverse_error_transfer",
+        "path update: compensation 1/H(jmNω̂)",
+    ),
+    ("update_path", "path update: filters, integration, clamp"),
+    ("Smoothed", "smoothing of ω̂ and |Zd|"),
+    (
+        "PathBank::step",
+        "gates, block sums ε·e^{-jmθ̂} (correlation)",
+    ),
+    ("decoupling_vector", "decoupling vector D(θ̂)"),
+    (
+        "ObserverState",
+        "observer (Fig. 5) and its finiteness check",
+    ),
+    (
+        "Tracker<T>::step",
+        "input checks, powers of e^{jθ̂}, ε, the estimate",
+    ),
+    ("", "call, return and the rest"),
+];
+
+/// Sum the per-address cycles into [`STAGES`] with `addr2line -i` (inlined frames).
+fn stages(
+    image: &PathBuf,
+    by_pc: &HashMap<u32, (u64, String)>,
+) -> Result<Vec<(&'static str, u64)>, String> {
+    ensure("arm-none-eabi-addr2line", "binutils-arm-none-eabi")?;
+    let pcs: Vec<u32> = by_pc.keys().copied().collect();
+    let out = Command::new("arm-none-eabi-addr2line")
+        .arg("-e")
+        .arg(image)
+        .args(["-a", "-f", "-i", "-C"])
+        .args(pcs.iter().map(|pc| format!("{pc:#x}")))
+        .output()
+        .map_err(|e| format!("arm-none-eabi-addr2line: {e}"))?;
+    // Output: an address line "0x0800048c", then (function, file:line) pairs, innermost first.
+    let mut chains: HashMap<u32, Vec<String>> = HashMap::new();
+    let mut current: Option<(u32, usize)> = None;
+    for line in String::from_utf8_lossy(&out.stdout).lines() {
+        if let Some(pc) = line
+            .strip_prefix("0x")
+            .and_then(|h| u32::from_str_radix(h, 16).ok())
+        {
+            current = Some((pc, 0));
+            continue;
+        }
+        // Function names and file:line locations alternate; keep the names.
+        if let Some((pc, k)) = current.as_mut() {
+            if *k % 2 == 0 {
+                chains.entry(*pc).or_default().push(line.to_string());
+            }
+            *k += 1;
+        }
+    }
+    let mut totals = vec![0u64; STAGES.len()];
+    for (pc, (c, symbol)) in by_pc {
+        let mut frames = chains.get(pc).cloned().unwrap_or_default();
+        frames.push(symbol.clone());
+        let stage = frames
+            .iter()
+            .find_map(|f| {
+                STAGES[..STAGES.len() - 1]
+                    .iter()
+                    .position(|(pat, _)| f.contains(pat))
+            })
+            .unwrap_or(STAGES.len() - 1);
+        totals[stage] += c;
+    }
+    let mut out: Vec<_> = STAGES
+        .iter()
+        .map(|s| s.1)
+        .zip(totals)
+        .filter(|x| x.1 > 0)
+        .collect();
+    out.sort_by_key(|x| std::cmp::Reverse(x.1));
+    Ok(out)
 }
 
 /// Must match `MEASURED_STEPS` in firmware/qemu-test/src/main.rs.

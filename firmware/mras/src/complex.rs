@@ -50,17 +50,6 @@ impl Cplx {
     pub fn is_finite(self) -> bool {
         self.re.is_finite() && self.im.is_finite()
     }
-
-    /// `self^k` for a unit vector `self` given its non-negative powers `pw[i] = self^i`.
-    #[inline]
-    pub(crate) fn pow_from(pw: &[Cplx], k: i32) -> Cplx {
-        let i = k.unsigned_abs() as usize;
-        if k >= 0 {
-            pw[i]
-        } else {
-            pw[i].conj()
-        }
-    }
 }
 
 impl Add for Cplx {
@@ -124,9 +113,5 @@ mod tests {
         assert_eq!(a * b, Cplx::new(-3.0 - 1.0, 0.5 - 6.0));
         assert_eq!(a.mul_j(), a * Cplx::new(0.0, 1.0));
         assert_eq!((a * a.conj()).re, a.norm_sqr());
-        let u = Cplx::new(0.6, 0.8);
-        let pw = [Cplx::ONE, u, u * u];
-        assert_eq!(Cplx::pow_from(&pw, -2), (u * u).conj());
-        assert_eq!(Cplx::pow_from(&pw, 2), u * u);
     }
 }

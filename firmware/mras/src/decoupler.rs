@@ -9,8 +9,8 @@
 use crate::complex::Cplx;
 use crate::config::{AdaptationLaw, Config, PathKind, MAX_PATHS};
 use crate::observer::ObserverGains;
-use crate::trig::{max_f32, min_f32};
-use core::f32::consts::TAU;
+use crate::trig::{max_f32, min_f32, sqrt_f32};
+use core::f32::consts::{PI, TAU};
 
 /// |H| floor used for the residual measure when the law itself has none (paper-literal):
 /// the same as our default, so that both laws' residuals read alike.
@@ -18,32 +18,33 @@ const METRIC_H_FLOOR: f32 = 0.05;
 /// The error phasor estimate is low-passed over this much sensor-electrical angle before
 /// integration: its ripple (the other paths' harmonics, amplified by 1/|H|) would
 /// otherwise drive a limit cycle between paths at low speed (docs/theory.md §3).
-pub(crate) const G_WINDOW_RAD: f32 = core::f32::consts::PI;
-/// H is re-evaluated only when the smoothed speed has moved by more than this fraction
-/// (phase error below ~2 mrad), which saves most of the path's arithmetic.
-const H_REUSE_REL: f32 = 1.0e-3;
+pub(crate) const G_WINDOW_RAD: f32 = PI;
 /// The residual measure averages over this much sensor-electrical angle (two periods).
 const RESIDUAL_WINDOW_RAD: f32 = 2.0 * TAU;
+/// Speed and amplitude used by the adaptation are smoothed over this much sensor
+/// electrical angle per stage (two stages). Their raw values ripple with the very sensor
+/// error being estimated; weighting the correlation with that ripple biases the
+/// equilibrium, badly so where |H| is small (docs/theory.md §3).
+const SMOOTH_WINDOW_RAD: f32 = TAU;
+/// ... but never slower than this in time, so that a reversal is followed near ω = 0.
+const SMOOTH_MAX_TAU_S: f32 = 0.1;
 
 /// One path's adaptive state.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct PathState {
     /// Integral (persistent) coefficient in the path's paper form (Xo+jYo, C+jD, or d_h).
     pub coef: Cplx,
-    /// Proportional contribution, recomputed every adapting step, not persisted.
+    /// Proportional contribution, recomputed at every update, not persisted.
     pub coef_p: Cplx,
     /// Angle-averaged estimate of the remaining error phasor G (rad, sensor electrical).
     pub residual: Cplx,
     pub coef_at_rev_start: Cplx,
     /// G estimate low-passed over angle before it is integrated (see [`G_WINDOW_RAD`]).
     pub g_filtered: Cplx,
-    /// H compensation cached at `comp_omega_rad_s` (see [`H_REUSE_REL`]): the factor
-    /// `2·conj(H)/(|H|·max(|H|, floor))` and |H|.
-    pub comp: Cplx,
-    pub h_abs: f32,
-    pub comp_omega_rad_s: f32,
     /// |Δcoef| over the last completed revolution of adaptation, relative to |Z|.
     pub change_last_rev: f32,
+    /// The bank's revolution count this path last measured its change at.
+    pub rev_seen: u32,
 }
 
 impl Default for PathState {
@@ -54,24 +55,17 @@ impl Default for PathState {
             residual: Cplx::ZERO,
             coef_at_rev_start: Cplx::ZERO,
             g_filtered: Cplx::ZERO,
-            comp: Cplx::ZERO,
-            h_abs: 0.0,
-            comp_omega_rad_s: f32::NAN,
             change_last_rev: 0.0,
+            rev_seen: 0,
         }
     }
 }
 
-/// The path's contribution to the decoupling vector, given `pw[i] = e^{j i θ̂s}`.
-#[inline]
-pub(crate) fn injection(kind: PathKind, coef: Cplx, pw: &[Cplx]) -> Cplx {
-    match kind {
-        PathKind::Offset => coef,
-        // C·cos θ̂s + D·sin θ̂s on X only (eq. 9).
-        PathKind::AmplitudeQuadrature => Cplx::new(coef.re * pw[1].re + coef.im * pw[1].im, 0.0),
-        PathKind::Harmonic(h) => coef * Cplx::pow_from(pw, h as i32),
-    }
-}
+/// Powers of the reference unit vector, `pw[i] = e^{j i θ̂s}`, for `i` up to the largest
+/// error harmonic or |sequence| of any path (16). A power of two long, so that indices
+/// masked with [`POWER_MASK`] need no bounds check in the control path.
+pub(crate) type Powers = [Cplx; 32];
+pub(crate) const POWER_MASK: usize = 31;
 
 /// Coefficient change that moves the error phasor by `-scale·G/|Z|` (first order).
 ///
@@ -88,149 +82,423 @@ pub(crate) fn coef_delta(kind: PathKind, g: Cplx, scale: f32) -> Cplx {
     }
 }
 
+/// The decoupling vector's terms by kind (eq. 9, 16), `coef + coef_p` of each path,
+/// refreshed when a path updates: the per-sample sum is then straight-line code.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Injection {
+    /// Offset path (zero if none).
+    offset: Cplx,
+    /// C + jD of the amplitude/quadrature path (zero if none).
+    cd: Cplx,
+    /// Harmonic paths: coefficient, |h|, and the sign of the power's imaginary part
+    /// (-1 for h < 0: `e^{j h θ} = conj(e^{j|h|θ})`).
+    h_coef: [Cplx; MAX_PATHS],
+    h_order: [u8; MAX_PATHS],
+    h_sign: [f32; MAX_PATHS],
+    h_len: usize,
+    /// Where path `i`'s term lives: `u8::MAX` for offset, `u8::MAX - 1` for C/D, else
+    /// its index among the harmonic terms.
+    slot_of: [u8; MAX_PATHS],
+}
+
+const OFFSET_SLOT: u8 = u8::MAX;
+const CD_SLOT: u8 = u8::MAX - 1;
+
+impl Injection {
+    fn new(paths: &[PathKind]) -> Self {
+        let mut inj = Self::default();
+        for (i, p) in paths.iter().enumerate() {
+            inj.slot_of[i] = match *p {
+                PathKind::Offset => OFFSET_SLOT,
+                PathKind::AmplitudeQuadrature => CD_SLOT,
+                PathKind::Harmonic(h) => {
+                    let j = inj.h_len;
+                    inj.h_order[j] = h.unsigned_abs();
+                    inj.h_sign[j] = if h < 0 { -1.0 } else { 1.0 };
+                    inj.h_len += 1;
+                    j as u8
+                }
+            };
+        }
+        inj
+    }
+
+    fn set(&mut self, path: usize, coef: Cplx) {
+        match self.slot_of.get(path).copied() {
+            Some(OFFSET_SLOT) => self.offset = coef,
+            Some(CD_SLOT) => self.cd = coef,
+            Some(j) => {
+                if let Some(c) = self.h_coef.get_mut(j as usize) {
+                    *c = coef;
+                }
+            }
+            None => {}
+        }
+    }
+
+    /// `D(θ̂s)`: offset + (C·cos θ̂s + D·sin θ̂s on X) + Σ d_h·e^{j h θ̂s}.
+    #[inline(always)]
+    fn vector(&self, pw: &Powers) -> Cplx {
+        let u = pw[1];
+        let mut d = Cplx::new(
+            self.offset.re + self.cd.re * u.re + self.cd.im * u.im,
+            self.offset.im,
+        );
+        let n = self.h_len.min(MAX_PATHS);
+        for ((c, &k), &sign) in self.h_coef[..n]
+            .iter()
+            .zip(&self.h_order[..n])
+            .zip(&self.h_sign[..n])
+        {
+            let p = pw[k as usize & POWER_MASK];
+            d += *c * Cplx::new(p.re, p.im * sign);
+        }
+        d
+    }
+}
+
 /// What the bank needs from one control period.
-pub(crate) struct StepContext<'a> {
-    /// ε, sensor electrical radians (normalised by |Z|).
+pub(crate) struct Sample<'a> {
+    /// ε, sensor electrical radians (normalised by |Zd|).
     pub eps_e_rad: f32,
     /// `pw[i] = e^{j i θ̂s}` at the prior estimate.
-    pub pw: &'a [Cplx],
-    /// ω̂ as output by the observer (the paper-literal law uses its sign).
+    pub pw: &'a Powers,
+    /// ω̂ as output by the observer (rad/s mechanical).
     pub omega_rad_s: f32,
-    /// ω̂ smoothed over angle: sets H and the angle travelled (ours).
-    pub omega_smooth_rad_s: f32,
-    /// Smoothed amplitude of the decoupled vector.
+    /// |Zd| of this sample.
     pub amplitude: f32,
-    /// Global gates passed (speed, torque, acceleration, no loss of lock).
-    pub gates_open: bool,
+    pub disturbance_nm: f32,
+    pub torque_ff_nm: f32,
+    /// No loss of lock latched.
+    pub locked: bool,
     /// Manual freeze: measure the residual but do not adapt.
     pub frozen: bool,
 }
 
+/// The adaptation law with its constants folded for the control path.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Law {
+    Compensated {
+        gain_per_rad: f32,
+        proportional: f32,
+    },
+    PaperLiteral {
+        k1_t_s: f32,
+        k2: f32,
+    },
+}
+
+/// Everything the bank derives once from the configuration and the observer gains.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Constants {
+    law: Law,
+    /// λ sums of the observer (1/H, [`ObserverGains::inverse_error_transfer`]).
+    sigma: [f32; 3],
+    /// N·Ts: sensor-electrical angle per sample per rad/s.
+    n_t_s: f32,
+    inv_n: f32,
+    smooth_per_rad_s: f32,
+    smooth_min: f32,
+    min_speed_rad_s: f32,
+    max_speed_deviation: f32,
+    max_disturbance_nm: f32,
+    max_torque_nm: f32,
+    /// |H| floor of the compensation, and 1/floor², 1/min_h² to compare |1/H|² with.
+    h_floor: f32,
+    inv_h_floor2: f32,
+    inv_min_h2: f32,
+    coefficient_limit: f32,
+    /// Angle of one mechanical revolution in sensor-electrical radians (2πN).
+    rev_rad: f32,
+}
+
+impl Constants {
+    fn new(cfg: &Config, gains: &ObserverGains) -> Self {
+        let n = cfg.sensor_periods as f32;
+        let t_s = cfg.sample_period_s;
+        let (law, h_floor) = match cfg.law {
+            AdaptationLaw::Compensated {
+                gain_per_rad,
+                proportional,
+                h_floor,
+            } => (
+                Law::Compensated {
+                    gain_per_rad,
+                    proportional,
+                },
+                h_floor,
+            ),
+            AdaptationLaw::PaperLiteral { k1_per_s, k2 } => (
+                Law::PaperLiteral {
+                    k1_t_s: k1_per_s * t_s,
+                    k2,
+                },
+                METRIC_H_FLOOR,
+            ),
+        };
+        let g = &cfg.gates;
+        Self {
+            law,
+            sigma: gains.sigma,
+            n_t_s: n * t_s,
+            inv_n: 1.0 / n,
+            smooth_per_rad_s: n * t_s * (1.0 / SMOOTH_WINDOW_RAD),
+            smooth_min: t_s * (1.0 / SMOOTH_MAX_TAU_S),
+            min_speed_rad_s: g.min_speed_rad_s,
+            max_speed_deviation: g.max_speed_deviation,
+            max_disturbance_nm: g.max_disturbance_nm,
+            max_torque_nm: g.max_accel_rad_s2 * gains.inertia_kg_m2,
+            h_floor,
+            inv_h_floor2: 1.0 / (h_floor * h_floor),
+            inv_min_h2: 1.0 / (g.min_h * g.min_h),
+            coefficient_limit: cfg.health.coefficient_limit,
+            rev_rad: TAU * n,
+        }
+    }
+}
+
+/// Two-stage angle-domain low-pass of ω̂ and |Zd| (see [`SMOOTH_WINDOW_RAD`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Smoothed {
+    omega1_rad_s: f32,
+    omega_rad_s: f32,
+    amplitude1: f32,
+    amplitude: f32,
+}
+
+impl Smoothed {
+    fn reset(omega_rad_s: f32, amplitude: f32) -> Self {
+        Self {
+            omega1_rad_s: omega_rad_s,
+            omega_rad_s,
+            amplitude1: amplitude,
+            amplitude,
+        }
+    }
+
+    #[inline]
+    fn update(&mut self, omega_rad_s: f32, amplitude: f32, alpha: f32) {
+        self.omega1_rad_s += (omega_rad_s - self.omega1_rad_s) * alpha;
+        self.amplitude1 += (amplitude - self.amplitude1) * alpha;
+        self.omega_rad_s += (self.omega1_rad_s - self.omega_rad_s) * alpha;
+        self.amplitude += (self.amplitude1 - self.amplitude) * alpha;
+    }
+}
+
+/// The paths, adapted in turn: every sample adds `ε·e^{-j m θ̂s}` to each path's block
+/// sum (two multiply-adds a path), and one path per sample, round-robin, turns its block
+/// into an update (compensation by 1/H, filtering, integration over the block's angle).
+/// The law is integrated over angle, so updating a path with its block every `len`
+/// samples gives the dynamics of updating it every sample, at a fraction of the cost
+/// (docs/performance.md).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct PathBank {
     pub kinds: [PathKind; MAX_PATHS],
     pub state: [PathState; MAX_PATHS],
     pub len: usize,
+    /// Error harmonic m of each path (index into the powers of the reference vector).
+    m: [u8; MAX_PATHS],
+    /// Σ ε·e^{-j m θ̂s} of each path over the samples since its last update (its block).
+    acc: [Cplx; MAX_PATHS],
+    inject: Injection,
+    /// m·N as f32: the temporal frequency of the path's error is m·N·ω̂.
+    m_n: [f32; MAX_PATHS],
+    inv_len: f32,
+    /// The path updated on the next sample.
+    slot: usize,
+    /// Consecutive samples with the gates open (a block counts only if all of it was).
+    open_run: u32,
+    smooth: Smoothed,
+    k: Constants,
     /// Sensor-electrical angle adapted over since the last revolution boundary.
     pub angle_this_rev_rad: f32,
     pub revs_adapted: u32,
 }
 
 impl PathBank {
-    pub fn new(cfg: &Config) -> Self {
+    pub fn new(cfg: &Config, gains: &ObserverGains) -> Self {
+        let paths = cfg.paths();
+        let mut m = [0; MAX_PATHS];
+        let mut m_n = [0.0; MAX_PATHS];
+        for (i, p) in paths.iter().enumerate() {
+            m[i] = p.error_harmonic();
+            m_n[i] = p.error_harmonic() as f32 * cfg.sensor_periods as f32;
+        }
         Self {
             kinds: cfg.paths,
             state: [PathState::default(); MAX_PATHS],
-            len: cfg.paths().len(),
+            len: paths.len(),
+            m,
+            acc: [Cplx::ZERO; MAX_PATHS],
+            inject: Injection::new(paths),
+            m_n,
+            inv_len: 1.0 / max_f32(paths.len() as f32, 1.0),
+            slot: 0,
+            open_run: 0,
+            smooth: Smoothed::reset(0.0, 1.0),
+            k: Constants::new(cfg, gains),
             angle_this_rev_rad: 0.0,
             revs_adapted: 0,
         }
     }
 
-    /// The decoupling vector added to the measured vector before the cross product.
-    #[inline]
-    pub fn decoupling_vector(&self, pw: &[Cplx]) -> Cplx {
-        let mut d = Cplx::ZERO;
-        for (kind, s) in self.kinds[..self.len].iter().zip(&self.state[..self.len]) {
-            d += injection(*kind, s.coef + s.coef_p, pw);
-        }
-        d
+    /// Restart the smoothing (observer acquired at rest) and the blocks.
+    pub fn restart(&mut self, amplitude: f32) {
+        self.smooth = Smoothed::reset(0.0, amplitude);
+        self.discard_blocks();
     }
 
-    /// Correlate, compensate, adapt. Returns whether any path adapted.
-    pub fn step(&mut self, cfg: &Config, gains: &ObserverGains, cx: &StepContext) -> bool {
-        let n = cfg.sensor_periods as f32;
-        let d_theta_e = n * libm::fabsf(cx.omega_smooth_rad_s) * cfg.sample_period_s;
-        let limit = cfg.health.coefficient_limit * cx.amplitude;
-        let residual_alpha = min_f32(d_theta_e * (1.0 / RESIDUAL_WINDOW_RAD), 1.0);
-        let g_alpha = min_f32(d_theta_e * (1.0 / G_WINDOW_RAD), 1.0);
-        let h_floor = match cfg.law {
-            AdaptationLaw::Compensated { h_floor, .. } => h_floor,
-            AdaptationLaw::PaperLiteral { .. } => METRIC_H_FLOOR,
-        };
-        let mut adapted = false;
-        for (kind, s) in self.kinds[..self.len]
-            .iter()
-            .copied()
-            .zip(&mut self.state[..self.len])
-        {
-            let m = kind.error_harmonic() as usize;
-            // Coherent power of the MRE: ε·e^{-j m θ̂s}, mean H·G/(2j).
-            let cp = cx.pw[m].conj().scale(cx.eps_e_rad);
-            let w = cx.omega_smooth_rad_s;
-            // A fresh state holds NaN, whose difference never passes `stale` as false.
-            let drift = libm::fabsf(w - s.comp_omega_rad_s);
-            let stale = drift.is_nan() || drift > H_REUSE_REL * libm::fabsf(w);
-            if stale {
-                let h = gains.error_transfer(m as f32 * n * w);
-                s.h_abs = h.abs();
-                s.comp = if s.h_abs > 0.0 {
-                    h.conj().scale(2.0 / (s.h_abs * max_f32(s.h_abs, h_floor)))
-                } else {
-                    Cplx::ZERO
-                };
-                s.comp_omega_rad_s = w;
-            }
-            let visible = cx.gates_open && s.h_abs >= cfg.gates.min_h && s.h_abs > 0.0;
-            // G estimate: 2j·cp·conj(H)/(|H|·max(|H|, floor)).
-            let g_est = if visible {
-                cp.mul_j() * s.comp
-            } else {
-                Cplx::ZERO
-            };
-            if visible {
-                s.g_filtered = s.g_filtered + (g_est - s.g_filtered).scale(g_alpha);
-                s.residual = s.residual + (g_est - s.residual).scale(residual_alpha);
-            }
-            if !cx.gates_open || cx.frozen {
-                s.coef_p = Cplx::ZERO;
-                continue;
-            }
-            match cfg.law {
-                AdaptationLaw::Compensated {
-                    gain_per_rad,
-                    proportional,
-                    ..
-                } => {
-                    if !visible {
-                        s.coef_p = Cplx::ZERO;
-                        continue;
-                    }
-                    // Integrated over angle: gain per radian (docs/theory.md §3).
-                    s.coef +=
-                        coef_delta(kind, s.g_filtered, gain_per_rad * cx.amplitude * d_theta_e);
-                    s.coef_p = if proportional == 0.0 {
-                        Cplx::ZERO
-                    } else {
-                        coef_delta(kind, s.g_filtered, proportional * cx.amplitude)
-                    };
-                }
-                AdaptationLaw::PaperLiteral { k1_per_s, k2 } => {
-                    // CPMRE = ε_m · sign(ω̂) · e^{-j m θ̂s}, PI in time (Fig. 6).
-                    let c = cp.scale(libm::copysignf(1.0, cx.omega_rad_s) / n);
-                    s.coef += coef_delta(kind, c, k1_per_s * cx.amplitude * cfg.sample_period_s);
-                    s.coef_p = coef_delta(kind, c, k2 * cx.amplitude);
-                }
-            }
-            let a2 = s.coef.norm_sqr();
-            if a2 > limit * limit {
-                s.coef = s.coef.scale(limit / crate::trig::sqrt_f32(a2));
-            }
-            adapted = true;
+    /// Drop the partial block sums (after new coefficients, a re-acquisition ...).
+    pub fn discard_blocks(&mut self) {
+        self.acc = [Cplx::ZERO; MAX_PATHS];
+        self.open_run = 0;
+    }
+
+    /// The decoupling vector added to the measured vector before the cross product.
+    #[inline(always)]
+    pub fn decoupling_vector(&self, pw: &Powers) -> Cplx {
+        self.inject.vector(pw)
+    }
+
+    /// Re-read every path's coefficients into the decoupling vector (after a load).
+    pub fn refresh_injection(&mut self) {
+        for i in 0..self.len {
+            let s = self.state[i];
+            self.inject.set(i, s.coef + s.coef_p);
         }
-        if adapted {
+    }
+
+    /// One sample: smooth, gate, accumulate, update one path. Returns whether the
+    /// adaptation is running (gates open, not frozen).
+    #[inline(always)]
+    pub fn step(&mut self, x: &Sample) -> bool {
+        let k = &self.k;
+        let w = libm::fabsf(x.omega_rad_s);
+        let alpha = min_f32(max_f32(w * k.smooth_per_rad_s, k.smooth_min), 1.0);
+        self.smooth.update(x.omega_rad_s, x.amplitude, alpha);
+        let w_f = self.smooth.omega_rad_s;
+        let w_f_abs = libm::fabsf(w_f);
+        let open = x.locked
+            && w_f_abs >= k.min_speed_rad_s
+            && libm::fabsf(x.omega_rad_s - w_f) <= k.max_speed_deviation * w_f_abs
+            && libm::fabsf(x.disturbance_nm) <= k.max_disturbance_nm
+            && libm::fabsf(x.torque_ff_nm) <= k.max_torque_nm;
+        if self.len == 0 {
+            return false;
+        }
+        if open {
+            let eps = x.eps_e_rad;
+            for (a, &m) in self.acc[..self.len].iter_mut().zip(&self.m[..self.len]) {
+                let p = x.pw[m as usize & POWER_MASK];
+                a.re += p.re * eps;
+                a.im -= p.im * eps;
+            }
+            self.open_run = self.open_run.saturating_add(1);
+        } else {
+            self.open_run = 0;
+        }
+        let adapting = open && !x.frozen;
+        let d_theta_e = k.n_t_s * w_f_abs;
+        if adapting {
             self.angle_this_rev_rad += d_theta_e;
-            if self.angle_this_rev_rad >= TAU * n {
-                self.angle_this_rev_rad -= TAU * n;
+            if self.angle_this_rev_rad >= k.rev_rad {
+                self.angle_this_rev_rad -= k.rev_rad;
                 self.revs_adapted = self.revs_adapted.saturating_add(1);
-                let inv_a = 1.0 / cx.amplitude;
-                for s in &mut self.state[..self.len] {
-                    s.change_last_rev = (s.coef - s.coef_at_rev_start).abs() * inv_a;
-                    s.coef_at_rev_start = s.coef;
-                }
             }
         }
-        adapted
+        let i = self.slot;
+        self.slot = if i + 1 >= self.len { 0 } else { i + 1 };
+        self.update_path(i, x, d_theta_e * self.len as f32);
+        adapting
+    }
+
+    /// Turn path `i`'s block sum into an update; `block_rad` is the block's angle.
+    #[inline(always)]
+    fn update_path(&mut self, i: usize, x: &Sample, block_rad: f32) {
+        self.adapt_path(i, x, block_rad);
+        if let Some(s) = self.state.get(i) {
+            let d = s.coef + s.coef_p;
+            self.inject.set(i, d);
+        }
+    }
+
+    #[inline(always)]
+    fn adapt_path(&mut self, i: usize, x: &Sample, block_rad: f32) {
+        let k = self.k;
+        let full = self.open_run >= self.len as u32;
+        let (Some(s), Some(&kind), Some(&m_n), Some(acc)) = (
+            self.state.get_mut(i),
+            self.kinds.get(i),
+            self.m_n.get(i),
+            self.acc.get_mut(i),
+        ) else {
+            return;
+        };
+        let sum = *acc;
+        *acc = Cplx::ZERO;
+        let amplitude = self.smooth.amplitude;
+        if s.rev_seen != self.revs_adapted {
+            s.rev_seen = self.revs_adapted;
+            s.change_last_rev = (s.coef - s.coef_at_rev_start).abs() / amplitude;
+            s.coef_at_rev_start = s.coef;
+        }
+        if !full {
+            s.coef_p = Cplx::ZERO;
+            return;
+        }
+        // Mean coherent power of the MRE over the block: ε·e^{-j m θ̂s}, mean H·G/(2j).
+        let cp = sum.scale(self.inv_len);
+        // G = 2j·cp/H, with |H| floored: 2j·cp·(1/H)·min(1, |H|/floor).
+        let r = ObserverGains::inverse_error_transfer_of(k.sigma, m_n * self.smooth.omega_rad_s);
+        let q = r.norm_sqr();
+        // Not finite only at ω̂ = 0, which the speed gate excludes unless it is set to 0.
+        let visible = q <= k.inv_min_h2 && q < f32::INFINITY;
+        if visible {
+            let comp = if q <= k.inv_h_floor2 {
+                r.scale(2.0)
+            } else {
+                r.scale(2.0 / (sqrt_f32(q) * k.h_floor))
+            };
+            let g_est = cp.mul_j() * comp;
+            let g_alpha = min_f32(block_rad * (1.0 / G_WINDOW_RAD), 1.0);
+            let r_alpha = min_f32(block_rad * (1.0 / RESIDUAL_WINDOW_RAD), 1.0);
+            s.g_filtered = s.g_filtered + (g_est - s.g_filtered).scale(g_alpha);
+            s.residual = s.residual + (g_est - s.residual).scale(r_alpha);
+        }
+        if x.frozen {
+            s.coef_p = Cplx::ZERO;
+            return;
+        }
+        match k.law {
+            Law::Compensated {
+                gain_per_rad,
+                proportional,
+            } => {
+                if !visible {
+                    s.coef_p = Cplx::ZERO;
+                    return;
+                }
+                // Integrated over angle: gain per radian (docs/theory.md §3).
+                s.coef += coef_delta(kind, s.g_filtered, gain_per_rad * amplitude * block_rad);
+                s.coef_p = if proportional == 0.0 {
+                    Cplx::ZERO
+                } else {
+                    coef_delta(kind, s.g_filtered, proportional * amplitude)
+                };
+            }
+            Law::PaperLiteral { k1_t_s, k2 } => {
+                // CPMRE = ε_m · sign(ω̂) · e^{-j m θ̂s}, PI in time (Fig. 6): the block
+                // sum integrates, the block mean is the proportional part.
+                let c = sum.scale(libm::copysignf(k.inv_n, x.omega_rad_s));
+                s.coef += coef_delta(kind, c, k1_t_s * amplitude);
+                s.coef_p = coef_delta(kind, c.scale(self.inv_len), k2 * amplitude);
+            }
+        }
+        let limit = k.coefficient_limit * amplitude;
+        let a2 = s.coef.norm_sqr();
+        if a2 > limit * limit {
+            s.coef = s.coef.scale(limit / sqrt_f32(a2));
+        }
     }
 }
 
@@ -238,14 +506,78 @@ impl PathBank {
 mod tests {
     use super::*;
 
+    /// `pw[k]` for `k ≥ 0`, `conj(pw[-k])` for `k < 0`.
+    #[inline]
+    fn power(pw: &Powers, k: i8) -> Cplx {
+        let p = pw[k.unsigned_abs() as usize & POWER_MASK];
+        if k < 0 {
+            p.conj()
+        } else {
+            p
+        }
+    }
+
+    /// The path's contribution to the decoupling vector, given `pw[i] = e^{j i θ̂s}`.
+    #[inline]
+    fn injection(kind: PathKind, coef: Cplx, pw: &Powers) -> Cplx {
+        match kind {
+            PathKind::Offset => coef,
+            // C·cos θ̂s + D·sin θ̂s on X only (eq. 9).
+            PathKind::AmplitudeQuadrature => {
+                Cplx::new(coef.re * pw[1].re + coef.im * pw[1].im, 0.0)
+            }
+            PathKind::Harmonic(h) => coef * power(pw, h),
+        }
+    }
+
+    /// The straight-line injection equals the per-kind definition, path by path.
+    #[test]
+    fn injection_vector_matches_the_path_definitions() {
+        let kinds = [
+            PathKind::Harmonic(-2),
+            PathKind::Offset,
+            PathKind::Harmonic(5),
+            PathKind::AmplitudeQuadrature,
+            PathKind::Harmonic(-15),
+        ];
+        let mut inj = Injection::new(&kinds);
+        let coefs: [Cplx; 5] =
+            core::array::from_fn(|i| Cplx::new(0.01 * (i as f32 + 1.0), -0.003 * i as f32));
+        for (i, c) in coefs.iter().enumerate() {
+            inj.set(i, *c);
+        }
+        let u = Cplx::new(libm::cosf(0.7), libm::sinf(0.7));
+        let mut pw = [Cplx::ONE; 32];
+        for i in 1..32 {
+            pw[i] = pw[i - 1] * u;
+        }
+        let mut expect = Cplx::ZERO;
+        for (k, c) in kinds.iter().zip(&coefs) {
+            expect += injection(*k, *c, &pw);
+        }
+        let got = inj.vector(&pw);
+        assert!((got - expect).abs() < 1e-7, "{got:?} vs {expect:?}");
+    }
+
     /// The angle error of `e^{jθ} + c_k e^{jkθ}` at θ, to first order, is Im(G e^{jmθ}):
     /// check the sign convention of `coef_delta` by finite differences on the real angle.
     #[test]
+    fn negative_powers_are_conjugates() {
+        let u = Cplx::new(0.6, 0.8);
+        let mut pw = [Cplx::ONE; 32];
+        pw[1] = u;
+        pw[2] = u * u;
+        assert_eq!(power(&pw, -2), (u * u).conj());
+        assert_eq!(power(&pw, 2), u * u);
+        assert_eq!(power(&pw, 0), Cplx::ONE);
+    }
+
+    #[test]
     fn coef_delta_reduces_the_error_phasor() {
-        let pw_at = |th: f32| -> [Cplx; 8] {
+        let pw_at = |th: f32| -> Powers {
             let u = Cplx::new(libm::cosf(th), libm::sinf(th));
-            let mut pw = [Cplx::ONE; 8];
-            for i in 1..8 {
+            let mut pw = [Cplx::ONE; 32];
+            for i in 1..32 {
                 pw[i] = pw[i - 1] * u;
             }
             pw
@@ -269,7 +601,7 @@ mod tests {
                         z.im * pw[1].re - z.re * pw[1].im,
                         z.re * pw[1].re + z.im * pw[1].im,
                     );
-                    acc += Cplx::pow_from(&pw, -m).scale(err);
+                    acc += power(&pw, -m as i8).scale(err);
                 }
                 // δ = Im(G e^{jmθ}) ⇒ mean(δ e^{-jmθ}) = G/(2j) ⇒ G = 2j·mean.
                 acc.scale(2.0 / n as f32).mul_j()

@@ -22,6 +22,8 @@ pub struct ObserverGains {
     pub k_iso: f32,
     /// 1/Ĵ, kept so that the control path does not divide.
     pub inv_inertia: f32,
+    /// Elementary symmetric sums of λ (Σλ, Σλλ, Πλ): the coefficients of 1/H.
+    pub sigma: [f32; 3],
 }
 
 impl ObserverGains {
@@ -35,6 +37,7 @@ impl ObserverGains {
             k_so: inertia_kg_m2 * (l1 * l2 + l1 * l3 + l2 * l3),
             k_iso: inertia_kg_m2 * l1 * l2 * l3,
             inv_inertia: 1.0 / inertia_kg_m2,
+            sigma: [l1 + l2 + l3, l1 * l2 + l1 * l3 + l2 * l3, l1 * l2 * l3],
         }
     }
 
@@ -50,6 +53,24 @@ impl ObserverGains {
             h = h * Cplx::new(w2 * d, l * w_rad_s * d);
         }
         h
+    }
+
+    /// `1/H(jw) = 1 + σ1/(jw) + σ2/(jw)² + σ3/(jw)³` with one division: what the
+    /// adaptation needs (it divides the correlation by H). Its real and imaginary parts
+    /// are `1 − σ2/w²` and `−(σ1 − σ3/w²)/w`; |1/H| ≥ 1, so their rounding errors
+    /// (~1e-7 absolute) stay relative too. Not finite at `w = 0`.
+    #[inline]
+    pub fn inverse_error_transfer(&self, w_rad_s: f32) -> Cplx {
+        Self::inverse_error_transfer_of(self.sigma, w_rad_s)
+    }
+
+    /// [`Self::inverse_error_transfer`] from the λ sums alone.
+    #[inline]
+    pub(crate) fn inverse_error_transfer_of(sigma: [f32; 3], w_rad_s: f32) -> Cplx {
+        let [s1, s2, s3] = sigma;
+        let u = 1.0 / w_rad_s;
+        let u2 = u * u;
+        Cplx::new(1.0 - s2 * u2, -u * (s1 - s3 * u2))
     }
 }
 
@@ -166,6 +187,20 @@ mod tests {
         let mid = g.error_transfer(TAU * 31.6);
         let phase = libm::atan2f(mid.im, mid.re).to_degrees();
         assert!(phase > 45.0 && phase < 135.0, "phase {phase}");
+    }
+
+    #[test]
+    fn inverse_error_transfer_is_the_reciprocal() {
+        let g = ObserverGains::from_eigenvalues([100.0, 10.0, 1.0], 2.0e-4);
+        for w in [-5000.0f32, -60.0, -2.0, 0.5, 3.0, 62.8, 200.0, 1.0e4] {
+            let h = g.error_transfer(w);
+            let r = g.inverse_error_transfer(w);
+            let one = h * r;
+            assert!(
+                (one.re - 1.0).abs() < 1e-5 && one.im.abs() < 1e-5,
+                "w {w}: H·(1/H) = {one:?}"
+            );
+        }
     }
 
     #[test]

@@ -2,23 +2,13 @@
 
 use crate::coefficients::{CoefficientsError, Convergence};
 use crate::complex::Cplx;
-use crate::config::{Config, ConfigError, MAX_HARMONIC};
-use crate::decoupler::{PathBank, StepContext};
+use crate::config::{Config, ConfigError};
+use crate::decoupler::{PathBank, Powers, Sample};
 use crate::health::{Fault, Faults};
 use crate::observer::{ObserverGains, ObserverState};
-use crate::trig::{max_f32, min_f32, sqrt_f32, F32Trig, Trig};
+use crate::trig::{sqrt_f32, F32Trig, Trig};
 use crate::{Coefficients, MAX_PATHS};
 use core::f32::consts::TAU;
-
-/// Powers of the reference unit vector the bank may need (|h| + 1).
-const MAX_ORDER: usize = MAX_HARMONIC as usize + 1;
-/// Speed and amplitude used by the adaptation are smoothed over this much sensor
-/// electrical angle per stage (two stages). Their raw values ripple with the very sensor
-/// error being estimated; weighting the correlation with that ripple biases the
-/// equilibrium, badly so where |H| is small (docs/theory.md §3).
-const SMOOTH_WINDOW_RAD: f32 = TAU;
-/// ... but never slower than this in time, so that a reversal is followed near ω = 0.
-const SMOOTH_MAX_TAU_S: f32 = 0.1;
 
 /// What the observer knows after one sample.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -59,13 +49,11 @@ pub struct Tracker<T: Trig = F32Trig> {
     gains: ObserverGains,
     obs: ObserverState,
     /// Powers of the reference unit vector, `pw[i] = e^{j i θ̂s}` (pw[0] = 1).
-    pw: [Cplx; MAX_ORDER + 1],
+    pw: Powers,
     /// `obs.periods` split into (sensor period within the turn, turns); refreshed only
     /// when the period count changes, to keep integer division out of most samples.
     mech: (i32, i32),
     bank: PathBank,
-    /// ω̂ and |Zd| smoothed for the adaptation.
-    smooth: Smoothed,
     acquired: bool,
     frozen: bool,
     faults: Faults,
@@ -73,38 +61,8 @@ pub struct Tracker<T: Trig = F32Trig> {
     max_order: usize,
     cos_lock: f32,
     inv_n: f32,
-}
-
-/// Two-stage angle-domain low-pass of ω̂ and |Zd| (see [`SMOOTH_WINDOW_RAD`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-struct Smoothed {
-    omega1_rad_s: f32,
-    omega_rad_s: f32,
-    amplitude1: f32,
-    amplitude: f32,
-}
-
-impl Smoothed {
-    fn reset(omega_rad_s: f32, amplitude: f32) -> Self {
-        Self {
-            omega1_rad_s: omega_rad_s,
-            omega_rad_s,
-            amplitude1: amplitude,
-            amplitude,
-        }
-    }
-
-    #[must_use]
-    fn updated(&self, omega_rad_s: f32, amplitude: f32, alpha: f32) -> Self {
-        let omega1_rad_s = self.omega1_rad_s + (omega_rad_s - self.omega1_rad_s) * alpha;
-        let amplitude1 = self.amplitude1 + (amplitude - self.amplitude1) * alpha;
-        Self {
-            omega1_rad_s,
-            omega_rad_s: self.omega_rad_s + (omega1_rad_s - self.omega_rad_s) * alpha,
-            amplitude1,
-            amplitude: self.amplitude + (amplitude1 - self.amplitude) * alpha,
-        }
-    }
+    /// |Z|² limits of the health band (min², max²).
+    amplitude2_band: [f32; 2],
 }
 
 impl Tracker<F32Trig> {
@@ -118,23 +76,27 @@ impl<T: Trig> Tracker<T> {
     /// A tracker with a given trigonometry implementation (e.g. the CORDIC).
     pub fn with_trig(cfg: Config, trig: T) -> Result<Self, ConfigError> {
         cfg.validate()?;
+        let gains = ObserverGains::from_eigenvalues(
+            cfg.observer.eigenvalues_hz,
+            cfg.observer.inertia_kg_m2,
+        );
         Ok(Self {
-            gains: ObserverGains::from_eigenvalues(
-                cfg.observer.eigenvalues_hz,
-                cfg.observer.inertia_kg_m2,
-            ),
+            bank: PathBank::new(&cfg, &gains),
+            gains,
             obs: ObserverState::default(),
-            pw: [Cplx::ONE; MAX_ORDER + 1],
+            pw: [Cplx::ONE; 32],
             mech: (0, 0),
-            bank: PathBank::new(&cfg),
-            smooth: Smoothed::reset(0.0, 1.0),
             acquired: false,
             frozen: false,
             faults: Faults::default(),
             last: Estimate::default(),
-            max_order: cfg.max_order(),
+            max_order: cfg.max_order().min(31),
             cos_lock: libm::cosf(cfg.health.lock_threshold_rad),
             inv_n: 1.0 / cfg.sensor_periods as f32,
+            amplitude2_band: [
+                cfg.health.amplitude_min * cfg.health.amplitude_min,
+                cfg.health.amplitude_max * cfg.health.amplitude_max,
+            ],
             cfg,
             trig,
         })
@@ -154,23 +116,31 @@ impl<T: Trig> Tracker<T> {
     /// latched fault set changes. On `Err(LossOfLock)` the observer has still advanced
     /// (so that it can re-acquire) but adaptation is suspended until [`Self::clear_faults`].
     pub fn step(&mut self, x_raw: f32, y_raw: f32, torque_ff_nm: f32) -> Result<Estimate, Fault> {
-        if !(x_raw.is_finite() && y_raw.is_finite() && torque_ff_nm.is_finite()) {
-            return self.reject(Fault::NonFiniteInput);
-        }
         let inp = &self.cfg.input;
-        if libm::fabsf(x_raw) >= inp.raw_limit || libm::fabsf(y_raw) >= inp.raw_limit {
-            return self.reject(Fault::SensorSaturated);
+        // One comparison each rejects NaN, ±inf and railed values; which of them it was
+        // is sorted out on the rejecting path only.
+        if !(libm::fabsf(x_raw) < inp.raw_limit
+            && libm::fabsf(y_raw) < inp.raw_limit
+            && libm::fabsf(torque_ff_nm) < f32::INFINITY)
+        {
+            let finite = x_raw.is_finite() && y_raw.is_finite() && torque_ff_nm.is_finite();
+            return self.reject(if finite {
+                Fault::SensorSaturated
+            } else {
+                Fault::NonFiniteInput
+            });
         }
         let z = Cplx::new(
             (x_raw - inp.offset_x) * inp.gain_x,
             (y_raw - inp.offset_y) * inp.gain_y,
         );
         let z2 = z.norm_sqr();
-        let h = self.cfg.health;
-        if !z2.is_finite() || z2 > h.amplitude_max * h.amplitude_max {
+        // Written so that a NaN also lands on the rejecting side.
+        let below_max = z2 <= self.amplitude2_band[1];
+        if !below_max {
             return self.reject(Fault::SensorSaturated);
         }
-        if z2 < h.amplitude_min * h.amplitude_min {
+        if z2 < self.amplitude2_band[0] {
             return self.reject(Fault::SensorLost);
         }
         if !self.acquired {
@@ -180,16 +150,20 @@ impl<T: Trig> Tracker<T> {
         // Reference unit vector and its powers at the prior estimate θ̂s.
         let (s, c) = self.trig.sin_cos(self.obs.theta_e_rad);
         // Kept in the tracker: no 17-element initialisation per sample.
-        let pw = &mut self.pw;
-        pw[1] = Cplx::new(c, s);
-        for i in 2..=self.max_order {
-            pw[i] = pw[i - 1] * pw[1];
+        let u = Cplx::new(c, s);
+        self.pw[1] = u;
+        if let Some(higher) = self.pw.get_mut(2..=self.max_order) {
+            let mut p = u;
+            for v in higher {
+                p = p * u;
+                *v = p;
+            }
         }
 
         // Decoupled vector and the cross-product error, normalised by |Zd|.
-        let zd = z + self.bank.decoupling_vector(&self.pw[..=self.max_order]);
+        let zd = z + self.bank.decoupling_vector(&self.pw);
         let zd2 = zd.norm_sqr();
-        if zd2 < 0.25 * h.amplitude_min * h.amplitude_min {
+        if zd2 < 0.25 * self.amplitude2_band[0] {
             // Coefficients plus input cancel the vector: nothing to track on.
             return self.reject(Fault::SensorLost);
         }
@@ -205,7 +179,7 @@ impl<T: Trig> Tracker<T> {
         let n = self.cfg.sensor_periods;
         let next = self.obs.advanced(
             &self.gains,
-            eps_e_rad / n as f32,
+            eps_e_rad * self.inv_n,
             torque_ff_nm,
             self.cfg.sample_period_s,
             n,
@@ -215,36 +189,16 @@ impl<T: Trig> Tracker<T> {
         }
         let amplitude = zd_abs;
         let o = &self.obs;
-        let t_s = self.cfg.sample_period_s;
-        let alpha = min_f32(
-            max_f32(
-                n as f32 * libm::fabsf(o.omega_rad_s) * t_s * (1.0 / SMOOTH_WINDOW_RAD),
-                t_s * (1.0 / SMOOTH_MAX_TAU_S),
-            ),
-            1.0,
-        );
-        let smooth = self.smooth.updated(o.omega_rad_s, amplitude, alpha);
-
-        let g = &self.cfg.gates;
-        let w_f = smooth.omega_rad_s;
-        let gates_open = !self.faults.contains(Fault::LossOfLock)
-            && libm::fabsf(w_f) >= g.min_speed_rad_s
-            && libm::fabsf(o.omega_rad_s - w_f) <= g.max_speed_deviation * libm::fabsf(w_f)
-            && libm::fabsf(o.disturbance_nm) <= g.max_disturbance_nm
-            && libm::fabsf(torque_ff_nm) <= g.max_accel_rad_s2 * self.gains.inertia_kg_m2;
-        let adapting = self.bank.step(
-            &self.cfg,
-            &self.gains,
-            &StepContext {
-                eps_e_rad,
-                pw: &self.pw[..=self.max_order],
-                omega_rad_s: o.omega_rad_s,
-                omega_smooth_rad_s: w_f,
-                amplitude: smooth.amplitude,
-                gates_open,
-                frozen: self.frozen,
-            },
-        );
+        let adapting = self.bank.step(&Sample {
+            eps_e_rad,
+            pw: &self.pw,
+            omega_rad_s: o.omega_rad_s,
+            amplitude,
+            disturbance_nm: o.disturbance_nm,
+            torque_ff_nm,
+            locked: !self.faults.contains(Fault::LossOfLock),
+            frozen: self.frozen,
+        });
 
         let mut est = self.estimate_of(&self.obs, amplitude, eps_e_rad, adapting);
         est.decoupled = zd;
@@ -252,7 +206,6 @@ impl<T: Trig> Tracker<T> {
             self.mech = Self::split_periods(next.periods, n);
         }
         self.obs = next;
-        self.smooth = smooth;
         self.last = est;
         if lock_lost {
             Err(Fault::LossOfLock)
@@ -280,7 +233,7 @@ impl<T: Trig> Tracker<T> {
             ..Default::default()
         };
         self.mech = (0, 0);
-        self.smooth = Smoothed::reset(0.0, z.abs());
+        self.bank.restart(z.abs());
         self.acquired = true;
     }
 
@@ -365,6 +318,8 @@ impl<T: Trig> Tracker<T> {
         }
         self.bank.revs_adapted = 0;
         self.bank.angle_this_rev_rad = 0.0;
+        self.bank.discard_blocks();
+        self.bank.refresh_injection();
         Ok(())
     }
 

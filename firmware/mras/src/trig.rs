@@ -34,41 +34,154 @@ impl Trig for LibmTrig {
     }
 }
 
-/// sin and cos by quadrant reduction (π/2 split in three parts, Cody-Waite) and the
-/// Cephes single-precision polynomials on [-π/4, π/4].
+/// Entries of the unit-circle table: one per 2π/64.
+const TABLE_LEN: usize = 64;
+
+/// `[cos, sin]` of `2πk/64`, correctly rounded to f32 (checked by a test against f64).
+#[rustfmt::skip]
+const UNIT_CIRCLE: [[f32; 2]; TABLE_LEN] = [
+    [1.0, 0.0],
+    [0.9951847, 0.09801714],
+    [0.98078525, 0.19509032],
+    [0.95694035, 0.29028466],
+    [0.9238795, 0.38268343],
+    [0.8819213, 0.47139674],
+    [0.8314696, 0.55557024],
+    [0.77301043, 0.6343933],
+    [0.70710677, 0.70710677],
+    [0.6343933, 0.77301043],
+    [0.55557024, 0.8314696],
+    [0.47139674, 0.8819213],
+    [0.38268343, 0.9238795],
+    [0.29028466, 0.95694035],
+    [0.19509032, 0.98078525],
+    [0.09801714, 0.9951847],
+    [0.0, 1.0],
+    [-0.09801714, 0.9951847],
+    [-0.19509032, 0.98078525],
+    [-0.29028466, 0.95694035],
+    [-0.38268343, 0.9238795],
+    [-0.47139674, 0.8819213],
+    [-0.55557024, 0.8314696],
+    [-0.6343933, 0.77301043],
+    [-0.70710677, 0.70710677],
+    [-0.77301043, 0.6343933],
+    [-0.8314696, 0.55557024],
+    [-0.8819213, 0.47139674],
+    [-0.9238795, 0.38268343],
+    [-0.95694035, 0.29028466],
+    [-0.98078525, 0.19509032],
+    [-0.9951847, 0.09801714],
+    [-1.0, 0.0],
+    [-0.9951847, -0.09801714],
+    [-0.98078525, -0.19509032],
+    [-0.95694035, -0.29028466],
+    [-0.9238795, -0.38268343],
+    [-0.8819213, -0.47139674],
+    [-0.8314696, -0.55557024],
+    [-0.77301043, -0.6343933],
+    [-0.70710677, -0.70710677],
+    [-0.6343933, -0.77301043],
+    [-0.55557024, -0.8314696],
+    [-0.47139674, -0.8819213],
+    [-0.38268343, -0.9238795],
+    [-0.29028466, -0.95694035],
+    [-0.19509032, -0.98078525],
+    [-0.09801714, -0.9951847],
+    [0.0, -1.0],
+    [0.09801714, -0.9951847],
+    [0.19509032, -0.98078525],
+    [0.29028466, -0.95694035],
+    [0.38268343, -0.9238795],
+    [0.47139674, -0.8819213],
+    [0.55557024, -0.8314696],
+    [0.6343933, -0.77301043],
+    [0.70710677, -0.70710677],
+    [0.77301043, -0.6343933],
+    [0.8314696, -0.55557024],
+    [0.8819213, -0.47139674],
+    [0.9238795, -0.38268343],
+    [0.95694035, -0.29028466],
+    [0.98078525, -0.19509032],
+    [0.9951847, -0.09801714],
+];
+
+/// 2π/64 split in a 12-bit part, whose products with step counts below 2^12 are exact,
+/// and the rest (Cody-Waite): the remainder keeps its precision for |x| up to ~400 rad.
+const STEP_HI: f32 = 0.098_144_53; // 0.09814453125 exactly (0x3DC9_0000)
+const STEP_LO: f32 = 3.023_917_5e-5;
+
+/// sin and cos from the nearest of 64 table points and a short Taylor series of the
+/// remainder `r` (|r| ≤ π/64, so `r⁵/120` and `r⁶/720` are below 3e-9), rotated by
+/// one complex multiplication: about half the cycles of a quadrant reduction with full
+/// minimax polynomials, with the same pure-f32 determinism.
 #[inline]
 pub fn sin_cos_f32(x: f32) -> (f32, f32) {
-    const FRAC_2_PI: f32 = core::f32::consts::FRAC_2_PI;
-    const DP1: f32 = 1.570_312_5;
-    const DP2: f32 = 4.837_513e-4;
-    const DP3: f32 = 7.549_79e-8;
-    // Nearest quadrant; `as i32` saturates, and |x| beyond ~1e6 rad is not an angle the
+    const STEPS_PER_RAD: f32 = TABLE_LEN as f32 / core::f32::consts::TAU;
+    let kf = x * STEPS_PER_RAD;
+    // Nearest step; `as i32` saturates, and |x| beyond ~1e6 rad is not an angle the
     // observer produces (it wraps to [0, 2π)).
-    let qf = x * FRAC_2_PI;
-    let q = if qf >= 0.0 {
-        (qf + 0.5) as i32
+    let k = if kf >= 0.0 {
+        (kf + 0.5) as i32
     } else {
-        (qf - 0.5) as i32
+        (kf - 0.5) as i32
     };
-    let qf = q as f32;
-    let r = ((x - qf * DP1) - qf * DP2) - qf * DP3;
-    let z = r * r;
-    let s = r + r * z * (-1.666_665_5e-1 + z * (8.332_161e-3 + z * -1.951_529_6e-4));
-    let c = 1.0 - 0.5 * z + z * z * (4.166_664_6e-2 + z * (-1.388_731_6e-3 + z * 2.443_315_7e-5));
-    match q & 3 {
-        0 => (s, c),
-        1 => (c, -s),
-        2 => (-s, -c),
-        _ => (-c, s),
+    let kf = k as f32;
+    let r = (x - kf * STEP_HI) - kf * STEP_LO;
+    let r2 = r * r;
+    let sin_r = r - r * r2 * (1.0 / 6.0);
+    let cos_r = 1.0 - r2 * (0.5 - r2 * (1.0 / 24.0));
+    let [c, s] = UNIT_CIRCLE[(k as u32 as usize) & (TABLE_LEN - 1)];
+    (s * cos_r + c * sin_r, c * cos_r - s * sin_r)
+}
+
+/// Square root, the one seam for it. IEEE-754 square root is correctly rounded, so the
+/// FPU instruction and `libm::sqrtf` give the same bits: on a Cortex-M with the FPU
+/// (hard-float ABI) it is `VSQRT.F32` (14 cycles), elsewhere `libm::sqrtf` (the
+/// instruction on x86-64; ~300 cycles of integer code on an M4, docs/performance.md).
+#[inline]
+pub fn sqrt_f32(x: f32) -> f32 {
+    #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+    {
+        vsqrt::sqrt(x)
+    }
+    #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
+    {
+        libm::sqrtf(x)
     }
 }
 
-/// Square root, the one seam for it: `libm::sqrtf` (correctly rounded, so identical on
-/// every target). On the MCU it is software, ~300 cycles per call measured
-/// (docs/performance.md); the FPU's VSQRT would give the same bits in 14.
-#[inline]
-pub fn sqrt_f32(x: f32) -> f32 {
-    libm::sqrtf(x)
+/// `VSQRT.F32` as a leaf function. Stable Rust has no `sqrt` in `core`, and `asm!`
+/// cannot name single-precision registers on `thumbv7em-none-eabihf` (the `sreg` class
+/// requires the `vfp2` feature, which implies double precision the M4 lacks); a
+/// global-assembly function taking and returning `s0` under the hard-float ABI needs
+/// neither.
+#[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+#[allow(unsafe_code)] // the crate's only unsafe: one FPU instruction
+mod vsqrt {
+    core::arch::global_asm!(
+        ".section .text.mras_vsqrt_f32,\"ax\",%progbits",
+        ".fpu fpv4-sp-d16",
+        ".global mras_vsqrt_f32",
+        ".type mras_vsqrt_f32,%function",
+        ".p2align 1",
+        ".thumb_func",
+        "mras_vsqrt_f32:",
+        "vsqrt.f32 s0, s0",
+        "bx lr",
+        ".size mras_vsqrt_f32, . - mras_vsqrt_f32",
+    );
+
+    extern "C" {
+        fn mras_vsqrt_f32(x: f32) -> f32;
+    }
+
+    #[inline]
+    pub fn sqrt(x: f32) -> f32 {
+        // SAFETY: a leaf function that reads s0 and writes s0 only, per the AAPCS-VFP
+        // calling convention of this target.
+        unsafe { mras_vsqrt_f32(x) }
+    }
 }
 
 /// `min`/`max` for finite values as plain comparisons: `f32::min` is a call to
@@ -94,6 +207,28 @@ pub(crate) fn max_f32(a: f32, b: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn step_split_is_exact_to_f32() {
+        assert_eq!(STEP_HI.to_bits(), 0x3DC9_0000);
+        let step = core::f64::consts::TAU / TABLE_LEN as f64;
+        assert!((STEP_HI as f64 + STEP_LO as f64 - step).abs() < 1e-12);
+    }
+
+    #[test]
+    fn table_is_the_unit_circle_correctly_rounded() {
+        for (k, [c, s]) in UNIT_CIRCLE.iter().enumerate() {
+            let x = core::f64::consts::TAU * k as f64 / TABLE_LEN as f64;
+            // Correct rounding: within half an ulp of the f64 value (zeros exact).
+            for (v, e) in [(*c, x.cos()), (*s, x.sin())] {
+                let ulp = f32::EPSILON as f64 * (e.abs() as f32).max(f32::MIN_POSITIVE) as f64;
+                assert!(
+                    (v as f64 - e).abs() <= 0.5 * ulp + 1e-15,
+                    "k {k}: {v} vs {e}"
+                );
+            }
+        }
+    }
 
     #[test]
     fn sin_cos_accuracy_over_a_wide_range() {
