@@ -225,6 +225,10 @@ fn insn_cycles(i: &Insn, taken: bool, after_ldst: bool) -> u32 {
     if is_branch {
         return 1 + refill;
     }
+    if base == "tbb" || base == "tbh" {
+        // Table branch: load (2), add, pipeline reload (3), §3.3.2.
+        return 6;
+    }
     match base {
         "push" | "stmdb" | "stm" | "stmia" => 1 + reg_count(&i.operands),
         "pop" | "ldm" | "ldmia" | "ldmdb" => {
@@ -286,6 +290,12 @@ pub fn cycles() -> Result<(), String> {
     let mut by_fn: Vec<HashMap<String, u64>> = vec![HashMap::new(); CONFIGS.len()];
     // Cycles per instruction address in the last configuration, for the stage breakdown.
     let mut by_pc: HashMap<u32, (u64, String)> = HashMap::new();
+    // The configuration profiled by stage (default: four paths).
+    let profiled = std::env::var("MRAS_CYCLES_PROFILE")
+        .ok()
+        .and_then(|v| v.parse::<usize>().ok())
+        .filter(|&k| k < CONFIGS.len())
+        .unwrap_or(CONFIGS.len() - 1);
     let (mut counting, mut in_begin) = (false, false);
     let (mut n, mut cyc) = (0u64, 0u64);
     let mut prev: Option<(u32, String)> = None;
@@ -309,7 +319,7 @@ pub fn cycles() -> Result<(), String> {
                 after_ldst = is_single_ldst(i);
                 cyc += c;
                 let config = (steps.len() / STEPS_PER_CONFIG).min(CONFIGS.len() - 1);
-                if config == CONFIGS.len() - 1 {
+                if config == profiled {
                     by_pc.entry(ppc).or_insert((0, pfunc.clone())).0 += c;
                 }
                 *by_fn[config].entry(pfunc).or_default() += c;
@@ -362,12 +372,13 @@ pub fn cycles() -> Result<(), String> {
         );
     }
     println!(
-        "\nWhere the cycles go with four paths (each executed instruction charged to the \
-         innermost core stage it was inlined from, after its debug line info):\n"
+        "\nWhere the cycles go, {} (each executed instruction charged to the \
+         innermost core stage it was inlined from, after its debug line info):\n",
+        CONFIGS[profiled]
     );
     println!("| stage | cycles/step | share |");
     println!("|---|---:|---:|");
-    let stages = stages(&img, &by_pc)?;
+    let stages = stages(&img, &insns, &by_pc)?;
     // Per-address profile for whoever optimises next (`arm-none-eabi-objdump -d` beside it).
     let mut pcs: Vec<_> = by_pc.iter().collect();
     pcs.sort_by_key(|x| *x.0);
@@ -395,15 +406,23 @@ pub fn cycles() -> Result<(), String> {
 
 /// Core stages, matched against the inlined call chain of an instruction from the
 /// innermost frame outwards: the first frame naming one of them gets the cycles.
-const STAGES: [(&str, &str); 10] = [
+const STAGES: [(&str, &str); 13] = [
     ("sin_cos", "reference vector: sin/cos"),
-    ("sqrt", "square roots (VSQRT)"),
+    (
+        "update_powers",
+        "powers of e^{jθ̂} (complex multiplications)",
+    ),
+    (
+        "sqrt",
+        "1/|Zd| (inline inverse square root) and other roots",
+    ),
     (
         "inverse_error_transfer",
         "path update: compensation 1/H(jmNω̂)",
     ),
     ("update_path", "path update: filters, integration, clamp"),
     ("Smoothed", "smoothing of ω̂ and |Zd|"),
+    ("tick", "every stride: speed gates, revolution count"),
     (
         "PathBank::step",
         "gates, block sums ε·e^{-jmθ̂} (correlation)",
@@ -414,15 +433,23 @@ const STAGES: [(&str, &str); 10] = [
         "observer (Fig. 5) and its finiteness check",
     ),
     (
+        "estimate_of",
+        "the estimate (output record, kept and returned)",
+    ),
+    (
         "Tracker<T>::step",
-        "input checks, powers of e^{jθ̂}, ε, the estimate",
+        "input checks and scaling, ε, cos check, state commit",
     ),
     ("", "call, return and the rest"),
 ];
 
+/// Function entry and exit: register saves and restores, charged to their own line.
+const ENTRY_EXIT: &str = "function entry and exit (register saves)";
+
 /// Sum the per-address cycles into [`STAGES`] with `addr2line -i` (inlined frames).
 fn stages(
     image: &PathBuf,
+    insns: &HashMap<u32, Insn>,
     by_pc: &HashMap<u32, (u64, String)>,
 ) -> Result<Vec<(&'static str, u64)>, String> {
     ensure("arm-none-eabi-addr2line", "binutils-arm-none-eabi")?;
@@ -454,7 +481,17 @@ fn stages(
         }
     }
     let mut totals = vec![0u64; STAGES.len()];
+    let mut entry_exit = 0u64;
     for (pc, (c, symbol)) in by_pc {
+        let saves = insns.get(pc).is_some_and(|i| {
+            matches!(i.mnemonic.as_str(), "push" | "pop" | "vpush" | "vpop")
+                || (i.operands.starts_with("sp!") && i.mnemonic.starts_with("stmdb"))
+                || (i.operands.starts_with("sp!") && i.mnemonic.starts_with("ldmia"))
+        });
+        if saves {
+            entry_exit += c;
+            continue;
+        }
         let mut frames = chains.get(pc).cloned().unwrap_or_default();
         frames.push(symbol.clone());
         let stage = frames
@@ -471,6 +508,7 @@ fn stages(
         .iter()
         .map(|s| s.1)
         .zip(totals)
+        .chain([(ENTRY_EXIT, entry_exit)])
         .filter(|x| x.1 > 0)
         .collect();
     out.sort_by_key(|x| std::cmp::Reverse(x.1));
@@ -478,4 +516,4 @@ fn stages(
 }
 
 /// Must match `MEASURED_STEPS` in firmware/qemu-test/src/main.rs.
-const STEPS_PER_CONFIG: usize = 40;
+const STEPS_PER_CONFIG: usize = 64;

@@ -14,6 +14,8 @@
 mod adc;
 mod board;
 mod calibration;
+#[cfg(feature = "cordic")]
+mod cordic;
 mod fault_record;
 mod pwm;
 
@@ -109,7 +111,7 @@ mod app {
     struct Local {
         adcs: Adcs,
         pwm: Pwm,
-        tracker: Tracker,
+        tracker: Tracker<CoreTrig>,
         scaling: (ChannelScaling, ChannelScaling),
         id_pi: Pi,
         iq_pi: Pi,
@@ -122,6 +124,12 @@ mod app {
         load: LoadStatus,
         store: StoreStatus,
     }
+
+    /// The core's sine/cosine: the CORDIC, or the portable `F32Trig` (feature `cordic`).
+    #[cfg(feature = "cordic")]
+    type CoreTrig = crate::cordic::Trig;
+    #[cfg(not(feature = "cordic"))]
+    type CoreTrig = mras::F32Trig;
 
     fn core_config() -> Config {
         Config {
@@ -211,7 +219,11 @@ mod app {
             board::WATCHDOG_TIMEOUT_US,
         ));
 
-        let tracker = match Tracker::new(core_config()) {
+        #[cfg(feature = "cordic")]
+        let trig = crate::cordic::Cordic::new(dp.CORDIC);
+        #[cfg(not(feature = "cordic"))]
+        let trig = mras::F32Trig;
+        let tracker = match Tracker::with_trig(core_config(), trig) {
             Ok(t) => t,
             Err(e) => defmt::panic!("core configuration: {=str}: {=str}", e.field, e.problem),
         };

@@ -5,4 +5,5 @@
 
 pub mod adc;
 pub mod commissioning;
+pub mod cordic;
 pub mod foc;

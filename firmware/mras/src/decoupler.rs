@@ -9,7 +9,7 @@
 use crate::complex::Cplx;
 use crate::config::{AdaptationLaw, Config, PathKind, MAX_PATHS};
 use crate::observer::ObserverGains;
-use crate::trig::{max_f32, min_f32, sqrt_f32};
+use crate::trig::{max_f32, min_f32, sqrt_inline_f32};
 use core::f32::consts::{PI, TAU};
 
 /// |H| floor used for the residual measure when the law itself has none (paper-literal):
@@ -28,6 +28,10 @@ const RESIDUAL_WINDOW_RAD: f32 = 2.0 * TAU;
 const SMOOTH_WINDOW_RAD: f32 = TAU;
 /// ... but never slower than this in time, so that a reversal is followed near ω = 0.
 const SMOOTH_MAX_TAU_S: f32 = 0.1;
+/// Samples per path block at least: the paths are updated in turn, one every
+/// `BLOCK_SAMPLES / len` samples (0.8 ms at 20 kHz), each with the block sum of its
+/// correlation since its last update (docs/performance.md).
+pub(crate) const BLOCK_SAMPLES: u32 = 16;
 
 /// One path's adaptive state.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -145,10 +149,12 @@ impl Injection {
             self.offset.im,
         );
         let n = self.h_len.min(MAX_PATHS);
-        for ((c, &k), &sign) in self.h_coef[..n]
+        for ((c, &k), &sign) in self
+            .h_coef
             .iter()
-            .zip(&self.h_order[..n])
-            .zip(&self.h_sign[..n])
+            .zip(&self.h_order)
+            .zip(&self.h_sign)
+            .take(n)
         {
             let p = pw[k as usize & POWER_MASK];
             d += *c * Cplx::new(p.re, p.im * sign);
@@ -197,6 +203,7 @@ struct Constants {
     /// N·Ts: sensor-electrical angle per sample per rad/s.
     n_t_s: f32,
     inv_n: f32,
+    /// Smoothing gain per stride: per rad/s of speed, and its floor (see [`Smoothed`]).
     smooth_per_rad_s: f32,
     smooth_min: f32,
     min_speed_rad_s: f32,
@@ -213,7 +220,7 @@ struct Constants {
 }
 
 impl Constants {
-    fn new(cfg: &Config, gains: &ObserverGains) -> Self {
+    fn new(cfg: &Config, gains: &ObserverGains, stride: u32) -> Self {
         let n = cfg.sensor_periods as f32;
         let t_s = cfg.sample_period_s;
         let (law, h_floor) = match cfg.law {
@@ -242,8 +249,8 @@ impl Constants {
             sigma: gains.sigma,
             n_t_s: n * t_s,
             inv_n: 1.0 / n,
-            smooth_per_rad_s: n * t_s * (1.0 / SMOOTH_WINDOW_RAD),
-            smooth_min: t_s * (1.0 / SMOOTH_MAX_TAU_S),
+            smooth_per_rad_s: stride as f32 * n * t_s * (1.0 / SMOOTH_WINDOW_RAD),
+            smooth_min: stride as f32 * t_s * (1.0 / SMOOTH_MAX_TAU_S),
             min_speed_rad_s: g.min_speed_rad_s,
             max_speed_deviation: g.max_speed_deviation,
             max_disturbance_nm: g.max_disturbance_nm,
@@ -303,12 +310,27 @@ pub(crate) struct PathBank {
     inject: Injection,
     /// m·N as f32: the temporal frequency of the path's error is m·N·ω̂.
     m_n: [f32; MAX_PATHS],
-    inv_len: f32,
-    /// The path updated on the next sample.
+    /// Samples between two path updates, and per path block (`stride · len`).
+    stride: u32,
+    block: u32,
+    inv_block: f32,
+    inv_stride: f32,
+    /// Samples since the last update (0..stride).
+    phase: u32,
+    /// The path updated next.
     slot: usize,
     /// Consecutive samples with the gates open (a block counts only if all of it was).
     open_run: u32,
+    /// Samples adapted since the last update (for the revolution count).
+    adapted_samples: u32,
+    /// Σ ω̂ and Σ |Zd| since the last update: the smoothing's input.
+    omega_sum: f32,
+    amplitude_sum: f32,
     smooth: Smoothed,
+    /// Gate state derived from the smoothed speed at the last update: speed high
+    /// enough, and the window ω̂ must stay in (steady speed).
+    speed_ok: bool,
+    omega_window: [f32; 2],
     k: Constants,
     /// Sensor-electrical angle adapted over since the last revolution boundary.
     pub angle_this_rev_rad: f32,
@@ -324,6 +346,8 @@ impl PathBank {
             m[i] = p.error_harmonic();
             m_n[i] = p.error_harmonic() as f32 * cfg.sensor_periods as f32;
         }
+        let stride = (BLOCK_SAMPLES / paths.len().max(1) as u32).max(1);
+        let block = stride * paths.len().max(1) as u32;
         Self {
             kinds: cfg.paths,
             state: [PathState::default(); MAX_PATHS],
@@ -332,11 +356,20 @@ impl PathBank {
             acc: [Cplx::ZERO; MAX_PATHS],
             inject: Injection::new(paths),
             m_n,
-            inv_len: 1.0 / max_f32(paths.len() as f32, 1.0),
+            stride,
+            block,
+            inv_block: 1.0 / block as f32,
+            inv_stride: 1.0 / stride as f32,
+            phase: 0,
             slot: 0,
             open_run: 0,
+            adapted_samples: 0,
+            omega_sum: 0.0,
+            amplitude_sum: 0.0,
             smooth: Smoothed::reset(0.0, 1.0),
-            k: Constants::new(cfg, gains),
+            speed_ok: false,
+            omega_window: [0.0; 2],
+            k: Constants::new(cfg, gains, stride),
             angle_this_rev_rad: 0.0,
             revs_adapted: 0,
         }
@@ -345,6 +378,12 @@ impl PathBank {
     /// Restart the smoothing (observer acquired at rest) and the blocks.
     pub fn restart(&mut self, amplitude: f32) {
         self.smooth = Smoothed::reset(0.0, amplitude);
+        self.speed_ok = false;
+        self.omega_window = [0.0; 2];
+        self.phase = 0;
+        self.omega_sum = 0.0;
+        self.amplitude_sum = 0.0;
+        self.adapted_samples = 0;
         self.discard_blocks();
     }
 
@@ -368,27 +407,23 @@ impl PathBank {
         }
     }
 
-    /// One sample: smooth, gate, accumulate, update one path. Returns whether the
-    /// adaptation is running (gates open, not frozen).
+    /// One sample: gate and accumulate; every `stride` samples also smooth and update
+    /// one path. Returns whether the adaptation is running (gates open, not frozen).
     #[inline(always)]
     pub fn step(&mut self, x: &Sample) -> bool {
         let k = &self.k;
-        let w = libm::fabsf(x.omega_rad_s);
-        let alpha = min_f32(max_f32(w * k.smooth_per_rad_s, k.smooth_min), 1.0);
-        self.smooth.update(x.omega_rad_s, x.amplitude, alpha);
-        let w_f = self.smooth.omega_rad_s;
-        let w_f_abs = libm::fabsf(w_f);
+        self.omega_sum += x.omega_rad_s;
+        self.amplitude_sum += x.amplitude;
         let open = x.locked
-            && w_f_abs >= k.min_speed_rad_s
-            && libm::fabsf(x.omega_rad_s - w_f) <= k.max_speed_deviation * w_f_abs
+            && self.speed_ok
+            && x.omega_rad_s >= self.omega_window[0]
+            && x.omega_rad_s <= self.omega_window[1]
             && libm::fabsf(x.disturbance_nm) <= k.max_disturbance_nm
-            && libm::fabsf(x.torque_ff_nm) <= k.max_torque_nm;
-        if self.len == 0 {
-            return false;
-        }
+            && libm::fabsf(x.torque_ff_nm) <= k.max_torque_nm
+            && self.len > 0;
         if open {
             let eps = x.eps_e_rad;
-            for (a, &m) in self.acc[..self.len].iter_mut().zip(&self.m[..self.len]) {
+            for (a, &m) in self.acc.iter_mut().zip(&self.m).take(self.len) {
                 let p = x.pw[m as usize & POWER_MASK];
                 a.re += p.re * eps;
                 a.im -= p.im * eps;
@@ -398,18 +433,51 @@ impl PathBank {
             self.open_run = 0;
         }
         let adapting = open && !x.frozen;
-        let d_theta_e = k.n_t_s * w_f_abs;
-        if adapting {
-            self.angle_this_rev_rad += d_theta_e;
-            if self.angle_this_rev_rad >= k.rev_rad {
-                self.angle_this_rev_rad -= k.rev_rad;
-                self.revs_adapted = self.revs_adapted.saturating_add(1);
-            }
+        self.adapted_samples += adapting as u32;
+        self.phase += 1;
+        if self.phase >= self.stride {
+            self.phase = 0;
+            self.tick(x);
         }
-        let i = self.slot;
-        self.slot = if i + 1 >= self.len { 0 } else { i + 1 };
-        self.update_path(i, x, d_theta_e * self.len as f32);
         adapting
+    }
+
+    /// Every `stride` samples: smooth ω̂ and |Zd| with their means over the stride,
+    /// re-derive the speed gates, count revolutions, update the next path.
+    #[inline(always)]
+    fn tick(&mut self, x: &Sample) {
+        let k = &self.k;
+        let omega_mean = self.omega_sum * self.inv_stride;
+        let amplitude_mean = self.amplitude_sum * self.inv_stride;
+        self.omega_sum = 0.0;
+        self.amplitude_sum = 0.0;
+        let alpha = min_f32(
+            max_f32(libm::fabsf(omega_mean) * k.smooth_per_rad_s, k.smooth_min),
+            1.0,
+        );
+        self.smooth.update(omega_mean, amplitude_mean, alpha);
+        let w_f = self.smooth.omega_rad_s;
+        let w_f_abs = libm::fabsf(w_f);
+        self.speed_ok = w_f_abs >= k.min_speed_rad_s;
+        let dev = k.max_speed_deviation * w_f_abs;
+        self.omega_window = [w_f - dev, w_f + dev];
+        let d_theta_e = k.n_t_s * w_f_abs;
+        self.angle_this_rev_rad += self.adapted_samples as f32 * d_theta_e;
+        self.adapted_samples = 0;
+        if self.angle_this_rev_rad >= k.rev_rad {
+            // At most one revolution per stride at any speed the observer tracks; more
+            // would only drop counts, never loop.
+            self.angle_this_rev_rad -= k.rev_rad;
+            if self.angle_this_rev_rad >= k.rev_rad {
+                self.angle_this_rev_rad = 0.0;
+            }
+            self.revs_adapted = self.revs_adapted.saturating_add(1);
+        }
+        if self.len > 0 {
+            let i = self.slot;
+            self.slot = if i + 1 >= self.len { 0 } else { i + 1 };
+            self.update_path(i, x, d_theta_e * self.block as f32);
+        }
     }
 
     /// Turn path `i`'s block sum into an update; `block_rad` is the block's angle.
@@ -425,7 +493,7 @@ impl PathBank {
     #[inline(always)]
     fn adapt_path(&mut self, i: usize, x: &Sample, block_rad: f32) {
         let k = self.k;
-        let full = self.open_run >= self.len as u32;
+        let full = self.open_run >= self.block;
         let (Some(s), Some(&kind), Some(&m_n), Some(acc)) = (
             self.state.get_mut(i),
             self.kinds.get(i),
@@ -439,7 +507,8 @@ impl PathBank {
         let amplitude = self.smooth.amplitude;
         if s.rev_seen != self.revs_adapted {
             s.rev_seen = self.revs_adapted;
-            s.change_last_rev = (s.coef - s.coef_at_rev_start).abs() / amplitude;
+            s.change_last_rev =
+                sqrt_inline_f32((s.coef - s.coef_at_rev_start).norm_sqr()) / amplitude;
             s.coef_at_rev_start = s.coef;
         }
         if !full {
@@ -447,7 +516,7 @@ impl PathBank {
             return;
         }
         // Mean coherent power of the MRE over the block: ε·e^{-j m θ̂s}, mean H·G/(2j).
-        let cp = sum.scale(self.inv_len);
+        let cp = sum.scale(self.inv_block);
         // G = 2j·cp/H, with |H| floored: 2j·cp·(1/H)·min(1, |H|/floor).
         let r = ObserverGains::inverse_error_transfer_of(k.sigma, m_n * self.smooth.omega_rad_s);
         let q = r.norm_sqr();
@@ -457,7 +526,7 @@ impl PathBank {
             let comp = if q <= k.inv_h_floor2 {
                 r.scale(2.0)
             } else {
-                r.scale(2.0 / (sqrt_f32(q) * k.h_floor))
+                r.scale(2.0 / (sqrt_inline_f32(q) * k.h_floor))
             };
             let g_est = cp.mul_j() * comp;
             let g_alpha = min_f32(block_rad * (1.0 / G_WINDOW_RAD), 1.0);
@@ -491,13 +560,13 @@ impl PathBank {
                 // sum integrates, the block mean is the proportional part.
                 let c = sum.scale(libm::copysignf(k.inv_n, x.omega_rad_s));
                 s.coef += coef_delta(kind, c, k1_t_s * amplitude);
-                s.coef_p = coef_delta(kind, c.scale(self.inv_len), k2 * amplitude);
+                s.coef_p = coef_delta(kind, c.scale(self.inv_block), k2 * amplitude);
             }
         }
         let limit = k.coefficient_limit * amplitude;
         let a2 = s.coef.norm_sqr();
         if a2 > limit * limit {
-            s.coef = s.coef.scale(limit / sqrt_f32(a2));
+            s.coef = s.coef.scale(limit / sqrt_inline_f32(a2));
         }
     }
 }

@@ -96,46 +96,18 @@ impl ObserverState {
     /// Advance one period with the mechanical angle error `e_rad` (θ - θ̂) and the
     /// torque feedforward; returns the next state (the caller commits it if finite).
     #[must_use]
-    pub fn advanced(
-        &self,
-        g: &ObserverGains,
-        e_rad: f32,
-        torque_ff_nm: f32,
-        t_s: f32,
-        sensor_periods: u16,
-    ) -> Self {
-        let inv_j = g.inv_inertia;
-        let disturbance_nm = self.disturbance_nm + g.k_iso * e_rad * t_s;
-        let accel_rad_s2 = (torque_ff_nm + g.k_so * e_rad + disturbance_nm) * inv_j;
-        let omega_int_rad_s = self.omega_int_rad_s + accel_rad_s2 * t_s;
-        let omega_rad_s = omega_int_rad_s + g.b_o * inv_j * e_rad;
-        let theta = self.theta_e_rad + sensor_periods as f32 * omega_rad_s * t_s;
-        // Bounded wrap (no loop): an absurd speed must not hang the control path; a
-        // non-finite result is caught by the caller through `is_finite`.
-        // Usually at most one period per sample: skip the division and floor then (the
-        // result is the same bits as the general expression with turns = 0 or ±1).
-        let turns = if (0.0..TAU).contains(&theta) {
-            0.0
-        } else if (TAU..2.0 * TAU).contains(&theta) {
-            1.0
-        } else if (-TAU..0.0).contains(&theta) {
-            -1.0
+    #[inline(always)]
+    pub fn advanced(&self, d: &DiscreteGains, e_rad: f32, torque_ff_nm: f32) -> Self {
+        let disturbance_nm = self.disturbance_nm + d.k_iso_t_s * e_rad;
+        let accel_rad_s2 = (torque_ff_nm + d.k_so * e_rad + disturbance_nm) * d.inv_inertia;
+        let omega_int_rad_s = self.omega_int_rad_s + accel_rad_s2 * d.t_s;
+        let omega_rad_s = omega_int_rad_s + d.b_o_over_j * e_rad;
+        let theta = self.theta_e_rad + omega_rad_s * d.n_t_s;
+        let (theta_e_rad, periods) = if (0.0..TAU).contains(&theta) {
+            (theta, self.periods)
         } else {
-            libm::floorf(theta / TAU)
+            wrap(theta, self.periods)
         };
-        let mut theta_e_rad = theta - turns * TAU;
-        let mut periods = self.periods.wrapping_add(turns as i32);
-        // Rounding can leave the result exactly at TAU or a hair below 0.
-        if theta_e_rad >= TAU {
-            theta_e_rad -= TAU;
-            periods = periods.wrapping_add(1);
-        } else if theta_e_rad < 0.0 {
-            theta_e_rad += TAU;
-            periods = periods.wrapping_sub(1);
-        }
-        if !(0.0..TAU).contains(&theta_e_rad) {
-            theta_e_rad = 0.0;
-        }
         Self {
             theta_e_rad,
             periods,
@@ -146,13 +118,74 @@ impl ObserverState {
         }
     }
 
+    /// Whether the state is finite. Every other state variable flows into ω̂ within
+    /// the same update (d → α → ω_int → ω̂), so a non-finite value anywhere shows in
+    /// ω̂ or in the disturbance; θ̂s is wrapped into [0, 2π) by construction.
+    #[inline]
     pub fn is_finite(&self) -> bool {
-        self.theta_e_rad.is_finite()
-            && self.omega_int_rad_s.is_finite()
-            && self.omega_rad_s.is_finite()
-            && self.disturbance_nm.is_finite()
-            && self.accel_rad_s2.is_finite()
+        self.omega_rad_s.is_finite() && self.disturbance_nm.is_finite()
     }
+}
+
+/// The observer gains folded with the sample period and N, for the control path.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DiscreteGains {
+    pub k_iso_t_s: f32,
+    pub k_so: f32,
+    pub inv_inertia: f32,
+    pub b_o_over_j: f32,
+    pub t_s: f32,
+    /// N·Ts: sensor-electrical angle per sample per rad/s.
+    pub n_t_s: f32,
+}
+
+impl DiscreteGains {
+    pub fn new(g: &ObserverGains, t_s: f32, sensor_periods: u16) -> Self {
+        Self {
+            k_iso_t_s: g.k_iso * t_s,
+            k_so: g.k_so,
+            inv_inertia: g.inv_inertia,
+            b_o_over_j: g.b_o * g.inv_inertia,
+            t_s,
+            n_t_s: sensor_periods as f32 * t_s,
+        }
+    }
+}
+
+/// `theta` wrapped into [0, 2π) and the period count carried, for the uncommon sample
+/// that crosses the wrap. Bounded (no loop): an absurd speed must not hang the control
+/// path; a non-finite angle lands at 0 and the caller's finiteness check rejects it.
+/// No calls (floor by conversion), so that the step function makes none.
+#[inline(always)]
+fn wrap(theta: f32, periods: i32) -> (f32, i32) {
+    let turns = if (TAU..2.0 * TAU).contains(&theta) {
+        1.0
+    } else if (-TAU..0.0).contains(&theta) {
+        -1.0
+    } else {
+        // floor(θ/2π); `as` saturates beyond ±2^31 turns (an absurd angle, clamped below).
+        let q = theta * (1.0 / TAU);
+        let t = q as i32 as f32;
+        if t > q {
+            t - 1.0
+        } else {
+            t
+        }
+    };
+    let mut theta_e_rad = theta - turns * TAU;
+    let mut periods = periods.wrapping_add(turns as i32);
+    // Rounding can leave the result exactly at TAU or a hair below 0.
+    if theta_e_rad >= TAU {
+        theta_e_rad -= TAU;
+        periods = periods.wrapping_add(1);
+    } else if theta_e_rad < 0.0 {
+        theta_e_rad += TAU;
+        periods = periods.wrapping_sub(1);
+    }
+    if !(0.0..TAU).contains(&theta_e_rad) {
+        theta_e_rad = 0.0;
+    }
+    (theta_e_rad, periods)
 }
 
 #[cfg(test)]
@@ -211,11 +244,12 @@ mod tests {
                 omega_int_rad_s: w,
                 ..Default::default()
             }
-            .advanced(&g, 0.0, 0.0, 1e-4, 2);
+            .advanced(&DiscreteGains::new(&g, 1e-4, 2), 0.0, 0.0);
             assert!(s.theta_e_rad >= 0.0 && s.theta_e_rad < TAU);
         }
         let light = ObserverGains::from_eigenvalues([100.0, 10.0, 1.0], 1.0e-4);
-        let s = ObserverState::default().advanced(&light, 0.0, f32::MAX, 1e-4, 2);
+        let s =
+            ObserverState::default().advanced(&DiscreteGains::new(&light, 1e-4, 2), 0.0, f32::MAX);
         assert!(!s.is_finite());
     }
 
@@ -228,7 +262,7 @@ mod tests {
             ..Default::default()
         };
         for _ in 0..1000 {
-            s = s.advanced(&g, 0.0, 0.0, 1e-4, 2);
+            s = s.advanced(&DiscreteGains::new(&g, 1e-4, 2), 0.0, 0.0);
         }
         // 100 rad/s · 0.1 s · N = 20 rad electrical.
         let travelled = s.periods as f32 * TAU + s.theta_e_rad;

@@ -5,8 +5,8 @@ use crate::complex::Cplx;
 use crate::config::{Config, ConfigError};
 use crate::decoupler::{PathBank, Powers, Sample};
 use crate::health::{Fault, Faults};
-use crate::observer::{ObserverGains, ObserverState};
-use crate::trig::{sqrt_f32, F32Trig, Trig};
+use crate::observer::{DiscreteGains, ObserverGains, ObserverState};
+use crate::trig::{inv_sqrt_f32, F32Trig, Trig};
 use crate::{Coefficients, MAX_PATHS};
 use core::f32::consts::TAU;
 
@@ -47,6 +47,7 @@ pub struct Tracker<T: Trig = F32Trig> {
     cfg: Config,
     trig: T,
     gains: ObserverGains,
+    discrete: DiscreteGains,
     obs: ObserverState,
     /// Powers of the reference unit vector, `pw[i] = e^{j i θ̂s}` (pw[0] = 1).
     pw: Powers,
@@ -82,6 +83,7 @@ impl<T: Trig> Tracker<T> {
         );
         Ok(Self {
             bank: PathBank::new(&cfg, &gains),
+            discrete: DiscreteGains::new(&gains, cfg.sample_period_s, cfg.sensor_periods),
             gains,
             obs: ObserverState::default(),
             pw: [Cplx::ONE; 32],
@@ -144,21 +146,14 @@ impl<T: Trig> Tracker<T> {
             return self.reject(Fault::SensorLost);
         }
         if !self.acquired {
+            // Once: start at the measured angle, then run this sample as any other.
             self.acquire(z);
+            return self.step(x_raw, y_raw, torque_ff_nm);
         }
 
         // Reference unit vector and its powers at the prior estimate θ̂s.
         let (s, c) = self.trig.sin_cos(self.obs.theta_e_rad);
-        // Kept in the tracker: no 17-element initialisation per sample.
-        let u = Cplx::new(c, s);
-        self.pw[1] = u;
-        if let Some(higher) = self.pw.get_mut(2..=self.max_order) {
-            let mut p = u;
-            for v in higher {
-                p = p * u;
-                *v = p;
-            }
-        }
+        self.update_powers(Cplx::new(c, s));
 
         // Decoupled vector and the cross-product error, normalised by |Zd|.
         let zd = z + self.bank.decoupling_vector(&self.pw);
@@ -167,8 +162,8 @@ impl<T: Trig> Tracker<T> {
             // Coefficients plus input cancel the vector: nothing to track on.
             return self.reject(Fault::SensorLost);
         }
-        let zd_abs = sqrt_f32(zd2);
-        let inv_zd = 1.0 / zd_abs;
+        let inv_zd = inv_sqrt_f32(zd2);
+        let zd_abs = zd2 * inv_zd;
         let eps_e_rad = (zd.im * c - zd.re * s) * inv_zd;
         let cos_err = (zd.re * c + zd.im * s) * inv_zd;
         let lock_lost = cos_err < self.cos_lock;
@@ -177,13 +172,9 @@ impl<T: Trig> Tracker<T> {
         }
 
         let n = self.cfg.sensor_periods;
-        let next = self.obs.advanced(
-            &self.gains,
-            eps_e_rad * self.inv_n,
-            torque_ff_nm,
-            self.cfg.sample_period_s,
-            n,
-        );
+        let next = self
+            .obs
+            .advanced(&self.discrete, eps_e_rad * self.inv_n, torque_ff_nm);
         if !next.is_finite() {
             return self.reject(Fault::NumericalOverflow);
         }
@@ -214,12 +205,28 @@ impl<T: Trig> Tracker<T> {
         }
     }
 
+    /// `pw[i] = u^i` up to the largest order the paths need, by complex multiplication
+    /// (kept in the tracker: no initialisation of the array per sample).
+    #[inline(always)]
+    fn update_powers(&mut self, u: Cplx) {
+        self.pw[1] = u;
+        if let Some(higher) = self.pw.get_mut(2..=self.max_order) {
+            let mut p = u;
+            for v in higher {
+                p = p * u;
+                *v = p;
+            }
+        }
+    }
+
     fn reject(&mut self, f: Fault) -> Result<Estimate, Fault> {
         self.faults.insert(f);
         Err(f)
     }
 
     /// First good sample: start at the measured angle, at rest.
+    #[cold]
+    #[inline(never)]
     fn acquire(&mut self, z: Cplx) {
         let mut th = libm::atan2f(z.im, z.re);
         if th < 0.0 {
@@ -239,10 +246,13 @@ impl<T: Trig> Tracker<T> {
 
     fn split_periods(periods: i32, n: u16) -> (i32, i32) {
         let n = n as i32;
+        // N ≥ 1 is validated; `max` keeps a division by zero out of the control path.
+        let n = n.max(1);
         (periods.rem_euclid(n), periods.div_euclid(n))
     }
 
     /// The estimate for the state `o`, whose period split is `self.mech`.
+    #[inline(always)]
     fn estimate_of(&self, o: &ObserverState, amplitude: f32, eps: f32, adapting: bool) -> Estimate {
         let (p, turns) = self.mech;
         Estimate {

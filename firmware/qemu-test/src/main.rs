@@ -44,7 +44,7 @@ impl core::fmt::Write for Console {
 #[cfg(cycles_mode)]
 const WARMUP_STEPS: usize = 4000;
 #[cfg(cycles_mode)]
-const MEASURED_STEPS: usize = 40;
+const MEASURED_STEPS: usize = 64;
 
 /// Markers around each measured `Tracker::step`: the instruction trace counts what runs
 /// between a call to `mras_step_begin` and the next call to `mras_step_end`.
