@@ -64,7 +64,17 @@ pub struct Tracker<T: Trig = F32Trig> {
     inv_n: f32,
     /// |Z|² limits of the health band (min², max²).
     amplitude2_band: [f32; 2],
+    /// ε low-passed over [`LAG_TAU_S`]: the observer's lag (sensor-electrical rad).
+    lag_rad: f32,
+    lag_alpha: f32,
 }
+
+/// The lag estimate's time constant: short against the disturbance estimate's settling
+/// (the slowest eigenvalue, ~0.1 s), long against the sample period, so that noise on ε
+/// averages out.
+const LAG_TAU_S: f32 = 2.0e-3;
+/// Beyond this the first-order placement is not trusted (acquisition, loss of lock).
+const MAX_LAG_RAD: f32 = 0.2;
 
 impl Tracker<F32Trig> {
     /// A tracker with the portable trigonometry.
@@ -95,6 +105,8 @@ impl<T: Trig> Tracker<T> {
             max_order: cfg.max_order().min(31),
             cos_lock: libm::cosf(cfg.health.lock_threshold_rad),
             inv_n: 1.0 / cfg.sensor_periods as f32,
+            lag_rad: 0.0,
+            lag_alpha: (cfg.sample_period_s / LAG_TAU_S).min(1.0),
             amplitude2_band: [
                 cfg.health.amplitude_min * cfg.health.amplitude_min,
                 cfg.health.amplitude_max * cfg.health.amplitude_max,
@@ -156,7 +168,7 @@ impl<T: Trig> Tracker<T> {
         self.update_powers(Cplx::new(c, s));
 
         // Decoupled vector and the cross-product error, normalised by |Zd|.
-        let zd = z + self.bank.decoupling_vector(&self.pw);
+        let zd = z + self.bank.decoupling_vector(&self.pw, self.lag_rad);
         let zd2 = zd.norm_sqr();
         if zd2 < 0.25 * self.amplitude2_band[0] {
             // Coefficients plus input cancel the vector: nothing to track on.
@@ -165,6 +177,11 @@ impl<T: Trig> Tracker<T> {
         let inv_zd = inv_sqrt_f32(zd2);
         let zd_abs = zd2 * inv_zd;
         let eps_e_rad = (zd.im * c - zd.re * s) * inv_zd;
+        // The slow part of ε is the observer's lag behind the sensor angle (ε's harmonics
+        // are the residual sensor error): low-passed and bounded, it places the next
+        // decoupling vector (`PathBank::decoupling_vector`).
+        self.lag_rad = (self.lag_rad + (eps_e_rad - self.lag_rad) * self.lag_alpha)
+            .clamp(-MAX_LAG_RAD, MAX_LAG_RAD);
         let cos_err = (zd.re * c + zd.im * s) * inv_zd;
         let lock_lost = cos_err < self.cos_lock;
         if lock_lost {
@@ -240,6 +257,7 @@ impl<T: Trig> Tracker<T> {
             ..Default::default()
         };
         self.mech = (0, 0);
+        self.lag_rad = 0.0;
         self.bank.restart(z.abs());
         self.acquired = true;
     }
@@ -283,6 +301,7 @@ impl<T: Trig> Tracker<T> {
         self.acquired = false;
         self.obs = ObserverState::default();
         self.mech = (0, 0);
+        self.lag_rad = 0.0;
     }
 
     /// Stop (true) or resume (false) adaptation; residuals are still measured.
