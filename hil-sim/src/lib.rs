@@ -1,6 +1,7 @@
 //! `hil-sim` as a library: the simulated drive, scenarios, replay and plots, used by
 //! the `hil-sim` command and by the tests.
 
+pub mod accuracy;
 pub mod baselines;
 pub mod cli;
 pub mod commission;

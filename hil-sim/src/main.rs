@@ -4,7 +4,7 @@
 //! trajectory exactly, perfect torque feedforward); the SPMSM drive model follows.
 
 use clap::{Parser, Subcommand};
-use hil_sim::{cli as cmd, commission, replay, rtt_log, study, vector};
+use hil_sim::{accuracy, cli as cmd, commission, replay, rtt_log, study, vector};
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -33,6 +33,9 @@ enum Command {
     Bench(cmd::BenchArgs),
     /// Turn the firmware's captured RTT stream into CSV and the same plots.
     RttLog(rtt_log::Args),
+    /// Accuracy benchmark: the MRAS against offline calibrations on random simulated
+    /// sensors (writes docs/results.md, its plots and a per-sensor CSV).
+    BenchAccuracy(accuracy::report::Args),
     /// Write an input vector for the emulated Cortex-M4F and the host's trace over it.
     QemuVector(vector::Args),
 }
@@ -50,6 +53,7 @@ fn main() -> ExitCode {
         Some(Command::Scenario(a)) => cmd::scenario(&a),
         Some(Command::Bench(a)) => cmd::bench(&a),
         Some(Command::RttLog(a)) => rtt_log::run(&a),
+        Some(Command::BenchAccuracy(a)) => accuracy::report::run(&a),
         Some(Command::QemuVector(a)) => vector::run(&a),
     };
     match result {

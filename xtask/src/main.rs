@@ -32,6 +32,9 @@ cargo xtask <command>
   qemu          the core on an emulated Cortex-M4F: bit-exact against the host
   cycles        instructions and estimated cycles per core step (emulator trace)
   docs-tables   regenerate the tables of docs/theory.md (prints markdown)
+  bench-accuracy  the accuracy benchmark against offline calibrations (500 sensors,
+                release): regenerates docs/results.md and docs/results/; further
+                arguments go to `hil-sim bench-accuracy` (--sensors, --seed, --reduced)
 ";
 
 fn main() -> ExitCode {
@@ -43,6 +46,7 @@ fn main() -> ExitCode {
         Some("size") => setup().and_then(|_| build_cross()),
         Some("flash") => setup().and_then(|_| flash()),
         Some("docs-tables") => docs_tables(),
+        Some("bench-accuracy") => bench_accuracy(&args[1..]),
         Some("qemu") => setup().and_then(|_| qemu::bit_exact()),
         Some("cycles") => setup().and_then(|_| qemu::cycles()),
         Some("-h" | "--help" | "help") | None => {
@@ -249,6 +253,13 @@ fn docs_tables() -> Result<(), String> {
         run(hil_sim(&[sub]))?;
     }
     Ok(())
+}
+
+/// The reduced variant runs in `ci` as `hil-sim/tests/accuracy.rs` (host tests).
+fn bench_accuracy(extra: &[String]) -> Result<(), String> {
+    let mut args = vec!["bench-accuracy"];
+    args.extend(extra.iter().map(String::as_str));
+    run(hil_sim(&args))
 }
 
 /// `cargo run --release -p hil-sim -- <args>`.

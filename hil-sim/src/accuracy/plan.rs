@@ -1,0 +1,156 @@
+//! The phases every sensor's run goes through.
+
+use super::SAMPLE_PERIOD_S;
+
+/// What a phase does besides holding its speed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PhaseKind {
+    /// Spin-up from rest, our MRAS adapting, the offline methods' calibration spin.
+    Commissioning,
+    /// Evaluation at a constant speed.
+    Steady,
+    /// Load torque steps during the measurement window.
+    LoadSteps,
+    /// The sensor's offsets and gain drift from the start of the phase.
+    Drift,
+}
+
+/// One phase of the run: ramp to `speed_rev_s`, hold, measure after `settle_s`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Phase {
+    pub name: &'static str,
+    /// Short name for CSV columns and plots.
+    pub key: &'static str,
+    pub kind: PhaseKind,
+    pub speed_rev_s: f64,
+    /// Ramp of the speed setpoint from the previous phase's speed.
+    pub accel_rad_s2: f64,
+    pub duration_s: f64,
+    /// Commissioning: when adaptation starts; evaluation: when measurement starts.
+    pub settle_s: f64,
+    /// Load steps (time from the phase start, load torque as a fraction of rated).
+    pub load_steps: Vec<(f64, f64)>,
+}
+
+/// The run every sensor goes through.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Plan {
+    /// The first is the commissioning phase, the rest are evaluated.
+    pub phases: Vec<Phase>,
+    /// The offline methods' calibration spin: the last this many whole revolutions of
+    /// the commissioning phase.
+    pub calibration_revs: u32,
+    /// Cogging torque harmonics (of θrm) as (harmonic, fraction of rated torque).
+    pub cogging: Vec<(u32, f64)>,
+    /// Speed loop bandwidth (the `commissioning` scenario's).
+    pub speed_loop_hz: f64,
+}
+
+/// The evaluated phase whose residual spectrum is reported (the first: steady at the
+/// commissioning speed, nothing else going on).
+pub const SPECTRUM_PHASE: usize = 0;
+
+impl Plan {
+    /// The published run: 4 s simulated per sensor. The other speed is +40 rev/s: the
+    /// default 48 V motor's back-EMF reaches the inverter's voltage limit near 55 rev/s,
+    /// where the speed loop winds up and the torque feedforward stops matching the
+    /// torque (a longer +60 rev/s phase made every tracker lose lock at the next
+    /// reversal: a drive limit, not a sensor one).
+    pub fn full() -> Self {
+        let steady = |name, key, speed_rev_s, accel_rad_s2, duration_s, settle_s| Phase {
+            name,
+            key,
+            kind: PhaseKind::Steady,
+            speed_rev_s,
+            accel_rad_s2,
+            duration_s,
+            settle_s,
+            load_steps: Vec::new(),
+        };
+        Self {
+            phases: vec![
+                Phase {
+                    kind: PhaseKind::Commissioning,
+                    ..steady(
+                        "commissioning +20 rev/s",
+                        "commissioning",
+                        20.0,
+                        500.0,
+                        1.0,
+                        0.4,
+                    )
+                },
+                steady("+20 rev/s", "fwd20", 20.0, 2000.0, 0.45, 0.0),
+                steady("+40 rev/s", "fwd40", 40.0, 2000.0, 0.6, 0.25),
+                steady("-20 rev/s", "rev20", -20.0, 2000.0, 0.65, 0.35),
+                Phase {
+                    kind: PhaseKind::LoadSteps,
+                    load_steps: vec![(0.25, 0.5), (0.45, 0.0)],
+                    ..steady("+20 rev/s, load steps", "load", 20.0, 2000.0, 0.6, 0.2)
+                },
+                Phase {
+                    kind: PhaseKind::Drift,
+                    ..steady("+20 rev/s, drift", "drift", 20.0, 2000.0, 0.7, 0.2)
+                },
+            ],
+            calibration_revs: 8,
+            cogging: vec![(24, 0.04), (12, 0.02)],
+            speed_loop_hz: 10.0,
+        }
+    }
+
+    /// Check the plan is one the run can execute.
+    pub fn validate(&self) -> Result<(), String> {
+        let first = self.phases.first().ok_or("the plan has no phases")?;
+        if first.kind != PhaseKind::Commissioning || self.phases.len() < 2 {
+            return Err("the plan must start with a commissioning phase and evaluate after".into());
+        }
+        for p in &self.phases {
+            if !(p.duration_s > 0.0 && (0.0..p.duration_s).contains(&p.settle_s)) {
+                return Err(format!(
+                    "phase `{}`: need 0 <= settle_s < duration_s",
+                    p.name
+                ));
+            }
+            if !(p.accel_rad_s2 > 0.0 && p.speed_rev_s.is_finite()) {
+                return Err(format!("phase `{}`: bad speed or acceleration", p.name));
+            }
+        }
+        let c = first;
+        let revs = (c.duration_s - c.settle_s) * c.speed_rev_s.abs();
+        if (self.calibration_revs as f64) > revs - 0.5 {
+            return Err(format!(
+                "{} calibration revolutions do not fit in the {revs:.1} revolutions of adaptation",
+                self.calibration_revs
+            ));
+        }
+        Ok(())
+    }
+
+    /// Start time of each phase (whole control periods).
+    pub fn phase_starts_s(&self) -> Vec<f64> {
+        let mut t = 0u64;
+        self.phases
+            .iter()
+            .map(|p| {
+                let start = t as f64 * SAMPLE_PERIOD_S;
+                t += steps(p.duration_s);
+                start
+            })
+            .collect()
+    }
+
+    pub fn duration_s(&self) -> f64 {
+        self.phases.iter().map(|p| steps(p.duration_s)).sum::<u64>() as f64 * SAMPLE_PERIOD_S
+    }
+
+    /// The evaluated phases (all but commissioning).
+    pub fn evaluation(&self) -> &[Phase] {
+        &self.phases[1..]
+    }
+}
+
+/// Whole control periods in `duration_s`.
+pub(super) fn steps(duration_s: f64) -> u64 {
+    (duration_s / SAMPLE_PERIOD_S).round() as u64
+}

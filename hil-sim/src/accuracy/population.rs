@@ -1,0 +1,109 @@
+//! The random sensor population: a documented distribution and its seeded generator.
+
+use super::SENSOR_PERIODS;
+use crate::sensor::{Drift, SensorParams};
+use mras::sim::{Adc, SensorHarmonic, SensorModel};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::f64::consts::TAU;
+
+/// The random sensor population, one constant shared by the generator and the results
+/// page. Every parameter is drawn independently and uniformly in its range (noise
+/// log-uniformly).
+#[derive(Clone, Copy, Debug)]
+pub struct Distribution {
+    /// |Ax|, |Ay| ≤ this (fraction of the nominal amplitude).
+    pub offset_max: f64,
+    /// Imbalance i = (Bx1 - By1)/mean within ±this (Bx1 = 1 + i/2, By1 = 1 - i/2).
+    pub imbalance_max: f64,
+    /// |φx1| ≤ this.
+    pub quadrature_max_deg: f64,
+    /// Harmonic orders present in every sensor (h = 1 is the fundamental, h = 0 the offset).
+    pub harmonic_orders: [i32; 8],
+    /// Bxh, Byh each in [0, this], phases φxh, φyh each in [0, 2π).
+    pub harmonic_max: f64,
+    /// Noise σ per channel in [min, max], log-uniform.
+    pub noise_min: f64,
+    pub noise_max: f64,
+    pub adc: Adc,
+    /// Y sampled this much after X, in [0, max].
+    pub skew_max_s: f64,
+    /// In the drift phase: dAx/dt, dAy/dt and the relative gain drift each in ±this.
+    pub drift_max_per_s: f64,
+}
+
+/// The documented distribution (docs/results.md prints it).
+pub const DISTRIBUTION: Distribution = Distribution {
+    offset_max: 0.10,
+    imbalance_max: 0.15,
+    quadrature_max_deg: 5.0,
+    harmonic_orders: [-3, -2, -1, 2, 3, 4, 5, 6],
+    harmonic_max: 0.03,
+    noise_min: 5e-4,
+    noise_max: 5e-3,
+    adc: Adc {
+        bits: 12,
+        full_scale: 1.5,
+    },
+    skew_max_s: 2e-6,
+    drift_max_per_s: 0.01,
+};
+
+/// One random sensor: its parameters (without drift), the drift that starts in the
+/// drift phase, and the seed of its noise.
+#[derive(Clone, Debug)]
+pub struct SensorCase {
+    pub index: usize,
+    pub params: SensorParams,
+    pub drift: Drift,
+    pub noise_seed: u64,
+}
+
+/// Sensor `index` of the population with `seed`: deterministic, and independent of how
+/// many sensors are drawn (each index has its own ChaCha stream), so a reduced run's
+/// sensors are the full run's first ones.
+pub fn draw_sensor(seed: u64, index: usize) -> SensorCase {
+    let d = &DISTRIBUTION;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(index as u64);
+    let mut sym = |max: f64| rng.random_range(-max..=max);
+    let mut m = SensorModel::ideal(SENSOR_PERIODS);
+    m.ax = sym(d.offset_max);
+    m.ay = sym(d.offset_max);
+    let imbalance = sym(d.imbalance_max);
+    m.bx1 = 1.0 + imbalance / 2.0;
+    m.by1 = 1.0 - imbalance / 2.0;
+    m.phi_x1_rad = sym(d.quadrature_max_deg).to_radians();
+    for h in d.harmonic_orders {
+        m.push_harmonic(SensorHarmonic {
+            h,
+            bx: rng.random_range(0.0..=d.harmonic_max),
+            phi_x_rad: rng.random_range(0.0..TAU),
+            by: rng.random_range(0.0..=d.harmonic_max),
+            phi_y_rad: rng.random_range(0.0..TAU),
+        });
+    }
+    let noise_std = d.noise_min * (d.noise_max / d.noise_min).powf(rng.random_range(0.0..=1.0));
+    let skew_s = rng.random_range(0.0..=d.skew_max_s);
+    let mut sym = |max: f64| rng.random_range(-max..=max);
+    let drift = Drift {
+        ax_per_s: sym(d.drift_max_per_s),
+        ay_per_s: sym(d.drift_max_per_s),
+        gain_per_s: sym(d.drift_max_per_s),
+    };
+    let noise_seed = rng.random();
+    SensorCase {
+        index,
+        params: SensorParams {
+            model: m,
+            noise_std,
+            adc: Some(d.adc),
+            skew_s,
+            drift: Drift::default(),
+            eccentricity_rad: 0.0,
+            eccentricity_phase_rad: 0.0,
+        },
+        drift,
+        noise_seed,
+    }
+}

@@ -1,0 +1,297 @@
+//! The `bench-accuracy` command: run the suite, write the results page (docs/results.md),
+//! its plots and the per-sensor CSV.
+
+use super::page::{main_table, markdown};
+use super::stats::{summarise, Summary};
+use super::{charts, run_suite, Method, Plan, SensorResult, SPECTRUM_HARMONICS, SPECTRUM_PHASE};
+use crate::pending::Pending;
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Sensors of the published run and of the reduced (CI-sized) one.
+pub const FULL_SENSORS: usize = 500;
+pub const REDUCED_SENSORS: usize = 24;
+const MAX_SENSORS: usize = 100_000;
+
+#[derive(clap::Args, Clone, Debug)]
+pub struct Args {
+    /// Number of random sensors [default: 500, or 24 with --reduced].
+    #[arg(long)]
+    pub sensors: Option<usize>,
+    /// Seed of the sensor population (sensor i is the same for any --sensors > i).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Results page to write [default: docs/results.md, or
+    /// target/bench-accuracy-reduced/results.md with --reduced].
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Directory for the plots and the per-sensor CSV [default: `results/` next to the
+    /// page].
+    #[arg(long)]
+    pub plots: Option<PathBuf>,
+    /// The reduced variant CI runs (24 sensors; written under target/, not docs/).
+    #[arg(long)]
+    pub reduced: bool,
+}
+
+fn workspace_root() -> PathBuf {
+    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
+    here.parent().unwrap_or(here).to_path_buf()
+}
+
+/// How a run was made, for the page's header.
+#[derive(Clone, Debug)]
+pub struct RunInfo {
+    pub seed: u64,
+    pub sensors: usize,
+    pub reduced: bool,
+    pub wall_s: f64,
+    pub threads: usize,
+}
+
+impl RunInfo {
+    pub(crate) fn command(&self) -> String {
+        let mut c = format!(
+            "hil-sim bench-accuracy --sensors {} --seed {}",
+            self.sensors, self.seed
+        );
+        if self.reduced {
+            c += " --reduced";
+        }
+        c
+    }
+}
+
+pub fn run(a: &Args) -> Result<(), String> {
+    let sensors = a.sensors.unwrap_or(if a.reduced {
+        REDUCED_SENSORS
+    } else {
+        FULL_SENSORS
+    });
+    if !(1..=MAX_SENSORS).contains(&sensors) {
+        return Err(format!("--sensors {sensors}: must be in 1..={MAX_SENSORS}"));
+    }
+    let page = a.out.clone().unwrap_or_else(|| {
+        let root = workspace_root();
+        if a.reduced {
+            root.join("target/bench-accuracy-reduced/results.md")
+        } else {
+            root.join("docs/results.md")
+        }
+    });
+    if page.file_name().is_none() || page.is_dir() {
+        return Err(format!("--out {}: must name a file", page.display()));
+    }
+    let page_dir = page
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."))
+        .to_path_buf();
+    let plots = a.plots.clone().unwrap_or_else(|| page_dir.join("results"));
+    for dir in [&page_dir, &plots] {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| format!("cannot create directory {}: {e}", dir.display()))?;
+    }
+
+    let plan = Plan::full();
+    let threads = rayon::current_num_threads();
+    eprintln!(
+        "bench-accuracy: {sensors} sensors, seed {}, {:.2} s simulated each, {threads} threads",
+        a.seed,
+        plan.duration_s()
+    );
+    let started = Instant::now();
+    let results = run_suite(a.seed, sensors, &plan, true)?;
+    let info = RunInfo {
+        seed: a.seed,
+        sensors,
+        reduced: a.reduced,
+        wall_s: started.elapsed().as_secs_f64(),
+        threads,
+    };
+    let summary = summarise(&results, &plan);
+    write_outputs(&results, &summary, &plan, &info, &page, &plots)?;
+    print!("{}", main_table(&summary, &plan));
+    println!(
+        "\n{} sensors in {:.1} s wall on {threads} threads; wrote {} and {}",
+        sensors,
+        info.wall_s,
+        page.display(),
+        plots.display()
+    );
+    Ok(())
+}
+
+/// The page, its plots and the CSV; the page and CSV appear whole or not at all.
+pub fn write_outputs(
+    results: &[SensorResult],
+    summary: &Summary,
+    plan: &Plan,
+    info: &RunInfo,
+    page: &Path,
+    plots: &Path,
+) -> Result<(), String> {
+    std::fs::create_dir_all(plots)
+        .map_err(|e| format!("cannot create directory {}: {e}", plots.display()))?;
+    write_plots(results, summary, plan, plots)?;
+    write_file(
+        &plots.join("per_sensor.csv"),
+        &per_sensor_csv(results, plan),
+    )?;
+    let page_dir = page.parent().unwrap_or(Path::new(""));
+    let rel = plots.strip_prefix(page_dir).unwrap_or(plots);
+    write_file(page, &markdown(summary, plan, info, &rel.to_string_lossy()))
+}
+
+fn write_file(path: &Path, text: &str) -> Result<(), String> {
+    let (pending, mut f) = Pending::create(path)?;
+    f.write_all(text.as_bytes())
+        .map_err(|e| format!("{}: cannot write: {e}", path.display()))?;
+    drop(f);
+    pending.commit()
+}
+
+/// The methods drawn in the plots: the seven and the 7-path variant.
+fn plotted() -> Vec<Method> {
+    Method::ALL
+        .into_iter()
+        .filter(|m| !m.is_extra() || *m == Method::OursAllPaths)
+        .collect()
+}
+
+fn write_plots(
+    results: &[SensorResult],
+    summary: &Summary,
+    plan: &Plan,
+    dir: &Path,
+) -> Result<(), String> {
+    let methods = plotted();
+    let cdf: Vec<(&str, Vec<f64>)> = methods
+        .iter()
+        .map(|&m| {
+            (
+                m.label(),
+                results.iter().map(|r| r.worst(m).pk_pk_rad * 1e3).collect(),
+            )
+        })
+        .collect();
+    charts::cdf_chart(
+        &dir.join("cdf_worst_phase.png"),
+        "Residual spatial error over sensors, worst evaluated phase",
+        "pk-pk residual (mrad, mechanical, log scale)",
+        &cdf,
+    )?;
+    let categories: Vec<&str> = plan.evaluation().iter().map(|p| p.name).collect();
+    let bars: Vec<(&str, Vec<f64>)> = methods
+        .iter()
+        .map(|&m| {
+            (
+                m.label(),
+                summary
+                    .phases
+                    .iter()
+                    .map(|c| c.get(m).pk_pk.median * 1e3)
+                    .collect(),
+            )
+        })
+        .collect();
+    charts::grouped_bars(
+        &dir.join("phases_median.png"),
+        "Median residual pk-pk per phase",
+        "pk-pk residual (mrad, mechanical)",
+        &categories,
+        &bars,
+    )?;
+    let harmonics: Vec<String> = (1..=SPECTRUM_HARMONICS)
+        .map(|m| format!("m = {m}"))
+        .collect();
+    let harmonics: Vec<&str> = harmonics.iter().map(String::as_str).collect();
+    let groups: Vec<(&str, Vec<f64>)> = [
+        Method::Raw,
+        Method::Lut256,
+        Method::Paper,
+        Method::Ours,
+        Method::OursAllPaths,
+        Method::Oracle,
+    ]
+    .iter()
+    .map(|&m| {
+        (
+            m.label(),
+            summary.spectrum_median_rad[m.index()]
+                .iter()
+                .map(|v| v * 1e3)
+                .collect(),
+        )
+    })
+    .collect();
+    charts::grouped_bars(
+        &dir.join("residual_harmonics.png"),
+        &format!(
+            "Median residual by error harmonic m of θs, {}",
+            plan.evaluation()[SPECTRUM_PHASE].name
+        ),
+        "amplitude (mrad, mechanical)",
+        &harmonics,
+        &groups,
+    )
+}
+
+/// One row per sensor: its noise and skew, pk-pk and RMS of every method in every
+/// evaluated phase (mrad, mechanical), and each tracker's convergence and faults.
+pub fn per_sensor_csv(results: &[SensorResult], plan: &Plan) -> String {
+    let mut s = String::from("sensor,noise_std,skew_us");
+    for p in plan.evaluation() {
+        for m in Method::ALL {
+            let _ = write!(
+                s,
+                ",{k}_{m}_pkpk_mrad,{k}_{m}_rms_mrad",
+                k = p.key,
+                m = m.key()
+            );
+        }
+    }
+    for m in Method::MRAS {
+        let _ = write!(
+            s,
+            ",{m}_converged_revs,{m}_lost_lock,{m}_first_fault",
+            m = m.key()
+        );
+    }
+    s.push('\n');
+    // Four significant digits, plain decimals (keeps the file small).
+    let num = |v: f64| {
+        if !v.is_finite() {
+            String::new()
+        } else if v == 0.0 || !(1e-4..1e5).contains(&v.abs()) {
+            format!("{v:.3e}")
+        } else {
+            let decimals = (3 - v.abs().log10().floor() as i32).max(0) as usize;
+            format!("{v:.decimals$}")
+        }
+    };
+    for r in results {
+        let _ = write!(s, "{},{:.3e},{:.3}", r.index, r.noise_std, r.skew_s * 1e6);
+        for phase in &r.residuals {
+            for x in phase {
+                let _ = write!(s, ",{},{}", num(x.pk_pk_rad * 1e3), num(x.rms_rad * 1e3));
+            }
+        }
+        for t in &r.mras {
+            let fault = t.first_fault.map_or(String::new(), |(p, f)| {
+                format!("{f:?} in {}", plan.phases[p].key)
+            });
+            let _ = write!(
+                s,
+                ",{},{},{fault}",
+                t.converged_revs
+                    .map_or(String::new(), |v| format!("{v:.2}")),
+                t.lost_lock as u8
+            );
+        }
+        s.push('\n');
+    }
+    s
+}
