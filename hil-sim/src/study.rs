@@ -75,7 +75,7 @@ pub fn compare_laws(a: &CompareArgs) -> Result<(), String> {
 }
 
 pub fn gain_sweep(a: &SweepArgs) -> Result<(), String> {
-    let gains = [0.05, 0.1, 0.15, 0.2, 0.3];
+    let gains = [0.05, 0.1, 0.15, 0.2];
     println!(
         "Revolutions to 10x vs gain_per_rad (forward / reverse; `> {}`: not reached)\n",
         a.revs

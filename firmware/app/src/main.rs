@@ -23,7 +23,7 @@ use defmt_rtt as _;
 use panic_probe as _;
 
 /// Names of the core's paths, in configuration order, as streamed in `mras-paths`.
-const PATH_NAMES: &str = "offset,amplitude_quadrature,h4,h5";
+const PATH_NAMES: &str = "offset,amplitude_quadrature,h4,h5,h6,h7,h8";
 
 /// min/mean/max of the control task's cycle count (DWT CYCCNT) since the last report.
 #[derive(Clone, Copy, Debug, defmt::Format)]

@@ -10,7 +10,7 @@ const SPEEDS_REV_S: [f64; 10] = [
 
 #[test]
 fn both_ends_of_the_stable_gain_range_converge_everywhere() {
-    for gain in [0.05, 0.3] {
+    for gain in [0.05, 0.2] {
         for v in SPEEDS_REV_S {
             let r = revs_to_10x(with_gain(gain, 0.0), v);
             println!("gain {gain}: {v:+} rev/s -> {r:?}");

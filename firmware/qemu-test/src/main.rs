@@ -66,13 +66,18 @@ pub extern "C" fn mras_step_end() {
 #[entry]
 fn main() -> ! {
     use mras::PathKind;
+    // The first four are the measured configurations (observer only, + offset and
+    // C/D, + two harmonic paths); seven is the core's default bank.
     let all = [
         PathKind::Offset,
         PathKind::AmplitudeQuadrature,
         PathKind::Harmonic(4),
         PathKind::Harmonic(5),
+        PathKind::Harmonic(6),
+        PathKind::Harmonic(7),
+        PathKind::Harmonic(8),
     ];
-    for (config, paths) in [0usize, 2, 4].into_iter().enumerate() {
+    for (config, paths) in [0usize, 2, 4, 7].into_iter().enumerate() {
         let mut cfg = Config::default();
         if cfg.set_paths(&all[..paths]).is_err() {
             exit(debug::EXIT_FAILURE);
