@@ -88,7 +88,14 @@ fn atan2_pi(y: f64, x: f64) -> f64 {
     wrap_pi(y.atan2(x))
 }
 
-fn check_finite(samples: &[(f32, f32)]) -> Result<(), FitError> {
+/// At least `needed` samples, all finite: what every fit checks first.
+fn check_samples(samples: &[(f32, f32)], needed: usize) -> Result<(), FitError> {
+    if samples.len() < needed {
+        return Err(FitError::TooFewSamples {
+            needed,
+            got: samples.len(),
+        });
+    }
     match samples
         .iter()
         .position(|(x, y)| !(x.is_finite() && y.is_finite()))
@@ -127,13 +134,7 @@ impl MinMax {
     pub const MIN_SAMPLES: usize = 16;
 
     pub fn fit(samples: &[(f32, f32)]) -> Result<Self, FitError> {
-        if samples.len() < Self::MIN_SAMPLES {
-            return Err(FitError::TooFewSamples {
-                needed: Self::MIN_SAMPLES,
-                got: samples.len(),
-            });
-        }
-        check_finite(samples)?;
+        check_samples(samples, Self::MIN_SAMPLES)?;
         let mut lo = (f64::INFINITY, f64::INFINITY);
         let mut hi = (f64::NEG_INFINITY, f64::NEG_INFINITY);
         for &(x, y) in samples {
@@ -221,13 +222,7 @@ impl Ellipse {
     /// ones, collinear data or a fit that is not a real ellipse give
     /// [`FitError::Degenerate`].
     pub fn fit(samples: &[(f32, f32)]) -> Result<Self, FitError> {
-        if samples.len() < Self::MIN_SAMPLES {
-            return Err(FitError::TooFewSamples {
-                needed: Self::MIN_SAMPLES,
-                got: samples.len(),
-            });
-        }
-        check_finite(samples)?;
+        check_samples(samples, Self::MIN_SAMPLES)?;
         let mut distinct: Vec<(f32, f32)> = Vec::with_capacity(Self::MIN_SAMPLES);
         for &s in samples {
             if !distinct.contains(&s) {
@@ -376,13 +371,7 @@ impl Lut {
                 "samples and reference_rad differ in length",
             ));
         }
-        if samples.len() < bins {
-            return Err(FitError::TooFewSamples {
-                needed: bins,
-                got: samples.len(),
-            });
-        }
-        check_finite(samples)?;
+        check_samples(samples, bins)?;
         if let Some(index) = reference_rad.iter().position(|r| !r.is_finite()) {
             return Err(FitError::NonFinite { index });
         }
@@ -470,13 +459,7 @@ pub const CONSTANT_SPEED_MIN_SAMPLES: usize = 16;
 /// `0.3·a/(k·R²)` relative for an error `a·sin(kθ)` over R revolutions, and speed
 /// ripple (cogging) goes straight into the LUT: both are what a real bench gets.
 pub fn constant_speed_reference(samples: &[(f32, f32)]) -> Result<Vec<f64>, FitError> {
-    if samples.len() < CONSTANT_SPEED_MIN_SAMPLES {
-        return Err(FitError::TooFewSamples {
-            needed: CONSTANT_SPEED_MIN_SAMPLES,
-            got: samples.len(),
-        });
-    }
-    check_finite(samples)?;
+    check_samples(samples, CONSTANT_SPEED_MIN_SAMPLES)?;
     let mut unwrapped = Vec::with_capacity(samples.len());
     let mut prev_raw = atan2_pi(samples[0].1 as f64, samples[0].0 as f64);
     let mut acc = prev_raw;
