@@ -31,7 +31,7 @@ pub struct Series<'a> {
 pub const MAX_DRAW_POINTS: usize = 20_000;
 
 /// Font family the DejaVu font is registered under (plotters' name for the generic sans font).
-const FONT: &str = "sans-serif";
+pub(crate) const FONT: &str = "sans-serif";
 
 const LINE_SIZE: (u32, u32) = (1000, 600);
 const VECTOR_SIZE: (u32, u32) = (700, 700);
@@ -43,7 +43,7 @@ const TICK_PX: u32 = 15;
 const LEGEND_PX: u32 = 16;
 
 /// Tableau-10 colours: distinguishable, print well, and colour-blind friendlier than RGB primaries.
-const PALETTE: [RGBColor; 10] = [
+pub(crate) const PALETTE: [RGBColor; 10] = [
     RGBColor(31, 119, 180),
     RGBColor(255, 127, 14),
     RGBColor(44, 160, 44),
@@ -463,7 +463,7 @@ fn with_extension(stem: &Path, ext: &str) -> PathBuf {
 }
 
 /// Registers DejaVu Sans once; with the `ab_glyph` feature plotters knows no system fonts.
-fn ensure_font() -> Result<(), String> {
+pub(crate) fn ensure_font() -> Result<(), String> {
     static REGISTERED: OnceLock<bool> = OnceLock::new();
     let ok = *REGISTERED.get_or_init(|| {
         let normal = register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok();

@@ -2,10 +2,10 @@
 //! population, the same plan, asserting the orderings docs/results.md reports.
 
 use hil_sim::accuracy::report::{self, RunInfo, REDUCED_SENSORS};
-use hil_sim::accuracy::stats::{summarise, Condition, Summary};
+use hil_sim::accuracy::stats::{summarise, Condition, Summary, TrackerStats};
 use hil_sim::accuracy::{
     draw_sensor, run_sensor, run_suite, Method, PhaseKind, Plan, DISTRIBUTION, SENSOR_PERIODS,
-    SPECTRUM_PHASE,
+    SPECTRUM_HARMONICS, SPECTRUM_PHASE,
 };
 use std::sync::OnceLock;
 
@@ -72,70 +72,24 @@ fn offline_methods_order_as_published() {
     }
 }
 
-#[test]
-fn default_mras_removes_what_its_paths_see_and_converges_fast() {
-    let (plan, _, s) = suite();
-    for c in &s.phases {
-        // Its 4 paths beat min/max and the ellipse everywhere...
-        for m in [Method::MinMax, Method::Ellipse] {
-            assert!(
-                med(c, Method::Ours) < med(c, m) / 2.0,
-                "{}: ours {} vs {} {}",
-                c.name,
-                med(c, Method::Ours),
-                m.label(),
-                med(c, m)
-            );
-        }
-    }
-    // ...and what is left sits at the error harmonics m = 5..7 they do not cover.
-    let spec = &s.spectrum_median_rad[Method::Ours.index()];
-    let rss = |r: std::ops::RangeInclusive<usize>| {
-        r.map(|m| spec[m - 1] * spec[m - 1]).sum::<f64>().sqrt()
-    };
-    assert!(rss(1..=4) < 0.05 * rss(5..=7), "{spec:?}");
-    let oracle = &s.spectrum_median_rad[Method::Oracle.index()];
-    for m in 0..4 {
-        assert!(spec[m] < 5.0 * oracle[m], "m = {}: {spec:?}", m + 1);
-    }
-    // The 7-path bank removes them: same core, same gains.
-    let all = &s.spectrum_median_rad[Method::OursAllPaths.index()];
-    for m in 4..7 {
-        assert!(all[m] < spec[m] / 20.0, "m = {}: {all:?}", m + 1);
-    }
+fn tracker(s: &Summary, m: Method) -> &TrackerStats {
+    s.trackers
+        .iter()
+        .find(|t| t.method == m)
+        .expect("a tracker")
+}
 
-    let ours = s
-        .trackers
-        .iter()
-        .find(|t| t.method == Method::Ours)
-        .unwrap();
-    let paper = s
-        .trackers
-        .iter()
-        .find(|t| t.method == Method::Paper)
-        .unwrap();
-    assert_eq!(ours.lost_lock, 0);
-    assert_eq!(ours.any_fault, 0);
-    assert!(
-        ours.converged_revs.median <= 5.0,
-        "{:?}",
-        ours.converged_revs
-    );
-    assert!(
-        ours.converged_revs.median < paper.converged_revs.median / 2.0,
-        "ours {:?} paper {:?}",
-        ours.converged_revs,
-        paper.converged_revs
-    );
-    // Same paths, same floor as the paper-literal law (within 20 %).
-    let w = &s.worst_phase;
-    let r = med(w, Method::Ours) / med(w, Method::Paper);
-    assert!((0.8..1.2).contains(&r), "{r}");
-    assert!(plan.evaluation().len() == s.phases.len());
+fn spectrum(s: &Summary, m: Method) -> &[f64; SPECTRUM_HARMONICS] {
+    &s.spectrum_median_rad[m.index()]
+}
+
+/// Root-sum-square of the median harmonic amplitudes m in `r` (1-based).
+fn rss(spec: &[f64; SPECTRUM_HARMONICS], r: std::ops::RangeInclusive<usize>) -> f64 {
+    r.map(|m| spec[m - 1] * spec[m - 1]).sum::<f64>().sqrt()
 }
 
 #[test]
-fn mras_with_every_path_reaches_the_noise_floor_and_tracks_drift() {
+fn default_mras_reaches_the_noise_floor_and_tracks_drift() {
     let (plan, _, s) = suite();
     let offline = [
         Method::MinMax,
@@ -148,43 +102,129 @@ fn mras_with_every_path_reaches_the_noise_floor_and_tracks_drift() {
         if p.kind == PhaseKind::LoadSteps {
             continue;
         }
-        let ours = med(c, Method::OursAllPaths);
+        // The median target (1.5x the oracle) holds in every phase but the load steps...
+        let ours = med(c, Method::Ours);
         assert!(
-            ours <= 2.0 * med(c, Method::Oracle),
+            ours <= 1.5 * med(c, Method::Oracle),
             "{}: {ours} vs oracle {}",
             c.name,
             med(c, Method::Oracle)
         );
-        for m in offline.into_iter().chain([Method::Paper, Method::Ours]) {
+        for m in offline.into_iter().chain([Method::OursPaperBank]) {
             assert!(ours < med(c, m), "{}: {ours} vs {}", c.name, m.label());
         }
     }
-    // Load steps: the correction rides on the observer's lagging angle.
+    // ...where the correction rides on the observer's lagging angle; that phase alone
+    // keeps the target from being met (docs/results.md, targets).
     let load = phase(s, plan, PhaseKind::LoadSteps);
     let steady = &s.phases[SPECTRUM_PHASE];
     assert!(
-        med(load, Method::OursAllPaths) > 1.5 * med(steady, Method::OursAllPaths),
+        load.ratio_to_oracle(Method::Ours) > 1.5
+            && med(load, Method::Ours) > 1.5 * med(steady, Method::Ours),
         "load {} steady {}",
-        med(load, Method::OursAllPaths),
-        med(steady, Method::OursAllPaths)
+        med(load, Method::Ours),
+        med(steady, Method::Ours)
     );
+    assert!(s.worst_phase.ratio_to_oracle(Method::Ours) > 1.5);
     // Drift: offline calibrations go stale, the MRAS follows.
     let drift = phase(s, plan, PhaseKind::Drift);
     for m in [Method::Lut128, Method::Lut256, Method::Lut360] {
         assert!(med(drift, m) > 2.0 * med(steady, m), "{}", m.label());
-        assert!(med(drift, Method::OursAllPaths) < med(drift, m) / 3.0);
+        assert!(
+            med(drift, Method::Ours) < med(drift, m) / 3.0,
+            "{}",
+            m.label()
+        );
     }
-    assert!(med(drift, Method::OursAllPaths) < 1.5 * med(steady, Method::OursAllPaths));
-    assert!(med(drift, Method::Ours) < 1.2 * med(steady, Method::Ours));
+    assert!(med(drift, Method::Ours) < 1.5 * med(steady, Method::Ours));
+    // The 95th percentile target, just: the oracle itself is not far above 100x.
+    let w = &s.worst_phase;
+    assert!(
+        w.p95_reduction(Method::Ours) >= 100.0,
+        "{}",
+        w.p95_reduction(Method::Ours)
+    );
 
-    let t = s
-        .trackers
-        .iter()
-        .find(|t| t.method == Method::OursAllPaths)
-        .unwrap();
+    let t = tracker(s, Method::Ours);
     assert_eq!((t.lost_lock, t.any_fault, t.never_converged), (0, 0, 0));
     assert_eq!(t.not_converged_in_commissioning, 0);
-    assert!(t.converged_revs.worst <= 6.0, "{:?}", t.converged_revs);
+    assert!(t.converged_revs.worst <= 5.0, "{:?}", t.converged_revs);
+}
+
+#[test]
+fn the_papers_four_paths_leave_m5_to_7_that_the_default_removes() {
+    let (_, _, s) = suite();
+    let four = Method::OursPaperBank;
+    for c in &s.phases {
+        // Four paths beat min/max and the ellipse everywhere...
+        for m in [Method::MinMax, Method::Ellipse] {
+            assert!(
+                med(c, four) < med(c, m) / 2.0,
+                "{}: 4 paths {} vs {} {}",
+                c.name,
+                med(c, four),
+                m.label(),
+                med(c, m)
+            );
+        }
+    }
+    // ...and what they leave sits at the error harmonics m = 5..7 they do not cover.
+    let spec = spectrum(s, four);
+    let oracle = spectrum(s, Method::Oracle);
+    assert!(rss(spec, 1..=4) < 0.05 * rss(spec, 5..=7), "{spec:?}");
+    for m in 0..4 {
+        assert!(spec[m] < 5.0 * oracle[m], "m = {}: {spec:?}", m + 1);
+    }
+    // The default bank removes them: same core, same gains, down to the oracle's level.
+    let ours = spectrum(s, Method::Ours);
+    for m in 0..7 {
+        assert!(ours[m] < 3.0 * oracle[m], "m = {}: {ours:?}", m + 1);
+    }
+    for m in 4..7 {
+        assert!(ours[m] < spec[m] / 20.0, "m = {}: {ours:?}", m + 1);
+    }
+    let w = &s.worst_phase;
+    assert!(med(w, four) > 10.0 * med(w, Method::Ours));
+    let t = tracker(s, four);
+    assert_eq!((t.lost_lock, t.any_fault), (0, 0));
+}
+
+#[test]
+fn paper_literal_law_on_the_same_bank_is_slower_but_reaches_the_floor() {
+    let (plan, _, s) = suite();
+    let (ours, paper) = (tracker(s, Method::Ours), tracker(s, Method::Paper));
+    assert_eq!((paper.lost_lock, paper.any_fault), (0, 0));
+    assert!(
+        ours.converged_revs.median <= 5.0
+            && ours.converged_revs.median < paper.converged_revs.median / 2.0,
+        "ours {:?} paper {:?}",
+        ours.converged_revs,
+        paper.converged_revs
+    );
+    // Right after commissioning the paper's law is still converging...
+    let first = &s.phases[SPECTRUM_PHASE];
+    assert!(
+        med(first, Method::Paper) > 3.0 * med(first, Method::Ours),
+        "paper {} ours {}",
+        med(first, Method::Paper),
+        med(first, Method::Ours)
+    );
+    // ...and it gets to the same floor in the later constant-speed phases: the same
+    // fixed point, the same 7 paths.
+    for (i, p) in plan.evaluation().iter().enumerate() {
+        if p.kind == PhaseKind::Steady && i != SPECTRUM_PHASE {
+            let c = &s.phases[i];
+            assert!(
+                c.ratio_to_oracle(Method::Paper) <= 1.5,
+                "{}: {}",
+                c.name,
+                c.ratio_to_oracle(Method::Paper)
+            );
+        }
+    }
+    // It follows the drift less closely than ours.
+    let drift = phase(s, plan, PhaseKind::Drift);
+    assert!(med(drift, Method::Ours) < med(drift, Method::Paper) / 2.0);
 }
 
 #[test]
@@ -242,6 +282,8 @@ fn results_page_csv_and_plots_are_written() {
         "## Targets for our MRAS",
         "## Sensor distribution",
         "| MRAS, ours (default) |",
+        "| *MRAS, ours, the paper's 4 paths* |",
+        "| target | default configuration (7 paths) |",
         "| oracle (noise floor) |",
         "](results/cdf_worst_phase.png)",
     ] {
@@ -252,7 +294,13 @@ fn results_page_csv_and_plots_are_written() {
     assert_eq!(lines.len(), results.len() + 1);
     let columns = lines[0].split(',').count();
     assert!(lines.iter().all(|l| l.split(',').count() == columns));
-    assert!(lines[0].contains("drift_ours_pkpk_mrad"));
+    for key in [
+        "drift_ours_pkpk_mrad",
+        "drift_ours4_pkpk_mrad",
+        "ours4_converged_revs",
+    ] {
+        assert!(lines[0].contains(key), "no {key} column");
+    }
     for png in [
         "cdf_worst_phase.png",
         "phases_median.png",

@@ -3,39 +3,12 @@
 //! log x) and a grouped bar chart per condition (log y). The error spectrum uses
 //! `plots::spectrum_chart`.
 
+use crate::plots::{ensure_font, FONT, PALETTE};
 use plotters::prelude::*;
-use plotters::style::register_font;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::path::Path;
-use std::sync::OnceLock;
 
 const SIZE: (u32, u32) = (1000, 620);
-/// plotters' name of the generic sans font, under which DejaVu Sans is registered.
-const FONT: &str = "sans-serif";
-/// Tableau-10, the palette of `plots`.
-const COLORS: [RGBColor; 10] = [
-    RGBColor(31, 119, 180),
-    RGBColor(255, 127, 14),
-    RGBColor(44, 160, 44),
-    RGBColor(214, 39, 40),
-    RGBColor(148, 103, 189),
-    RGBColor(140, 86, 75),
-    RGBColor(227, 119, 194),
-    RGBColor(127, 127, 127),
-    RGBColor(188, 189, 34),
-    RGBColor(23, 190, 207),
-];
-
-/// The bundled font: with the `ab_glyph` feature plotters knows no system fonts.
-fn font() -> Result<(), String> {
-    static OK: OnceLock<bool> = OnceLock::new();
-    OK.get_or_init(|| {
-        register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok()
-            && register_font(FONT, FontStyle::Bold, dejavu::sans::bold()).is_ok()
-    })
-    .then_some(())
-    .ok_or_else(|| "cannot load the bundled DejaVu Sans font".to_string())
-}
 
 fn err(path: &Path) -> impl Fn(String) -> String + '_ {
     move |e| format!("cannot draw {}: {e}", path.display())
@@ -69,7 +42,7 @@ pub fn cdf_chart(
     x_label: &str,
     series: &[(&str, Vec<f64>)],
 ) -> Result<(), String> {
-    font()?;
+    ensure_font()?;
     let (lo, hi) = log_range(series.iter().flat_map(|s| s.1.iter().copied()))
         .ok_or_else(|| format!("{}: no positive value to plot", path.display()))?;
     let root = BitMapBackend::new(path, SIZE).into_drawing_area();
@@ -100,7 +73,7 @@ pub fn cdf_chart(
             .collect();
         v.sort_by(f64::total_cmp);
         let n = v.len() as f64;
-        let c = COLORS[i % COLORS.len()];
+        let c = PALETTE[i % PALETTE.len()];
         chart
             .draw_series(LineSeries::new(
                 v.iter().enumerate().map(|(k, &x)| (x, (k + 1) as f64 / n)),
@@ -130,7 +103,7 @@ pub fn grouped_bars(
     categories: &[&str],
     groups: &[(&str, Vec<f64>)],
 ) -> Result<(), String> {
-    font()?;
+    ensure_font()?;
     if groups.iter().any(|g| g.1.len() != categories.len()) {
         return Err(format!(
             "{}: a group's length differs from the categories",
@@ -178,7 +151,7 @@ pub fn grouped_bars(
     }
     let width = 0.84 / groups.len() as f64;
     for (g, (name, values)) in groups.iter().enumerate() {
-        let c = COLORS[g % COLORS.len()];
+        let c = PALETTE[g % PALETTE.len()];
         let bars = values
             .iter()
             .enumerate()

@@ -64,9 +64,12 @@ pub enum Method {
     Lut256,
     Lut360,
     Paper,
+    /// Ours in the core's default configuration: a path for every error harmonic the
+    /// distribution produces (m = 1..7).
     Ours,
-    /// Ours with a path for every error harmonic the distribution produces (m = 1..7).
-    OursAllPaths,
+    /// Ours with the paper's four paths only (offset, C/D, h = 4, h = 5: m = 1..4), to
+    /// show what the larger bank buys.
+    OursPaperBank,
     Oracle,
 }
 
@@ -81,11 +84,11 @@ impl Method {
         Method::Lut360,
         Method::Paper,
         Method::Ours,
-        Method::OursAllPaths,
+        Method::OursPaperBank,
         Method::Oracle,
     ];
     /// The three tracker-based methods, in the order of [`SensorResult::mras`].
-    pub const MRAS: [Method; 3] = [Method::Ours, Method::Paper, Method::OursAllPaths];
+    pub const MRAS: [Method; 3] = [Method::Ours, Method::Paper, Method::OursPaperBank];
 
     /// Position in [`Method::ALL`] (the declaration order).
     pub fn index(self) -> usize {
@@ -102,7 +105,7 @@ impl Method {
             Method::Lut360 => "LUT 360 bins",
             Method::Paper => "MRAS, paper-literal",
             Method::Ours => "MRAS, ours (default)",
-            Method::OursAllPaths => "MRAS, ours, 7 paths",
+            Method::OursPaperBank => "MRAS, ours, the paper's 4 paths",
             Method::Oracle => "oracle (noise floor)",
         }
     }
@@ -118,14 +121,17 @@ impl Method {
             Method::Lut360 => "lut360",
             Method::Paper => "paper",
             Method::Ours => "ours",
-            Method::OursAllPaths => "ours7",
+            Method::OursPaperBank => "ours4",
             Method::Oracle => "oracle",
         }
     }
 
-    /// Variants beyond the seven methods (LUT sizes, a larger path bank).
+    /// Variants beyond the seven methods (LUT sizes, a smaller path bank).
     pub fn is_extra(self) -> bool {
-        matches!(self, Method::Lut128 | Method::Lut360 | Method::OursAllPaths)
+        matches!(
+            self,
+            Method::Lut128 | Method::Lut360 | Method::OursPaperBank
+        )
     }
 
     fn lut_bins(self) -> Option<usize> {
@@ -227,21 +233,18 @@ impl SensorResult {
 pub fn tracker_config(m: Method, j_kg_m2: f64) -> Result<Config, String> {
     let mut cfg = match m {
         Method::Paper => Law::Paper.config(),
-        Method::Ours | Method::OursAllPaths => Law::Ours.config(),
+        Method::Ours | Method::OursPaperBank => Law::Ours.config(),
         other => return Err(format!("{} is not a tracker", other.label())),
     };
     cfg.sample_period_s = SAMPLE_PERIOD_S as f32;
     cfg.sensor_periods = SENSOR_PERIODS;
     cfg.observer.inertia_kg_m2 = j_kg_m2 as f32;
-    if m == Method::OursAllPaths {
+    if m == Method::OursPaperBank {
         cfg.set_paths(&[
             PathKind::Offset,
             PathKind::AmplitudeQuadrature,
             PathKind::Harmonic(4),
             PathKind::Harmonic(5),
-            PathKind::Harmonic(6),
-            PathKind::Harmonic(7),
-            PathKind::Harmonic(8),
         ])
         .map_err(|e| e.to_string())?;
     }
@@ -430,7 +433,7 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult, String
     let mut ours = new_tracker(Method::Ours)?;
     let mut passengers = [
         new_tracker(Method::Paper)?,
-        new_tracker(Method::OursAllPaths)?,
+        new_tracker(Method::OursPaperBank)?,
     ];
     let mut runs = Method::MRAS.map(|method| TrackerRun {
         method,
@@ -599,6 +602,29 @@ mod tests {
         for (i, m) in Method::ALL.iter().enumerate() {
             assert_eq!(m.index(), i, "{}", m.label());
         }
+    }
+
+    #[test]
+    fn the_default_bank_is_the_full_one_and_the_variant_the_papers_four() {
+        let j = MotorParams::default().j_kg_m2;
+        let ours = tracker_config(Method::Ours, j).unwrap();
+        let paper = tracker_config(Method::Paper, j).unwrap();
+        let four = tracker_config(Method::OursPaperBank, j).unwrap();
+        assert_eq!(ours.paths(), Config::default().paths());
+        assert_eq!(ours.paths().len(), 7);
+        assert_eq!(paper.paths(), ours.paths());
+        assert_ne!(paper.law, ours.law);
+        assert_eq!(
+            four.paths(),
+            [
+                PathKind::Offset,
+                PathKind::AmplitudeQuadrature,
+                PathKind::Harmonic(4),
+                PathKind::Harmonic(5),
+            ]
+        );
+        assert_eq!(four.law, ours.law);
+        assert!(tracker_config(Method::Lut256, j).is_err());
     }
 
     #[test]

@@ -153,11 +153,11 @@ fn write_file(path: &Path, text: &str) -> Result<(), String> {
     pending.commit()
 }
 
-/// The methods drawn in the plots: the seven and the 7-path variant.
+/// The methods drawn in the plots: the seven and the 4-path variant.
 fn plotted() -> Vec<Method> {
     Method::ALL
         .into_iter()
-        .filter(|m| !m.is_extra() || *m == Method::OursAllPaths)
+        .filter(|m| !m.is_extra() || *m == Method::OursPaperBank)
         .collect()
 }
 
@@ -213,7 +213,7 @@ fn write_plots(
         Method::Lut256,
         Method::Paper,
         Method::Ours,
-        Method::OursAllPaths,
+        Method::OursPaperBank,
         Method::Oracle,
     ]
     .iter()
