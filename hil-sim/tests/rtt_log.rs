@@ -395,6 +395,17 @@ fn plots_are_written_per_segment_when_asked() {
 #[test]
 fn the_firmware_stream_format_parses() {
     let src = include_str!("../../firmware/app/src/main.rs");
+    let paths = src
+        .lines()
+        .find(|l| l.contains("const PATH_NAMES"))
+        .and_then(|l| l.split('"').nth(1))
+        .unwrap();
+    // `coef` carries re, im of every configured path.
+    let numbers = 2 * paths.split(',').count();
+    let coef = (1..=numbers)
+        .map(|i| format!("{:.1}", i as f32 / 10.0))
+        .collect::<Vec<_>>()
+        .join(", ");
     let start = src.find("\"mras t_ms=").expect("stream format in main.rs") + 1;
     let end = start + src[start..].find('"').unwrap();
     let line = src[start..end]
@@ -403,13 +414,8 @@ fn the_firmware_stream_format_parses() {
         .replace("{=f32}", "0.5")
         .replace("{=bool}", "true")
         .replace("{=str}", "Run")
-        .replace("{=[?]}", "[0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8]");
+        .replace("{=[?]}", &format!("[{coef}]"));
     assert!(!line.contains('{'), "unhandled placeholder in {line}");
-    let paths = src
-        .lines()
-        .find(|l| l.contains("const PATH_NAMES"))
-        .and_then(|l| l.split('"').nth(1))
-        .unwrap();
     let dir = tempfile::tempdir().unwrap();
     let log = dir.path().join("fw.log");
     fs::write(&log, format!("INFO  mras-paths {paths}\nINFO  {line}\n")).unwrap();
@@ -419,5 +425,5 @@ fn the_firmware_stream_format_parses() {
     assert!(!stderr.contains("unknown key"), "{stderr}");
     let (header, rows) = read_csv(&out);
     assert_eq!(rows.len(), 1);
-    assert_eq!(header.len(), 13 + 8);
+    assert_eq!(header.len(), 13 + numbers);
 }

@@ -23,13 +23,19 @@ fn fig8_and_fig11_coefficients_agree() {
     for v in [Variant::Ours, Variant::Paper] {
         let a = coefficients(&run("paper-fig8", v));
         let b = coefficients(&run("paper-fig11", v));
-        for ((name, re8, im8), (_, re11, im11)) in a.iter().zip(&b) {
+        for (i, ((name, re8, im8), (_, re11, im11))) in a.iter().zip(&b).enumerate() {
             let d = (re8 - re11).hypot(im8 - im11);
             println!(
                 "{v:?} {name}: fig8 {re8:+.4}{im8:+.4}j fig11 {re11:+.4}{im11:+.4}j |Δ| {d:.4}"
             );
             assert!(d < TOL, "{v:?} {name}: |Δ| = {d}");
-            assert!(re8.hypot(*im8) > 0.005, "{name} did not adapt");
+            // The extreme sensor (h = 2..5) loads the first four paths of the default
+            // bank; it has no error at m = 5..7, so h6..h8 stay near zero.
+            if i < 4 {
+                assert!(re8.hypot(*im8) > 0.005, "{name} did not adapt");
+            } else {
+                assert!(re8.hypot(*im8) < 0.005, "{name} adapted to nothing");
+            }
         }
     }
 }
