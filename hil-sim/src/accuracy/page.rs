@@ -41,9 +41,8 @@ fn med_rad(c: &Condition, m: Method) -> f64 {
     c.get(m).pk_pk.median
 }
 
-/// mrad with three significant digits; a dash for no value.
-fn mrad(rad: f64) -> String {
-    let v = rad * 1e3;
+/// Three significant digits (no exponent); a dash for no value.
+fn sig3(v: f64) -> String {
     if !v.is_finite() {
         "—".into()
     } else if v >= 100.0 {
@@ -57,15 +56,17 @@ fn mrad(rad: f64) -> String {
     }
 }
 
+/// mrad with three significant digits.
+fn mrad(rad: f64) -> String {
+    sig3(rad * 1e3)
+}
+
+/// A ratio with three significant digits and an `x`.
 fn ratio(r: f64) -> String {
-    if !r.is_finite() {
-        "—".into()
-    } else if r >= 100.0 {
-        format!("{r:.0}x")
-    } else if r >= 10.0 {
-        format!("{r:.1}x")
+    if r.is_finite() {
+        format!("{}x", sig3(r))
     } else {
-        format!("{r:.2}x")
+        "—".into()
     }
 }
 
@@ -623,8 +624,9 @@ fn target_notes(s: &Summary, plan: &Plan) -> String {
              catches up (slowest eigenvalue, 1 Hz). The core places the decoupling vector \
              at θ̂ plus that lag, estimated from the slow part of ε, to first order \
              (docs/theory.md §3; with D at θ̂ alone this phase measured 1.65 mrad median). \
-             What remains is not attributed yet: the second-order term of that placement \
-             and the adaptation running through the transient are the candidates. The \
+             What remains is not attributed yet: it is neither the adaptation (frozen in \
+             this phase, 24 sensors: 1.18 → 1.74 mrad) nor the second-order term of the \
+             placement (adding it changed nothing). The \
              offline corrections depend on the sample alone and do not see the step: the \
              256-bin LUT leaves {} mrad median in this phase, {} error than the default \
              MRAS ({} mrad).",
