@@ -130,19 +130,25 @@ fn test_host() -> Result<(), String> {
     run(c)
 }
 
+/// `cargo build --locked --release --target thumbv7em-none-eabihf -p <krate>`: the
+/// firmware's profile, for the firmware and every image of the core.
+pub(crate) fn cross_build(krate: &str) -> Command {
+    let mut c = cargo();
+    c.args([
+        "build",
+        "--locked",
+        "--release",
+        "--target",
+        TARGET,
+        "-p",
+        krate,
+    ]);
+    c
+}
+
 fn build_cross() -> Result<(), String> {
     for krate in CORE_CRATES.iter().chain([&FIRMWARE]) {
-        let mut c = cargo();
-        c.args([
-            "build",
-            "--locked",
-            "--release",
-            "--target",
-            TARGET,
-            "-p",
-            krate,
-        ]);
-        run(c)?;
+        run(cross_build(krate))?;
     }
     size_report()
 }

@@ -8,7 +8,7 @@
 //! measured step under a one-instruction-per-block execution trace; instructions are
 //! counted between the markers and weighted by Cortex-M4 cycle counts (TRM r0p1 §3.3).
 
-use crate::{cargo, hil_sim, output_of, root, run, TARGET};
+use crate::{cross_build, hil_sim, output_of, root, run, TARGET};
 use std::collections::HashMap;
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
@@ -71,16 +71,7 @@ fn vector() -> Result<(PathBuf, PathBuf), String> {
 
 /// Build the image for `mode` ("trace" or "cycles") and copy it aside.
 fn image(vector: &PathBuf, mode: &str) -> Result<PathBuf, String> {
-    let mut c = cargo();
-    c.args([
-        "build",
-        "--locked",
-        "--release",
-        "--target",
-        TARGET,
-        "-p",
-        IMAGE,
-    ]);
+    let mut c = cross_build(IMAGE);
     c.env("MRAS_QEMU_VECTOR", vector)
         .env("MRAS_QEMU_MODE", mode);
     run(c)?;

@@ -65,19 +65,11 @@ pub extern "C" fn mras_step_end() {
 #[cfg(cycles_mode)]
 #[entry]
 fn main() -> ! {
-    use mras::PathKind;
-    // The first four are the measured configurations (observer only, + offset and
-    // C/D, + two harmonic paths); seven is the core's default bank.
-    let all = [
-        PathKind::Offset,
-        PathKind::AmplitudeQuadrature,
-        PathKind::Harmonic(4),
-        PathKind::Harmonic(5),
-        PathKind::Harmonic(6),
-        PathKind::Harmonic(7),
-        PathKind::Harmonic(8),
-    ];
-    for (config, paths) in [0usize, 2, 4, 7].into_iter().enumerate() {
+    // Prefixes of the core's default bank (offset, C/D, h4, h5, ...): observer only, + offset
+    // and C/D, + two harmonic paths (the measured configurations), then all of it.
+    let default = Config::default();
+    let all = default.paths();
+    for (config, paths) in [0usize, 2, 4, all.len()].into_iter().enumerate() {
         let mut cfg = Config::default();
         if cfg.set_paths(&all[..paths]).is_err() {
             exit(debug::EXIT_FAILURE);
