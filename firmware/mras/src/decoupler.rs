@@ -413,12 +413,20 @@ impl PathBank {
         d + slope.scale(lag_rad)
     }
 
-    /// Re-read every path's coefficients into the decoupling vector (after a load).
-    pub fn refresh_injection(&mut self) {
-        for i in 0..self.len {
-            let s = self.state[i];
-            self.inject.set(i, s.coef + s.coef_p);
+    /// Start from these coefficients (path order; e.g. from flash): fresh path states,
+    /// revolution count and blocks, and the decoupling vector re-read.
+    pub fn load(&mut self, coefs: impl Iterator<Item = Cplx>) {
+        for (i, (s, v)) in self.state.iter_mut().zip(coefs).enumerate() {
+            *s = PathState {
+                coef: v,
+                coef_at_rev_start: v,
+                ..Default::default()
+            };
+            self.inject.set(i, v);
         }
+        self.revs_adapted = 0;
+        self.angle_this_rev_rad = 0.0;
+        self.discard_blocks();
     }
 
     /// One sample: gate and accumulate; every `stride` samples also smooth and update

@@ -340,15 +340,7 @@ impl<T: Trig> Tracker<T> {
         if c.iter().any(|(_, v)| !v.is_finite() || v.abs() > limit) {
             return Err(CoefficientsError::OutOfRange);
         }
-        for (s, (_, v)) in self.bank.state.iter_mut().zip(c.iter()) {
-            *s = Default::default();
-            s.coef = v;
-            s.coef_at_rev_start = v;
-        }
-        self.bank.revs_adapted = 0;
-        self.bank.angle_this_rev_rad = 0.0;
-        self.bank.discard_blocks();
-        self.bank.refresh_injection();
+        self.bank.load(c.iter().map(|(_, v)| v));
         Ok(())
     }
 
