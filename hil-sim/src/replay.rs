@@ -31,7 +31,7 @@ pub struct Args {
     pub output: PathBuf,
     /// Core configuration (TOML; every key optional, see
     /// hil-sim/tests/data/core_config_full.toml). Without it: the core defaults (paths
-    /// offset, amplitude-quadrature, h4, h5) and input scaling estimated from the data.
+    /// offset, amplitude-quadrature, h4..h8) and input scaling estimated from the data.
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Sensor periods per mechanical revolution N (a `sensor_periods` in --config wins).
