@@ -4,24 +4,29 @@
 //! # Slots and pages
 //!
 //! Two slots, **one flash page each** (slot A = page n, slot B = page n + 1): a page is
-//! the erase unit, so erasing one slot never disturbs the other. Both pages must lie in
-//! bank 1, below 256 KiB (stm32g4xx-hal 0.1.0 computes wrong page numbers in bank 2).
-//! The addresses belong to `memory.x`; this crate only sees slots through
-//! [`crate::FlashSlots`].
+//! the erase unit, so erasing one slot never disturbs the other. The firmware keeps them
+//! in the flash bank it does not run from (read-while-write). The addresses belong to
+//! `memory.x`; this crate only sees slots through [`crate::FlashSlots`].
 //!
-//! # Record (little-endian, [`RECORD_BYTES`] = 120 bytes at the start of a slot)
+//! # Record, format 2 (little-endian, [`RECORD_BYTES`] = 128 bytes at the start of a slot)
 //!
 //! | offset | size | field |
 //! |---:|---:|---|
 //! | 0 | 4 | magic [`MAGIC`] ("MRAS" read as a big-endian u32) |
 //! | 4 | 2 | format version [`FORMAT_VERSION`] |
 //! | 6 | 1 | path count (≤ `MAX_PATHS` = 8) |
-//! | 7 | 1 | reserved, written 0 |
+//! | 7 | 1 | alignment flags: bit 0 = sensor reversed, other bits 0 |
 //! | 8 | 4 | sequence number (serial-number arithmetic, wraps) |
 //! | 12 | 4 | configuration hash ([`crate::config_hash`]) |
-//! | 16 + 12·i | 12 | path i: kind tag (u8), h (i8), 2 reserved (0), re (f32 bits), im (f32 bits) |
-//! | 112 | 4 | CRC-32/ISO-HDLC over bytes 0..112 |
-//! | 116 | 4 | commit mark [`COMMIT_MARK`] |
+//! | 16 | 4 | electrical offset of the alignment (f32 bits, rad, in [-π, π]) |
+//! | 20 | 4 | reserved, written 0 |
+//! | 24 + 12·i | 12 | path i: kind tag (u8), h (i8), 2 reserved (0), re (f32 bits), im (f32 bits) |
+//! | 120 | 4 | CRC-32/ISO-HDLC over bytes 0..120 |
+//! | 124 | 4 | commit mark [`COMMIT_MARK`] |
+//!
+//! Format 1 (120 bytes, no alignment, byte 7 reserved) is refused by version: its
+//! coefficients are fine, but without the electrical alignment the drive cannot use
+//! them, so it commissions again.
 //!
 //! All eight path entries are always present (unused ones are zero), so the CRC sits at
 //! a fixed offset that does not depend on the (untrusted) path count. The last double
@@ -43,13 +48,15 @@ pub const DOUBLE_WORDS_PER_PAGE: usize = PAGE_BYTES / DOUBLE_WORD_BYTES;
 /// "MRAS" as a big-endian u32; stored little-endian.
 pub const MAGIC: u32 = 0x4D52_4153;
 /// Bumped whenever the layout or the meaning of a field (or of the config hash) changes.
-pub const FORMAT_VERSION: u16 = 1;
+pub const FORMAT_VERSION: u16 = 2;
 /// Second half of the last double word: any value other than all-ones proves that the
 /// last double word was programmed.
 pub const COMMIT_MARK: u32 = !MAGIC;
 
-/// Magic, version, count, reserved, sequence, hash.
-pub const HEADER_BYTES: usize = 16;
+/// Magic, version, count, flags, sequence, hash, offset, reserved.
+pub const HEADER_BYTES: usize = 24;
+/// Bit 0 of the flags byte: the sensor turns against the phase sequence.
+pub(crate) const FLAG_REVERSED: u8 = 1;
 /// Tag, h, 2 reserved, re, im.
 pub const PATH_ENTRY_BYTES: usize = 12;
 /// Offset of the CRC, i.e. length of the CRC-protected part.

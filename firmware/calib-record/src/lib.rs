@@ -1,8 +1,9 @@
 //! Power-loss-safe flash record of the MRAS calibration, so that a drive can skip
 //! self-commissioning at the next power-up.
 //!
-//! A [`mras::Coefficients`] snapshot is stored as a checksummed record (magic, format
-//! version, configuration hash, sequence number, CRC) in one of two alternating slots,
+//! A [`Calibration`] (the [`mras::Coefficients`] snapshot and the electrical
+//! [`Alignment`]) is stored as a checksummed record (magic, format version,
+//! configuration hash, sequence number, CRC) in one of two alternating slots,
 //! one flash page each. [`store`] always writes the slot that does not hold the record
 //! [`load`] would return and programs the commit double word last, so a power loss at
 //! any point leaves either the previous calibration or the new one. Layout and flash
@@ -11,18 +12,22 @@
 //! `no_std`, no allocation, no panics on any flash content.
 //!
 //! ```
-//! use calib_record::{config_hash, load, store, RamFlash};
+//! use calib_record::{config_hash, load, store, Alignment, Calibration, RamFlash};
 //! use mras::{Coefficients, Config, Cplx, PathKind};
 //!
 //! let cfg = Config::default();
-//! let hash = config_hash(&cfg);
-//! let mut coefs = Coefficients::zeros(cfg.paths());
-//! coefs.set(PathKind::Offset, Cplx::new(0.1, -0.08));
+//! let hash = config_hash(&cfg, 4); // and the motor's 4 pole pairs
+//! let mut coefficients = Coefficients::zeros(cfg.paths());
+//! coefficients.set(PathKind::Offset, Cplx::new(0.1, -0.08));
+//! let cal = Calibration {
+//!     coefficients,
+//!     alignment: Alignment { offset_e_rad: -1.2, reversed: true },
+//! };
 //!
 //! let mut flash = RamFlash::new(); // the firmware implements `FlashSlots` on the chip
-//! store(&mut flash, &coefs, hash).unwrap();
+//! store(&mut flash, &cal, hash).unwrap();
 //! let loaded = load(&flash, hash).unwrap();
-//! assert_eq!(loaded.record.coefficients, coefs);
+//! assert_eq!(loaded.record.calibration, cal);
 //! ```
 #![no_std]
 #![deny(unsafe_code)]
@@ -34,7 +39,7 @@ mod slots;
 
 pub use layout::{DOUBLE_WORD_BYTES, PAGE_BYTES, RECORD_BYTES};
 pub use ram_flash::{RamFlash, RamFlashError};
-pub use record::{config_hash, decode, encode, Record, RecordError};
+pub use record::{config_hash, decode, encode, Alignment, Calibration, Record, RecordError};
 pub use slots::{
     is_newer, load, store, FlashSlots, LoadError, Loaded, OtherSlot, Rejected, Slot, StoreError,
     FIRST_SEQUENCE,

@@ -11,18 +11,43 @@ use mras::config::MAX_HARMONIC;
 use mras::{Coefficients, Config, Cplx, PathKind, MAX_PATHS};
 
 use crate::layout::{
-    COMMIT_MARK, COMMIT_OFFSET, CRC_OFFSET, DOUBLE_WORD_BYTES, ERASED_BYTE, FORMAT_VERSION,
-    HEADER_BYTES, MAGIC, PATH_ENTRY_BYTES, RECORD_BYTES, TAG_AMPLITUDE_QUADRATURE, TAG_HARMONIC,
-    TAG_OFFSET,
+    COMMIT_MARK, COMMIT_OFFSET, CRC_OFFSET, DOUBLE_WORD_BYTES, ERASED_BYTE, FLAG_REVERSED,
+    FORMAT_VERSION, HEADER_BYTES, MAGIC, PATH_ENTRY_BYTES, RECORD_BYTES, TAG_AMPLITUDE_QUADRATURE,
+    TAG_HARMONIC, TAG_OFFSET,
 };
 
 /// Bitwise CRC (no 1 KiB table in flash): the record is checked once per boot.
 const CRC32: Crc<u32, NoTable> = Crc::<u32, NoTable>::new(&CRC_32_ISO_HDLC);
 
+/// Electrical zero of the rotor as the sensor sees it: `θe = dir·(p/N)·θs + offset_e_rad`
+/// (p pole pairs, N sensor periods, θs the sensor's electrical angle), `dir = -1` when
+/// the sensor turns against the motor's phase sequence.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Alignment {
+    pub offset_e_rad: f32,
+    pub reversed: bool,
+}
+
+impl Alignment {
+    /// Sensor zero on the rotor's electrical zero, turning with the phase sequence.
+    pub const IDENTITY: Self = Self {
+        offset_e_rad: 0.0,
+        reversed: false,
+    };
+}
+
+/// What a record persists: the sensor's decoupling coefficients and the electrical
+/// alignment measured with them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Calibration {
+    pub coefficients: Coefficients,
+    pub alignment: Alignment,
+}
+
 /// A decoded, fully validated record.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Record {
-    pub coefficients: Coefficients,
+    pub calibration: Calibration,
     /// Store counter; the newer of two records wins (serial-number arithmetic).
     pub sequence: u32,
     /// [`config_hash`] of the configuration that produced the coefficients.
@@ -39,7 +64,7 @@ pub enum RecordError {
     /// Not a calibration record (or a partial erase).
     BadMagic,
     /// Written by another format version; its layout cannot be trusted.
-    UnsupportedVersion { found: u16 },
+    UnsupportedVersion { found: u16, expected: u16 },
     /// The last double word is still erased: a write was interrupted.
     Incomplete,
     /// CRC or commit mark wrong: corrupted bits or a torn write.
@@ -49,25 +74,48 @@ pub enum RecordError {
     BadPathList,
     /// A coefficient is NaN or infinite.
     NonFiniteValue,
-    /// Intact, but produced under another configuration (sensor periods, input
-    /// scaling or path list differ).
+    /// The alignment's offset is not finite or outside [-π, π], or its flags hold
+    /// unknown bits.
+    BadAlignment,
+    /// Intact, but produced under another configuration (sensor periods, pole pairs,
+    /// input scaling or path list differ).
     ConfigMismatch { stored: u32, expected: u32 },
+}
+
+impl RecordError {
+    /// A stable short name, for logs and the stream.
+    pub fn name(&self) -> &'static str {
+        match self {
+            RecordError::Truncated => "Truncated",
+            RecordError::Erased => "Erased",
+            RecordError::BadMagic => "BadMagic",
+            RecordError::UnsupportedVersion { .. } => "UnsupportedVersion",
+            RecordError::Incomplete => "Incomplete",
+            RecordError::BadCrc => "BadCrc",
+            RecordError::BadPathList => "BadPathList",
+            RecordError::NonFiniteValue => "NonFiniteValue",
+            RecordError::BadAlignment => "BadAlignment",
+            RecordError::ConfigMismatch { .. } => "ConfigMismatch",
+        }
+    }
 }
 
 /// Hash of the configuration fields that give the coefficients their meaning.
 ///
-/// Covered: `sensor_periods`, the input scaling offsets and gains (coefficients are in
-/// scaled units) and the path list (count, kinds, order). Not covered: sample period,
-/// observer, adaptation law, gates, health and convergence settings, and
-/// `input.raw_limit`: retuning those must not throw away a calibration.
+/// Covered: `sensor_periods` and the motor's `pole_pairs` (the alignment is in
+/// electrical angle: it means nothing for another pole count), the input scaling offsets
+/// and gains (coefficients are in scaled units) and the path list (count, kinds, order).
+/// Not covered: sample period, observer, adaptation law, gates, health and convergence
+/// settings, and `input.raw_limit`: retuning those must not throw away a calibration.
 ///
-/// CRC-32/ISO-HDLC over, little-endian: `sensor_periods` (u16); `offset_x`,
-/// `offset_y`, `gain_x`, `gain_y` (f32 bits, `-0.0` as `0.0`); path count (u8); per
-/// path its (tag, h) bytes as in the record. Changing this requires a new
+/// CRC-32/ISO-HDLC over, little-endian: `sensor_periods` (u16); `pole_pairs` (u16);
+/// `offset_x`, `offset_y`, `gain_x`, `gain_y` (f32 bits, `-0.0` as `0.0`); path count
+/// (u8); per path its (tag, h) bytes as in the record. Changing this requires a new
 /// [`FORMAT_VERSION`].
-pub fn config_hash(cfg: &Config) -> u32 {
+pub fn config_hash(cfg: &Config, pole_pairs: u16) -> u32 {
     let mut d = CRC32.digest();
     d.update(&cfg.sensor_periods.to_le_bytes());
+    d.update(&pole_pairs.to_le_bytes());
     let i = &cfg.input;
     for v in [i.offset_x, i.offset_y, i.gain_x, i.gain_y] {
         d.update(&canonical_bits(v).to_le_bytes());
@@ -118,22 +166,26 @@ fn kind_from_bytes(tag: u8, h: u8) -> Option<PathKind> {
 
 /// Encode a record into `buf`; returns the number of bytes to program ([`RECORD_BYTES`]).
 ///
-/// Does not validate: a snapshot with non-finite values or an invalid path list
-/// encodes, and [`decode`] refuses it ([`crate::store`] checks before erasing anything).
-pub fn encode(
-    coefs: &Coefficients,
-    seq: u32,
-    cfg_hash: u32,
-    buf: &mut [u8; RECORD_BYTES],
-) -> usize {
+/// Does not validate: a snapshot with non-finite values, an invalid path list or an
+/// alignment out of range encodes, and [`decode`] refuses it ([`crate::store`] checks
+/// before erasing anything).
+pub fn encode(cal: &Calibration, seq: u32, cfg_hash: u32, buf: &mut [u8; RECORD_BYTES]) -> usize {
+    let coefs = &cal.coefficients;
     buf.fill(0);
     let mut w = Writer { rest: &mut buf[..] };
     w.put(MAGIC.to_le_bytes());
     w.put(FORMAT_VERSION.to_le_bytes());
+    let flags = if cal.alignment.reversed {
+        FLAG_REVERSED
+    } else {
+        0
+    };
     // `Coefficients` holds at most MAX_PATHS (8) paths.
-    w.put([coefs.len() as u8, 0]);
+    w.put([coefs.len() as u8, flags]);
     w.put(seq.to_le_bytes());
     w.put(cfg_hash.to_le_bytes());
+    w.put(cal.alignment.offset_e_rad.to_bits().to_le_bytes());
+    w.put([0u8; 4]);
     for (kind, v) in coefs.iter() {
         let [tag, h] = kind_bytes(kind);
         w.put([tag, h, 0, 0]);
@@ -152,8 +204,8 @@ pub fn encode(
 /// Decode and validate a record read from flash (`bytes` may be longer, e.g. a page).
 ///
 /// Checks, in order: length, erased, magic, version (it fixes the layout), commit
-/// double word programmed, CRC and commit mark, path list, finite values, and last the
-/// configuration hash.
+/// double word programmed, CRC and commit mark, alignment, path list, finite values, and
+/// last the configuration hash.
 pub fn decode(bytes: &[u8], expected_hash: u32) -> Result<Record, RecordError> {
     let rec = decode_intact(bytes)?;
     if rec.config_hash != expected_hash {
@@ -178,7 +230,10 @@ pub(crate) fn decode_intact(bytes: &[u8]) -> Result<Record, RecordError> {
     // The version decides the layout, so it is checked before the CRC location is trusted.
     let version = r.u16()?;
     if version != FORMAT_VERSION {
-        return Err(RecordError::UnsupportedVersion { found: version });
+        return Err(RecordError::UnsupportedVersion {
+            found: version,
+            expected: FORMAT_VERSION,
+        });
     }
     let commit = rec
         .get(COMMIT_OFFSET..RECORD_BYTES)
@@ -192,9 +247,20 @@ pub(crate) fn decode_intact(bytes: &[u8]) -> Result<Record, RecordError> {
     }
 
     let count = usize::from(r.u8()?);
-    let _reserved = r.u8()?;
+    let flags = r.u8()?;
     let sequence = r.u32()?;
     let config_hash = r.u32()?;
+    let offset_e_rad = f32::from_bits(r.u32()?);
+    let _reserved = r.u32()?;
+    if flags & !FLAG_REVERSED != 0
+        || !(offset_e_rad.is_finite() && offset_e_rad.abs() <= core::f32::consts::PI)
+    {
+        return Err(RecordError::BadAlignment);
+    }
+    let alignment = Alignment {
+        offset_e_rad,
+        reversed: flags & FLAG_REVERSED != 0,
+    };
     if count > MAX_PATHS {
         return Err(RecordError::BadPathList);
     }
@@ -231,7 +297,10 @@ pub(crate) fn decode_intact(bytes: &[u8]) -> Result<Record, RecordError> {
         }
     }
     Ok(Record {
-        coefficients,
+        calibration: Calibration {
+            coefficients,
+            alignment,
+        },
         sequence,
         config_hash,
     })
@@ -284,5 +353,5 @@ impl Writer<'_> {
     }
 }
 
-// The field sizes written above (4+2+1+1+4+4, 4+4+4, 4+4) match the layout.
-const _: () = assert!(HEADER_BYTES == 16 && PATH_ENTRY_BYTES == 12 && DOUBLE_WORD_BYTES == 8);
+// The field sizes written above (4+2+1+1+4+4+4+4, 4+4+4, 4+4) match the layout.
+const _: () = assert!(HEADER_BYTES == 24 && PATH_ENTRY_BYTES == 12 && DOUBLE_WORD_BYTES == 8);

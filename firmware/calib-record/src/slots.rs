@@ -1,10 +1,8 @@
 //! Two alternating slots: loading the newest valid record and storing a new one
 //! without ever endangering the last good one.
 
-use mras::Coefficients;
-
 use crate::layout::{COMMIT_OFFSET, RECORD_BYTES};
-use crate::record::{decode, decode_intact, encode, Record, RecordError};
+use crate::record::{decode, decode_intact, encode, Calibration, Record, RecordError};
 
 /// One of the two record slots (slot A = page n, slot B = page n + 1).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -85,17 +83,44 @@ pub enum LoadError<E> {
     NoValidRecord { a: Rejected<E>, b: Rejected<E> },
 }
 
+impl<E> LoadError<E> {
+    /// The most informative reason by name: a slot rejected for something other than
+    /// being erased (a read error is "Flash"), else "Erased".
+    pub fn name(&self) -> &'static str {
+        let LoadError::NoValidRecord { a, b } = self;
+        let name = |r: &Rejected<E>| match r {
+            Rejected::Record(e) => e.name(),
+            Rejected::Flash(_) => "Flash",
+        };
+        match (name(a), name(b)) {
+            ("Erased", other) => other,
+            (first, _) => first,
+        }
+    }
+}
+
 /// Why a store did not complete. In every case the previous newest valid record is
 /// untouched: [`load`] still returns it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum StoreError<E> {
-    /// The snapshot would not decode (non-finite value, invalid path list); flash was
-    /// not touched.
-    InvalidCoefficients(RecordError),
+    /// The calibration would not decode (non-finite value, invalid path list, alignment
+    /// out of range); flash was not touched.
+    InvalidCalibration(RecordError),
     /// Erase, program or read failed.
     Flash(E),
     /// The read-back differs from what was programmed.
     VerifyFailed,
+}
+
+impl<E> StoreError<E> {
+    /// A stable short name, for logs and the stream.
+    pub fn name(&self) -> &'static str {
+        match self {
+            StoreError::InvalidCalibration(_) => "InvalidCalibration",
+            StoreError::Flash(_) => "Flash",
+            StoreError::VerifyFailed => "VerifyFailed",
+        }
+    }
 }
 
 impl<E> From<E> for StoreError<E> {
@@ -161,7 +186,7 @@ pub fn load<F: FlashSlots>(
     }
 }
 
-/// Write `coefs` as a new record and return the slot it went to.
+/// Write `cal` as a new record and return the slot it went to.
 ///
 /// The target is the slot *not* holding the record [`load`] would return for
 /// `cfg_hash` (failing that, not the newest intact record of another configuration);
@@ -174,7 +199,7 @@ pub fn load<F: FlashSlots>(
 /// so store once per commissioning, not periodically.
 pub fn store<F: FlashSlots>(
     flash: &mut F,
-    coefs: &Coefficients,
+    cal: &Calibration,
     cfg_hash: u32,
 ) -> Result<Slot, StoreError<F::Error>> {
     let a = examine(flash, Slot::A, decode_intact).ok();
@@ -204,9 +229,9 @@ pub fn store<F: FlashSlots>(
     let sequence = newest_seq.map_or(FIRST_SEQUENCE, |s| s.wrapping_add(1));
 
     let mut buf = [0u8; RECORD_BYTES];
-    encode(coefs, sequence, cfg_hash, &mut buf);
+    encode(cal, sequence, cfg_hash, &mut buf);
     // Refuse before erasing anything what load would refuse.
-    decode(&buf, cfg_hash).map_err(StoreError::InvalidCoefficients)?;
+    decode(&buf, cfg_hash).map_err(StoreError::InvalidCalibration)?;
 
     let (body, commit) = buf.split_at(COMMIT_OFFSET);
     flash.erase(target)?;

@@ -3,17 +3,24 @@
 mod common;
 
 use calib_record::layout::{COMMIT_OFFSET, DOUBLE_WORD_BYTES, FORMAT_VERSION, HEADER_BYTES};
-use calib_record::{config_hash, decode, encode, Record, RecordError, PAGE_BYTES, RECORD_BYTES};
-use common::{coefs, encoded, reseal, same_bits, DEFAULT_PATHS, HASH, OTHER_HASH};
+use calib_record::{
+    config_hash, decode, encode, load, Alignment, Calibration, FlashSlots, RamFlash, Record,
+    RecordError, Slot, PAGE_BYTES, RECORD_BYTES,
+};
+use common::{
+    cal, coefs, encoded, encoded_cal, reseal, same_bits, ALIGN, DEFAULT_PATHS, HASH, OTHER_HASH,
+};
 use mras::{Coefficients, Config, Cplx, PathKind, MAX_PATHS};
 
 /// Byte offsets of header fields (see `layout`).
 const VERSION_AT: usize = 4;
 const COUNT_AT: usize = 6;
+const FLAGS_AT: usize = 7;
+const OFFSET_AT: usize = 16;
 const PATH0_AT: usize = HEADER_BYTES;
 
 const _: () = {
-    assert!(RECORD_BYTES == 120);
+    assert!(RECORD_BYTES == 128);
     assert!(RECORD_BYTES % DOUBLE_WORD_BYTES == 0);
     assert!(COMMIT_OFFSET == RECORD_BYTES - DOUBLE_WORD_BYTES);
 };
@@ -26,12 +33,12 @@ fn round_trip() {
     assert_eq!(
         rec,
         Record {
-            coefficients: c,
+            calibration: cal(&c),
             sequence: 7,
             config_hash: HASH
         }
     );
-    assert!(same_bits(&rec.coefficients, &c));
+    assert!(same_bits(&rec.calibration.coefficients, &c));
 }
 
 #[test]
@@ -45,7 +52,10 @@ fn round_trip_from_a_whole_page() {
 fn round_trip_no_paths_and_max_paths() {
     let none = Coefficients::zeros(&[]);
     assert_eq!(
-        decode(&encoded(&none, 1, HASH), HASH).unwrap().coefficients,
+        decode(&encoded(&none, 1, HASH), HASH)
+            .unwrap()
+            .calibration
+            .coefficients,
         none
     );
 
@@ -67,12 +77,16 @@ fn round_trip_no_paths_and_max_paths() {
             Cplx::new(n as f32 * 0.01, -(n as f32) * f32::MIN_POSITIVE),
         );
     }
-    let back = decode(&encoded(&full, 1, HASH), HASH).unwrap().coefficients;
+    let back = decode(&encoded(&full, 1, HASH), HASH)
+        .unwrap()
+        .calibration
+        .coefficients;
     assert!(same_bits(&back, &full));
 }
 
-/// The format is persisted in the field: pin it byte for byte. The expected bytes,
-/// CRC included, were computed independently with Python's `struct` and `zlib.crc32`.
+/// The format is persisted in the field: pin it byte for byte (format 2, the fixtures'
+/// alignment: offset -1.25 rad, reversed). The expected bytes, CRC included, were
+/// computed independently with Python's `struct` and `zlib.crc32`.
 #[test]
 fn golden_bytes() {
     let mut c = Coefficients::zeros(&DEFAULT_PATHS);
@@ -82,8 +96,9 @@ fn golden_bytes() {
     c.set(PathKind::Harmonic(5), Cplx::new(0.0, -0.0));
     #[rustfmt::skip]
     let expected: [u8; RECORD_BYTES] = [
-        0x53, 0x41, 0x52, 0x4D, 0x01, 0x00, 0x04, 0x00,
+        0x53, 0x41, 0x52, 0x4D, 0x02, 0x00, 0x04, 0x01,
         0x04, 0x03, 0x02, 0x01, 0xD4, 0xC3, 0xB2, 0xA1,
+        0x00, 0x00, 0xA0, 0xBF, 0x00, 0x00, 0x00, 0x00,
         0x00, 0x00, 0x00, 0x00, 0xCD, 0xCC, 0xCC, 0x3D,
         0x0A, 0xD7, 0xA3, 0xBD, 0x01, 0x00, 0x00, 0x00,
         0x00, 0x00, 0x80, 0x3E, 0x00, 0x00, 0x00, 0xBF,
@@ -96,7 +111,7 @@ fn golden_bytes() {
         0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
         0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
         0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
-        0xDF, 0xE3, 0xED, 0x2F, 0xAC, 0xBE, 0xAD, 0xB2,
+        0xCA, 0x03, 0x3A, 0x71, 0xAC, 0xBE, 0xAD, 0xB2,
     ];
     assert_eq!(encoded(&c, 0x0102_0304, 0xA1B2_C3D4), expected);
 }
@@ -165,7 +180,7 @@ fn interrupted_write_images_are_refused() {
         let err = decode(&img, HASH).expect_err("partial record accepted");
         let expected = match dws {
             0 => RecordError::Erased,
-            15 => unreachable!(),
+            16 => unreachable!(),
             _ => RecordError::Incomplete,
         };
         assert_eq!(err, expected, "{dws} double words");
@@ -207,9 +222,96 @@ fn stale_and_future_versions() {
         reseal(&mut buf);
         assert_eq!(
             decode(&buf, HASH),
-            Err(RecordError::UnsupportedVersion { found })
+            Err(RecordError::UnsupportedVersion {
+                found,
+                expected: FORMAT_VERSION
+            })
         );
     }
+}
+
+/// A well-formed record of format 1 (120 bytes, no alignment) as the previous firmware
+/// wrote it: refused by its version, by name, so the drive commissions again.
+#[test]
+fn a_format_1_record_is_refused_by_name() {
+    let mut v1 = [0u8; 120];
+    v1[..4].copy_from_slice(&0x4D52_4153u32.to_le_bytes());
+    v1[4..6].copy_from_slice(&1u16.to_le_bytes());
+    v1[6] = 1; // one path: offset (0.1, -0.08)
+    v1[8..12].copy_from_slice(&5u32.to_le_bytes());
+    v1[12..16].copy_from_slice(&HASH.to_le_bytes());
+    v1[16..20].copy_from_slice(&[0, 0, 0, 0]);
+    v1[20..24].copy_from_slice(&0.1f32.to_bits().to_le_bytes());
+    v1[24..28].copy_from_slice(&(-0.08f32).to_bits().to_le_bytes());
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&v1[..112]);
+    v1[112..116].copy_from_slice(&crc.to_le_bytes());
+    v1[116..120].copy_from_slice(&(!0x4D52_4153u32).to_le_bytes());
+    // As read from its page: the 120 bytes and the erased bytes after them.
+    let mut page = [0xFFu8; PAGE_BYTES];
+    page[..120].copy_from_slice(&v1);
+    let err = decode(&page, HASH).unwrap_err();
+    assert_eq!(
+        err,
+        RecordError::UnsupportedVersion {
+            found: 1,
+            expected: 2
+        }
+    );
+    assert_eq!(err.name(), "UnsupportedVersion");
+
+    let mut flash = RamFlash::new();
+    for slot in Slot::BOTH {
+        flash.erase(slot).unwrap();
+        let mut page = [0xFFu8; 128];
+        page[..120].copy_from_slice(&v1);
+        flash.program(slot, 0, &page).unwrap();
+    }
+    let e = load(&flash, HASH).unwrap_err();
+    assert_eq!(e.name(), "UnsupportedVersion");
+}
+
+#[test]
+fn the_alignment_round_trips_exactly_and_is_checked() {
+    let pi = core::f32::consts::PI;
+    for (offset_e_rad, reversed) in [(0.0, false), (pi, true), (-pi, false), (1e-7, true)] {
+        let c = Calibration {
+            coefficients: coefs(0.1),
+            alignment: Alignment {
+                offset_e_rad,
+                reversed,
+            },
+        };
+        let back = decode(&encoded_cal(&c, 3, HASH), HASH).unwrap().calibration;
+        assert_eq!(back.alignment.reversed, reversed);
+        assert_eq!(
+            back.alignment.offset_e_rad.to_bits(),
+            offset_e_rad.to_bits()
+        );
+    }
+    for bad in [f32::NAN, f32::INFINITY, 3.2, -3.2] {
+        let c = Calibration {
+            coefficients: coefs(0.1),
+            alignment: Alignment {
+                offset_e_rad: bad,
+                reversed: false,
+            },
+        };
+        assert_eq!(
+            decode(&encoded_cal(&c, 3, HASH), HASH),
+            Err(RecordError::BadAlignment),
+            "{bad}"
+        );
+    }
+    let mut buf = encoded(&coefs(0.0), 1, HASH);
+    buf[FLAGS_AT] = 2;
+    reseal(&mut buf);
+    assert_eq!(decode(&buf, HASH), Err(RecordError::BadAlignment));
+    let mut buf = encoded(&coefs(0.0), 1, HASH);
+    buf[OFFSET_AT..OFFSET_AT + 4].copy_from_slice(&f32::NAN.to_bits().to_le_bytes());
+    reseal(&mut buf);
+    assert_eq!(decode(&buf, HASH), Err(RecordError::BadAlignment));
+    assert_eq!(RecordError::BadAlignment.name(), "BadAlignment");
+    let _ = ALIGN;
 }
 
 #[test]
@@ -286,7 +388,7 @@ fn bad_path_lists_are_rejected() {
     // A valid replacement decodes.
     let ok = decode(&with_kind_bytes(3, 2, (-7i8) as u8), HASH).unwrap();
     assert_eq!(
-        ok.coefficients.iter().nth(3).unwrap().0,
+        ok.calibration.coefficients.iter().nth(3).unwrap().0,
         PathKind::Harmonic(-7)
     );
 
@@ -305,26 +407,42 @@ fn path_count_is_authoritative_once_sealed() {
     let mut buf = encoded(&coefs(0.0), 1, HASH);
     buf[COUNT_AT] = 2;
     reseal(&mut buf);
-    assert_eq!(decode(&buf, HASH).unwrap().coefficients.len(), 2);
+    assert_eq!(
+        decode(&buf, HASH).unwrap().calibration.coefficients.len(),
+        2
+    );
 }
 
 #[test]
 fn encode_returns_record_length_and_overwrites_buffer() {
     let mut buf = [0xA5u8; RECORD_BYTES];
     assert_eq!(
-        encode(&Coefficients::zeros(&[]), 9, HASH, &mut buf),
+        encode(
+            &Calibration {
+                coefficients: Coefficients::zeros(&[]),
+                alignment: Alignment::IDENTITY
+            },
+            9,
+            HASH,
+            &mut buf
+        ),
         RECORD_BYTES
     );
-    assert!(buf[HEADER_BYTES..COMMIT_OFFSET].iter().all(|&b| b == 0));
+    assert!(buf[7..8]
+        .iter()
+        .chain(&buf[16..COMMIT_OFFSET])
+        .all(|&b| b == 0));
     assert_eq!(decode(&buf, HASH).unwrap().sequence, 9);
 }
 
 #[test]
 fn config_hash_covers_the_meaning_of_the_coefficients_only() {
     let base = Config::default();
-    let h = config_hash(&base);
+    let h = config_hash(&base, 4);
     // Independently computed with zlib.crc32 over the documented serialisation.
-    assert_eq!(h, 0x7E72_6E7D);
+    assert_eq!(h, 0xFF94_483C);
+    // Another motor: another pole count, another hash.
+    assert_ne!(config_hash(&base, 6), h);
 
     let mut tuned = base;
     tuned.sample_period_s = 100.0e-6;
@@ -336,14 +454,14 @@ fn config_hash_covers_the_meaning_of_the_coefficients_only() {
     tuned.convergence.min_revs = 9;
     tuned.input.raw_limit = 4095.0;
     assert_eq!(
-        config_hash(&tuned),
+        config_hash(&tuned, 4),
         h,
         "tuning must not invalidate a calibration"
     );
 
     let mut neg_zero = base;
     neg_zero.input.offset_x = -0.0;
-    assert_eq!(config_hash(&neg_zero), h);
+    assert_eq!(config_hash(&neg_zero, 4), h);
 
     let mut variants = Vec::new();
     let mut c = base;
@@ -381,7 +499,7 @@ fn config_hash_covers_the_meaning_of_the_coefficients_only() {
     }
     let mut seen = vec![h];
     for v in &variants {
-        let hv = config_hash(v);
+        let hv = config_hash(v, 4);
         assert!(!seen.contains(&hv), "{v:?}");
         seen.push(hv);
     }

@@ -3,7 +3,7 @@
 mod common;
 
 use calib_record::{decode, load, store, RamFlash, Slot, RECORD_BYTES};
-use common::{encoded, same_bits, HASH};
+use common::{cal, encoded, same_bits, HASH};
 use mras::{Coefficients, Cplx, PathKind, MAX_PATHS};
 use proptest::prelude::*;
 
@@ -66,7 +66,7 @@ proptest! {
         c in coefficients(), seq in any::<u32>(), hash in any::<u32>()
     ) {
         let rec = decode(&encoded(&c, seq, hash), hash).unwrap();
-        prop_assert!(same_bits(&rec.coefficients, &c));
+        prop_assert!(same_bits(&rec.calibration.coefficients, &c));
         prop_assert_eq!(rec.sequence, seq);
         prop_assert_eq!(rec.config_hash, hash);
     }
@@ -102,9 +102,9 @@ proptest! {
         flash.page_mut(Slot::A)[..RECORD_BYTES].copy_from_slice(&a);
         flash.page_mut(Slot::B)[..RECORD_BYTES].copy_from_slice(&b);
         let _ = load(&flash, HASH);
-        let slot = store(&mut flash, &c, HASH).unwrap();
+        let slot = store(&mut flash, &cal(&c), HASH).unwrap();
         let l = load(&flash, HASH).unwrap();
         prop_assert_eq!(l.slot, slot);
-        prop_assert!(same_bits(&l.record.coefficients, &c));
+        prop_assert!(same_bits(&l.record.calibration.coefficients, &c));
     }
 }

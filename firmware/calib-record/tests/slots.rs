@@ -7,7 +7,7 @@ use calib_record::{
     is_newer, load, store, FlashSlots, LoadError, Loaded, OtherSlot, RamFlash, RamFlashError,
     RecordError, Rejected, Slot, StoreError, FIRST_SEQUENCE, PAGE_BYTES, RECORD_BYTES,
 };
-use common::{coefs, encoded, same_bits, HASH, OTHER_HASH};
+use common::{cal, coefs, encoded, same_bits, HASH, OTHER_HASH};
 use mras::{Coefficients, Cplx, PathKind};
 
 type Load = Result<Loaded<RamFlashError>, LoadError<RamFlashError>>;
@@ -40,11 +40,11 @@ fn blank_flash_has_no_record() {
 #[test]
 fn first_store_goes_to_slot_a() {
     let mut flash = RamFlash::new();
-    assert_eq!(store(&mut flash, &coefs(1.0), HASH), Ok(Slot::A));
+    assert_eq!(store(&mut flash, &cal(&coefs(1.0)), HASH), Ok(Slot::A));
     let l = loaded(&flash);
     assert_eq!(l.slot, Slot::A);
     assert_eq!(l.record.sequence, FIRST_SEQUENCE);
-    assert_eq!(l.record.coefficients, coefs(1.0));
+    assert_eq!(l.record.calibration.coefficients, coefs(1.0));
     assert_eq!(l.other, OtherSlot::Rejected(rec(RecordError::Erased)));
     // One erase and RECORD_BYTES / 8 double words.
     assert_eq!(
@@ -59,7 +59,7 @@ fn stores_alternate_and_load_picks_the_newest() {
     let mut expect_slot = Slot::A;
     for n in 0..8u32 {
         let before = flash.clone();
-        let slot = store(&mut flash, &coefs(n as f32), HASH).unwrap();
+        let slot = store(&mut flash, &cal(&coefs(n as f32)), HASH).unwrap();
         assert_eq!(slot, expect_slot);
         // The slot with the previous record was neither erased nor changed.
         let kept = slot.other();
@@ -68,7 +68,7 @@ fn stores_alternate_and_load_picks_the_newest() {
         let l = loaded(&flash);
         assert_eq!(l.slot, slot);
         assert_eq!(l.record.sequence, FIRST_SEQUENCE + n);
-        assert_eq!(l.record.coefficients, coefs(n as f32));
+        assert_eq!(l.record.calibration.coefficients, coefs(n as f32));
         if n > 0 {
             assert_eq!(
                 l.other,
@@ -90,7 +90,10 @@ fn newest_wins_in_either_slot() {
         let l = loaded(&flash);
         assert_eq!(l.slot, newer, "{seq_a} vs {seq_b}");
         // The next store overwrites the older slot.
-        assert_eq!(store(&mut flash, &coefs(3.0), HASH), Ok(newer.other()));
+        assert_eq!(
+            store(&mut flash, &cal(&coefs(3.0)), HASH),
+            Ok(newer.other())
+        );
     }
 }
 
@@ -112,29 +115,29 @@ fn sequence_wraps() {
     let mut flash = RamFlash::new();
     plant(&mut flash, Slot::A, &coefs(1.0), u32::MAX - 1, HASH);
     plant(&mut flash, Slot::B, &coefs(2.0), u32::MAX, HASH);
-    assert_eq!(store(&mut flash, &coefs(3.0), HASH), Ok(Slot::A));
+    assert_eq!(store(&mut flash, &cal(&coefs(3.0)), HASH), Ok(Slot::A));
     let l = loaded(&flash);
     assert_eq!((l.slot, l.record.sequence), (Slot::A, 0));
     assert_eq!(l.other, OtherSlot::Superseded { sequence: u32::MAX });
-    assert_eq!(store(&mut flash, &coefs(4.0), HASH), Ok(Slot::B));
+    assert_eq!(store(&mut flash, &cal(&coefs(4.0)), HASH), Ok(Slot::B));
     let l = loaded(&flash);
     assert_eq!((l.slot, l.record.sequence), (Slot::B, 1));
-    assert_eq!(l.record.coefficients, coefs(4.0));
+    assert_eq!(l.record.calibration.coefficients, coefs(4.0));
 }
 
 #[test]
 fn corrupted_newest_falls_back_to_previous() {
     let mut flash = RamFlash::new();
-    store(&mut flash, &coefs(1.0), HASH).unwrap();
-    store(&mut flash, &coefs(2.0), HASH).unwrap(); // slot B, newest
+    store(&mut flash, &cal(&coefs(1.0)), HASH).unwrap();
+    store(&mut flash, &cal(&coefs(2.0)), HASH).unwrap(); // slot B, newest
     flash.page_mut(Slot::B)[40] ^= 0x10;
     let l = loaded(&flash);
     assert_eq!(l.slot, Slot::A);
-    assert_eq!(l.record.coefficients, coefs(1.0));
+    assert_eq!(l.record.calibration.coefficients, coefs(1.0));
     assert_eq!(l.other, OtherSlot::Rejected(rec(RecordError::BadCrc)));
     // The next store repairs the corrupted slot and keeps the good one.
     let a = *flash.page(Slot::A);
-    assert_eq!(store(&mut flash, &coefs(3.0), HASH), Ok(Slot::B));
+    assert_eq!(store(&mut flash, &cal(&coefs(3.0)), HASH), Ok(Slot::B));
     assert_eq!(flash.page(Slot::A), &a);
     let l = loaded(&flash);
     assert_eq!((l.slot, l.record.sequence), (Slot::B, FIRST_SEQUENCE + 1));
@@ -155,7 +158,7 @@ fn configuration_change() {
         })
     );
     // The new configuration's record goes next to the old one, with a newer sequence.
-    assert_eq!(store(&mut flash, &coefs(2.0), HASH), Ok(Slot::B));
+    assert_eq!(store(&mut flash, &cal(&coefs(2.0)), HASH), Ok(Slot::B));
     let l = loaded(&flash);
     assert_eq!((l.slot, l.record.sequence), (Slot::B, 11));
     assert!(matches!(
@@ -165,7 +168,7 @@ fn configuration_change() {
     // Switching back finds the old configuration's calibration.
     assert_eq!(load(&flash, OTHER_HASH).unwrap().slot, Slot::A);
     // A further store for HASH protects HASH's record and replaces the other one.
-    assert_eq!(store(&mut flash, &coefs(3.0), HASH), Ok(Slot::A));
+    assert_eq!(store(&mut flash, &cal(&coefs(3.0)), HASH), Ok(Slot::A));
     assert_eq!(loaded(&flash).record.sequence, 12);
 }
 
@@ -177,7 +180,7 @@ fn matching_record_is_protected_over_a_newer_foreign_one() {
     plant(&mut flash, Slot::A, &coefs(1.0), 5, HASH);
     plant(&mut flash, Slot::B, &coefs(2.0), 9, OTHER_HASH);
     let a = *flash.page(Slot::A);
-    assert_eq!(store(&mut flash, &coefs(3.0), HASH), Ok(Slot::B));
+    assert_eq!(store(&mut flash, &cal(&coefs(3.0)), HASH), Ok(Slot::B));
     assert_eq!(flash.page(Slot::A), &a);
     assert_eq!(loaded(&flash).record.sequence, 10);
 }
@@ -185,19 +188,19 @@ fn matching_record_is_protected_over_a_newer_foreign_one() {
 #[test]
 fn invalid_coefficients_are_refused_before_touching_flash() {
     let mut flash = RamFlash::new();
-    store(&mut flash, &coefs(1.0), HASH).unwrap();
+    store(&mut flash, &cal(&coefs(1.0)), HASH).unwrap();
     let before = flash.clone();
 
     let mut nan = coefs(2.0);
     nan.set(PathKind::Harmonic(4), Cplx::new(f32::NAN, 0.0));
     assert_eq!(
-        store(&mut flash, &nan, HASH),
-        Err(StoreError::InvalidCoefficients(RecordError::NonFiniteValue))
+        store(&mut flash, &cal(&nan), HASH),
+        Err(StoreError::InvalidCalibration(RecordError::NonFiniteValue))
     );
     let dup = Coefficients::zeros(&[PathKind::Harmonic(4), PathKind::Harmonic(-2)]);
     assert_eq!(
-        store(&mut flash, &dup, HASH),
-        Err(StoreError::InvalidCoefficients(RecordError::BadPathList))
+        store(&mut flash, &cal(&dup), HASH),
+        Err(StoreError::InvalidCalibration(RecordError::BadPathList))
     );
     assert_eq!(flash.operations(), before.operations());
     assert_eq!(flash.page(Slot::B), before.page(Slot::B));
@@ -239,14 +242,17 @@ fn read_back_mismatch_is_reported_and_old_record_kept() {
         flip_on_program: false,
         fail_read_a: false,
     };
-    store(&mut flash, &coefs(1.0), HASH).unwrap();
+    store(&mut flash, &cal(&coefs(1.0)), HASH).unwrap();
     flash.flip_on_program = true;
     assert_eq!(
-        store(&mut flash, &coefs(2.0), HASH),
+        store(&mut flash, &cal(&coefs(2.0)), HASH),
         Err(StoreError::VerifyFailed)
     );
     let l = load(&flash, HASH).unwrap();
-    assert_eq!((l.slot, l.record.coefficients), (Slot::A, coefs(1.0)));
+    assert_eq!(
+        (l.slot, l.record.calibration.coefficients),
+        (Slot::A, coefs(1.0))
+    );
 }
 
 #[test]
@@ -256,12 +262,15 @@ fn unreadable_slot_is_reported_and_the_other_used() {
         flip_on_program: false,
         fail_read_a: false,
     };
-    store(&mut flash, &coefs(1.0), HASH).unwrap(); // A
-    store(&mut flash, &coefs(2.0), HASH).unwrap(); // B
-    store(&mut flash, &coefs(3.0), HASH).unwrap(); // A, newest
+    store(&mut flash, &cal(&coefs(1.0)), HASH).unwrap(); // A
+    store(&mut flash, &cal(&coefs(2.0)), HASH).unwrap(); // B
+    store(&mut flash, &cal(&coefs(3.0)), HASH).unwrap(); // A, newest
     flash.fail_read_a = true;
     let l = load(&flash, HASH).unwrap();
-    assert_eq!((l.slot, l.record.coefficients), (Slot::B, coefs(2.0)));
+    assert_eq!(
+        (l.slot, l.record.calibration.coefficients),
+        (Slot::B, coefs(2.0))
+    );
     assert_eq!(
         l.other,
         OtherSlot::Rejected(Rejected::Flash(RamFlashError::OutOfBounds))
@@ -300,7 +309,7 @@ fn store_order_commit_double_word_last() {
     let commit = RECORD_BYTES - DOUBLE_WORD_BYTES;
     for (n, slot) in [Slot::A, Slot::B, Slot::A].into_iter().enumerate() {
         flash.log.clear();
-        assert_eq!(store(&mut flash, &coefs(n as f32), HASH), Ok(slot));
+        assert_eq!(store(&mut flash, &cal(&coefs(n as f32)), HASH), Ok(slot));
         assert_eq!(
             flash.log,
             [
@@ -330,21 +339,21 @@ fn scenarios() -> Vec<Scenario> {
     });
 
     let mut f = RamFlash::new();
-    store(&mut f, &coefs(1.0), HASH).unwrap();
+    store(&mut f, &cal(&coefs(1.0)), HASH).unwrap();
     v.push(Scenario {
         name: "one record",
         flash: f.clone(),
         old: Some((Slot::A, coefs(1.0))),
     });
 
-    store(&mut f, &coefs(2.0), HASH).unwrap();
+    store(&mut f, &cal(&coefs(2.0)), HASH).unwrap();
     v.push(Scenario {
         name: "two records, B newest",
         flash: f.clone(),
         old: Some((Slot::B, coefs(2.0))),
     });
 
-    store(&mut f, &coefs(3.0), HASH).unwrap();
+    store(&mut f, &cal(&coefs(3.0)), HASH).unwrap();
     v.push(Scenario {
         name: "two records, A newest",
         flash: f.clone(),
@@ -354,7 +363,7 @@ fn scenarios() -> Vec<Scenario> {
     // An earlier store into B was interrupted half-way, torn.
     let mut g = f.clone();
     g.cut_power_after(6, true);
-    assert!(store(&mut g, &coefs(9.0), HASH).is_err());
+    assert!(store(&mut g, &cal(&coefs(9.0)), HASH).is_err());
     g.power_on();
     v.push(Scenario {
         name: "A newest, B half-written",
@@ -394,8 +403,8 @@ fn check_after_power_loss(s: &Scenario, flash: &RamFlash, new: &Coefficients, wh
     let got: Load = load(flash, HASH);
     match (&s.old, got) {
         (Some((slot, old)), Ok(l)) => {
-            let is_old = l.slot == *slot && same_bits(&l.record.coefficients, old);
-            let is_new = l.slot != *slot && same_bits(&l.record.coefficients, new);
+            let is_old = l.slot == *slot && same_bits(&l.record.calibration.coefficients, old);
+            let is_new = l.slot != *slot && same_bits(&l.record.calibration.coefficients, new);
             assert!(is_old || is_new, "{what}: loaded {l:?}");
             // The slot with the old record was not touched at all.
             assert_eq!(flash.page(*slot), s.flash.page(*slot), "{what}");
@@ -406,7 +415,10 @@ fn check_after_power_loss(s: &Scenario, flash: &RamFlash, new: &Coefficients, wh
             );
         }
         (Some(_), Err(e)) => panic!("{what}: old calibration lost: {e:?}"),
-        (None, Ok(l)) => assert!(same_bits(&l.record.coefficients, new), "{what}: {l:?}"),
+        (None, Ok(l)) => assert!(
+            same_bits(&l.record.calibration.coefficients, new),
+            "{what}: {l:?}"
+        ),
         (None, Err(_)) => {}
     }
 }
@@ -419,7 +431,7 @@ fn power_loss_at_every_step_of_a_store_keeps_old_or_new() {
         // Operations of an uninterrupted store.
         let mut probe = s.flash.clone();
         let start = probe.operations();
-        store(&mut probe, &new, HASH).unwrap();
+        store(&mut probe, &cal(&new), HASH).unwrap();
         let total = probe.operations() - start;
         assert_eq!(total as usize, 1 + RECORD_BYTES / DOUBLE_WORD_BYTES);
 
@@ -428,7 +440,7 @@ fn power_loss_at_every_step_of_a_store_keeps_old_or_new() {
                 let what = format!("{}: cut after {k} of {total} ops, torn {torn}", s.name);
                 let mut f = s.flash.clone();
                 f.cut_power_after(k, torn);
-                let r = store(&mut f, &new, HASH);
+                let r = store(&mut f, &cal(&new), HASH);
                 if k < total {
                     assert_eq!(
                         r,
@@ -442,13 +454,19 @@ fn power_loss_at_every_step_of_a_store_keeps_old_or_new() {
                 f.power_on();
                 check_after_power_loss(&s, &f, &new, &what);
                 if k == total {
-                    assert!(same_bits(&loaded(&f).record.coefficients, &new), "{what}");
+                    assert!(
+                        same_bits(&loaded(&f).record.calibration.coefficients, &new),
+                        "{what}"
+                    );
                 }
                 // After the reboot the next store completes and wins.
-                let slot = store(&mut f, &newer, HASH).unwrap();
+                let slot = store(&mut f, &cal(&newer), HASH).unwrap();
                 let l = loaded(&f);
                 assert_eq!(l.slot, slot, "{what}");
-                assert!(same_bits(&l.record.coefficients, &newer), "{what}");
+                assert!(
+                    same_bits(&l.record.calibration.coefficients, &newer),
+                    "{what}"
+                );
             }
         }
     }
@@ -472,22 +490,25 @@ fn random_walk_of_interrupted_stores() {
         if cut < ops {
             flash.cut_power_after(cut, next(2) == 1);
         }
-        let r = store(&mut flash, &c, HASH);
+        let r = store(&mut flash, &cal(&c), HASH);
         flash.power_on();
         assert_eq!(r.is_ok(), cut >= ops, "step {step}");
         match (load(&flash, HASH), good) {
             (Ok(l), Some(g)) => {
-                let c_new = same_bits(&l.record.coefficients, &c);
+                let c_new = same_bits(&l.record.calibration.coefficients, &c);
                 assert!(
-                    c_new || same_bits(&l.record.coefficients, &g),
+                    c_new || same_bits(&l.record.calibration.coefficients, &g),
                     "step {step}"
                 );
                 assert!(r.is_err() || c_new, "step {step}");
-                good = Some(l.record.coefficients);
+                good = Some(l.record.calibration.coefficients);
             }
             (Ok(l), None) => {
-                assert!(same_bits(&l.record.coefficients, &c), "step {step}");
-                good = Some(l.record.coefficients);
+                assert!(
+                    same_bits(&l.record.calibration.coefficients, &c),
+                    "step {step}"
+                );
+                good = Some(l.record.calibration.coefficients);
             }
             (Err(e), Some(_)) => panic!("step {step}: lost the calibration: {e:?}"),
             (Err(_), None) => assert!(r.is_err()),

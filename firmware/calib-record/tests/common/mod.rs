@@ -2,7 +2,7 @@
 #![allow(dead_code)]
 
 use calib_record::layout::CRC_OFFSET;
-use calib_record::{encode, RECORD_BYTES};
+use calib_record::{encode, Alignment, Calibration, RECORD_BYTES};
 use mras::{Coefficients, Cplx, PathKind};
 
 pub const HASH: u32 = 0xA1B2_C3D4;
@@ -25,7 +25,25 @@ pub fn coefs(tag: f32) -> Coefficients {
     c
 }
 
+/// The alignment stored with the fixtures' coefficients.
+pub const ALIGN: Alignment = Alignment {
+    offset_e_rad: -1.25,
+    reversed: true,
+};
+
+/// A calibration of `c` with [`ALIGN`].
+pub fn cal(c: &Coefficients) -> Calibration {
+    Calibration {
+        coefficients: *c,
+        alignment: ALIGN,
+    }
+}
+
 pub fn encoded(c: &Coefficients, seq: u32, hash: u32) -> [u8; RECORD_BYTES] {
+    encoded_cal(&cal(c), seq, hash)
+}
+
+pub fn encoded_cal(c: &Calibration, seq: u32, hash: u32) -> [u8; RECORD_BYTES] {
     let mut buf = [0u8; RECORD_BYTES];
     assert_eq!(encode(c, seq, hash, &mut buf), RECORD_BYTES);
     buf
