@@ -1,26 +1,24 @@
-//! A simulated SPMSM drive that closes its loops through the core's estimate, so that
-//! sensor error becomes real torque ripple and real motion, as on a bench.
+//! The plant: motor, inverter, sensor front end and mechanics. Everything that is
+//! control lives in the firmware's `drive` crate and runs unchanged in [`crate::rig`].
 //!
-//! Per control period T (the core's sample period):
-//! 1. sample the sensor (X and Y, Y possibly skewed in time) and the phase currents;
-//! 2. `Tracker::step` with the torque command in force (the observer's feedforward);
-//! 3. motion controller (position or velocity, bandwidth configurable) → torque command;
-//! 4. dq current PI regulators in the frame of the *estimated* electrical angle
-//!    → αβ voltage command, applied during the *next* period (average-value inverter,
-//!    one PWM period of delay, limited to the linear SVPWM range Vdc/√3);
-//! 5. the plant integrates over T in `SUBSTEPS` substeps.
+//! Per control period T:
+//! 1. [`Plant::sample`]: the ADC conversions at the period's start, in counts: the sensor's
+//!    X and Y (Y possibly skewed in time) and the phase currents a, b (with the current
+//!    sensors' offset and gain errors);
+//! 2. [`Plant::advance`]: the inverter applies the duties the control period computed in
+//!    the *previous* period (average-value inverter: the duties' line-to-line voltages,
+//!    one PWM period of delay), or opens the windings while the bridge is off, and the
+//!    motor and mechanics integrate over T in `SUBSTEPS` substeps.
 //!
 //! The electrical state is integrated in the stationary αβ frame, semi-implicitly in R,
 //! with the back-EMF and torque evaluated at each substep's mid angle (one sin/cos per
 //! period, then exact small-angle rotations). The default, 2 substeps per 50 µs period
 //! (h = 25 µs against L/R = 1.7 ms, ωe·h ≤ 0.063 rad at 100 rev/s), agrees with 16
-//! substeps to within 0.1 % in current and 2e-5 rad in angle after 0.3 s of a closed-loop
-//! run (`tests::substeps_converge`)
-//! and keeps the model above 200x real time.
+//! substeps to within 0.5 % in current and 1e-5 of the angle travelled after 0.3 s of an
+//! open-loop run-up with a load step (`tests::substeps_converge`; closed loop, the
+//! controller corrects even that).
 
 use crate::sensor::SensorSim;
-use mras::{Estimate, Fault, Tracker};
-use std::f64::consts::TAU;
 
 /// Electrical substeps per control period (see the module doc for the accuracy).
 pub const SUBSTEPS: u32 = 2;
@@ -146,180 +144,67 @@ impl MotorParams {
     }
 }
 
-/// The motion profile the controller is asked to follow.
+/// The phase-current sensing front end: what a count means.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Reference {
-    /// From rest, accelerate at `accel_rad_s2` to `speed_rev_s` and hold.
-    Ramp { speed_rev_s: f64, accel_rad_s2: f64 },
-    /// ω* = A·sin(2π f t) (the paper's Fig. 8 profile).
-    Sine { amplitude_rad_s: f64, freq_hz: f64 },
+pub struct CurrentAdc {
+    /// A per count (signed, as the board's amplifier reads the current).
+    pub amps_per_count: f64,
+    pub zero_counts: u16,
+    pub max_counts: u16,
 }
 
-impl Reference {
-    fn trajectory(&self) -> mras::sim::Trajectory {
-        match *self {
-            Reference::Ramp {
-                speed_rev_s,
-                accel_rad_s2,
-            } => mras::sim::Trajectory::Ramp {
-                omega_rad_s: speed_rev_s * TAU,
-                accel_rad_s2,
-            },
-            Reference::Sine {
-                amplitude_rad_s,
-                freq_hz,
-            } => mras::sim::Trajectory::Sine {
-                amplitude_rad_s,
-                freq_hz,
-            },
-        }
-    }
-
-    /// (θ*, ω*, α*) at t.
-    pub fn state(&self, t_s: f64) -> (f64, f64, f64) {
-        self.trajectory().state(t_s)
-    }
-}
-
-/// What the loops do, as the firmware's commissioning state machine commands it
-/// (`drive::commissioning::Setpoint`).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Mode {
-    /// Follow the scenario's reference (the application).
-    Reference,
-    /// PWM outputs off: the windings are open, the rotor coasts.
-    Off,
-    /// d-axis current at electrical angle 0, open loop.
-    Align { current_a: f64 },
-    /// Closed-loop speed on the estimate (velocity loop at the control bandwidth).
-    Speed { omega_rad_s: f64 },
-}
-
-/// Whether the motion loop closes on position (PID) or on velocity (PI).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum LoopMode {
-    Position,
-    Velocity,
-}
-
-/// Control loops.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct ControlParams {
-    pub mode: LoopMode,
-    /// Motion loop bandwidth (Hz): triple pole (position) or double pole (velocity).
-    pub bandwidth_hz: f64,
-    /// Current loop bandwidth (Hz), PI zero on the electrical pole.
-    pub current_bandwidth_hz: f64,
-    pub reference: Reference,
-}
-
-/// The motion controller's estimate of J, which is also the observer's Ĵ.
-#[derive(Clone, Copy, Debug)]
-struct MotionController {
-    j_hat: f64,
-    kp: f64,
-    ki: f64,
-    kd: f64,
-    integral: f64,
-    mode: LoopMode,
-}
-
-impl MotionController {
-    fn new(c: &ControlParams, j_hat: f64) -> Self {
-        let w = TAU * c.bandwidth_hz;
-        let (kd, kp, ki) = match c.mode {
-            // (s + w)³: α = 3w·ė + 3w²·e + w³∫e
-            LoopMode::Position => (3.0 * w, 3.0 * w * w, w * w * w),
-            // (s + w)²: α = 2w·ė + w²∫ė
-            LoopMode::Velocity => (2.0 * w, w * w, 0.0),
-        };
+impl CurrentAdc {
+    /// 12 bits spanning ±2·`i_max_a`, zero at mid-scale.
+    pub fn for_motor(m: &MotorParams) -> Self {
         Self {
-            j_hat,
-            kp,
-            ki,
-            kd,
-            integral: 0.0,
-            mode: c.mode,
+            amps_per_count: 4.0 * m.i_max_a / 4096.0,
+            zero_counts: 2048,
+            max_counts: 4095,
         }
     }
 
-    /// Torque command from the reference and the estimate.
-    fn torque(&mut self, r: (f64, f64, f64), theta_hat: f64, omega_hat: f64, t: f64) -> f64 {
-        let (th_ref, w_ref, a_ref) = r;
-        let e_th = th_ref - theta_hat;
-        let e_w = w_ref - omega_hat;
-        let a = match self.mode {
-            LoopMode::Position => {
-                self.integral += e_th * t;
-                a_ref + self.kd * e_w + self.kp * e_th + self.ki * self.integral
-            }
-            LoopMode::Velocity => {
-                self.integral += e_w * t;
-                a_ref + self.kd * e_w + self.kp * self.integral
-            }
-        };
-        self.j_hat * a
+    fn counts(&self, amps: f64) -> u16 {
+        let c = (amps / self.amps_per_count).round() + self.zero_counts as f64;
+        c.clamp(0.0, self.max_counts as f64) as u16
     }
 }
 
-/// Everything the drive knows and does in one control period, for recording.
-#[derive(Clone, Copy, Debug)]
-pub struct DriveSample {
+/// What really happened in a period, for measuring the controller against.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Truth {
     pub t_s: f64,
-    /// True mechanical angle (continuous) and speed.
+    /// Rotor mechanical angle (continuous) and speed at the sampling instant.
     pub theta_rad: f64,
     pub omega_rad_s: f64,
-    /// Reference position (continuous).
-    pub theta_ref_rad: f64,
-    /// What the ADC delivered.
+    /// The sensor's X and Y as converted (scaled units; the ADC's count size times the
+    /// counts).
     pub x: f32,
     pub y: f32,
-    /// Torque command (also the observer's feedforward) and electrical torque produced.
-    pub torque_cmd_nm: f64,
-    pub torque_nm: f64,
-    pub result: Result<Estimate, Fault>,
-    /// The estimate used by the loops (last good one on a fault).
-    pub estimate: Estimate,
 }
 
-impl DriveSample {
-    /// θ̂ - θ (rad, mechanical).
-    pub fn estimation_error_rad(&self) -> f64 {
-        self.estimate.theta_unwrapped_rad() - self.theta_rad
-    }
-
-    /// θ* - θ̂: the position loop's command tracking error (paper Fig. 9b, 10a).
-    pub fn tracking_error_rad(&self) -> f64 {
-        self.theta_ref_rad - self.estimate.theta_unwrapped_rad()
-    }
-}
-
-/// The simulated drive: plant, inverter, current and motion control, sensor, core.
-pub struct Drive {
+/// The plant: motor, inverter, sensor, mechanics.
+pub struct Plant {
     pub motor: MotorParams,
-    pub control: ControlParams,
     pub sensor: SensorSim,
+    pub current_adc: CurrentAdc,
+    /// Size of one sensor count (scaled units) and the converter's bits.
+    sensor_count_size: f64,
+    sensor_bits: u8,
     t_s: f64,
     k: u64,
-    // Plant state.
     theta_rm: f64,
     omega_rm: f64,
     i_ab: [f64; 2],
-    // Inverter: αβ voltage applied during this period (commanded one period ago).
+    /// αβ voltage applied during the period under way (duties of the previous one).
     v_ab_applied: [f64; 2],
-    // Control state.
-    motion: MotionController,
-    id_int: f64,
-    iq_int: f64,
-    torque_cmd_nm: f64,
+    /// Bridge on during the period under way.
+    enabled: bool,
+    /// The over-current comparator's level on any phase current (A) and whether it has
+    /// tripped: the break input clears MOE in hardware and stays latched (BIF).
+    pub break_level_a: f64,
+    tripped: bool,
     last_torque_nm: f64,
     consts: PlantConsts,
-    /// θ̂ - θ*(0) at the first good estimate: the reference is homed to the measured
-    /// angle, as a drive does at enable (an N-period sensor knows θrm only modulo 2π/N).
-    reference_offset_rad: Option<f64>,
-    pub mode: Mode,
-    /// The velocity loop used in `Mode::Speed`.
-    speed_loop: MotionController,
 }
 
 /// Substep constants, computed once (divisions are slow in the inner loop).
@@ -348,54 +233,45 @@ impl PlantConsts {
     }
 }
 
-impl Drive {
-    /// A drive at rest at θ = 0. `j_hat_kg_m2` is the controller's (and should be the
-    /// observer's) inertia estimate.
+impl Plant {
+    /// A plant at rest at θ = `theta0_rad`, sampled every `sample_period_s`. The sensor
+    /// must have an ADC: the controller reads counts.
     pub fn new(
         motor: MotorParams,
-        control: ControlParams,
         sensor: SensorSim,
         sample_period_s: f64,
-        j_hat_kg_m2: f64,
+        theta0_rad: f64,
     ) -> Result<Self, String> {
         motor.validate()?;
-        if !(control.bandwidth_hz > 0.0 && control.current_bandwidth_hz > 0.0) {
-            return Err(
-                "`control.bandwidth_hz` and `control.current_bandwidth_hz` must be > 0".into(),
-            );
-        }
-        if control.current_bandwidth_hz * sample_period_s > 0.1 {
+        let adc = sensor.params.adc.ok_or(
+            "`sensor.adc_bits` = 0: the drive reads ADC counts, give the converter's bits (1..=16)",
+        )?;
+        if !(1..=16).contains(&adc.bits) {
             return Err(format!(
-                "`control.current_bandwidth_hz` = {}: at most a tenth of the control rate",
-                control.current_bandwidth_hz
+                "`sensor.adc_bits` = {}: the drive's converter has 1..=16 bits",
+                adc.bits
             ));
         }
-        let consts = PlantConsts::new(&motor, sample_period_s, SUBSTEPS);
+        if !(theta0_rad.is_finite()) {
+            return Err("initial rotor angle must be finite".into());
+        }
         Ok(Self {
-            consts,
-            motion: MotionController::new(&control, j_hat_kg_m2),
-            motor,
-            control,
+            consts: PlantConsts::new(&motor, sample_period_s, SUBSTEPS),
+            motor: motor.clone(),
+            current_adc: CurrentAdc::for_motor(&motor),
+            sensor_count_size: 2.0 * adc.full_scale / (1u64 << adc.bits) as f64,
+            sensor_bits: adc.bits,
             sensor,
             t_s: sample_period_s,
             k: 0,
-            theta_rm: 0.0,
+            theta_rm: theta0_rad,
             omega_rm: 0.0,
             i_ab: [0.0; 2],
             v_ab_applied: [0.0; 2],
-            id_int: 0.0,
-            iq_int: 0.0,
-            torque_cmd_nm: 0.0,
+            enabled: false,
+            break_level_a: 2.0 * motor.i_max_a,
+            tripped: false,
             last_torque_nm: 0.0,
-            reference_offset_rad: None,
-            mode: Mode::Reference,
-            speed_loop: MotionController::new(
-                &ControlParams {
-                    mode: LoopMode::Velocity,
-                    ..control
-                },
-                j_hat_kg_m2,
-            ),
         })
     }
 
@@ -405,18 +281,42 @@ impl Drive {
         self
     }
 
+    /// Size of one sensor count in scaled units, and the converter's bits: the
+    /// controller's scaling of the sensor channels.
+    pub fn sensor_adc(&self) -> (f64, u8) {
+        (self.sensor_count_size, self.sensor_bits)
+    }
+
     pub fn time_s(&self) -> f64 {
         self.k as f64 * self.t_s
     }
 
-    /// Measured phase currents a, b → αβ, with the current sensors' offset and gain errors.
-    fn measured_currents(&self) -> [f64; 2] {
+    pub fn theta_rad(&self) -> f64 {
+        self.theta_rm
+    }
+
+    pub fn omega_rad_s(&self) -> f64 {
+        self.omega_rm
+    }
+
+    /// Phase currents (αβ, A) and the mean electrical torque of the last period.
+    pub fn currents_ab(&self) -> [f64; 2] {
+        self.i_ab
+    }
+
+    pub fn torque_nm(&self) -> f64 {
+        self.last_torque_nm
+    }
+
+    /// Measured phase currents a, b → counts, with the current sensors' offset and gain
+    /// errors.
+    fn current_counts(&self) -> (u16, u16) {
         let m = &self.motor;
         let ia = self.i_ab[0];
         let ib = -0.5 * self.i_ab[0] + 0.5 * SQRT3 * self.i_ab[1];
         let ia_m = (1.0 + m.current_gain_error[0]) * ia + m.current_offset_a[0];
         let ib_m = (1.0 + m.current_gain_error[1]) * ib + m.current_offset_a[1];
-        [ia_m, (ia_m + 2.0 * ib_m) / SQRT3]
+        (self.current_adc.counts(ia_m), self.current_adc.counts(ib_m))
     }
 
     fn load_torque_nm(&self, t: f64) -> f64 {
@@ -428,84 +328,41 @@ impl Drive {
             .map_or(0.0, |s| s.torque_nm)
     }
 
-    /// One control period; returns what happened in it.
-    pub fn step<T: mras::Trig>(&mut self, tracker: &mut Tracker<T>) -> DriveSample {
+    /// The ADC conversions at the start of the period, and the truth at that instant.
+    pub fn sample(&mut self) -> (drive::control::Sample, Truth) {
+        let t = self.time_s();
+        let (x, y) = self.sensor.sample(t, self.theta_rm, self.omega_rm);
+        let mid = (1u32 << (self.sensor_bits - 1)) as f64;
+        let max = ((1u32 << self.sensor_bits) - 1) as f64;
+        let counts = |v: f32| ((v as f64 / self.sensor_count_size).round() + mid).clamp(0.0, max);
+        let (xc, yc) = (counts(x), counts(y));
+        let (ia, ib) = self.current_counts();
+        let sample = drive::control::Sample {
+            x: xc as u16,
+            y: yc as u16,
+            ia,
+            ib,
+            overcurrent: self.tripped,
+            cycles: 0,
+        };
+        let truth = Truth {
+            t_s: t,
+            theta_rad: self.theta_rm,
+            omega_rad_s: self.omega_rm,
+            x: ((xc - mid) * self.sensor_count_size) as f32,
+            y: ((yc - mid) * self.sensor_count_size) as f32,
+        };
+        (sample, truth)
+    }
+
+    /// One period: the voltage of the previous period's duties (or open windings), then
+    /// the controller's new output takes over for the next period.
+    pub fn advance(&mut self, out: &drive::control::Output) {
         let t = self.time_s();
         let m = &self.motor;
         let p = m.pole_pairs as f64;
-
-        // 1. Sample.
-        let (theta_sampled, omega_sampled) = (self.theta_rm, self.omega_rm);
-        let (x, y) = self.sensor.sample(t, self.theta_rm, self.omega_rm);
-        let i_meas = self.measured_currents();
-
-        // 2. Observer + MRAS, fed the torque command in force.
-        let result = tracker.step(x, y, self.torque_cmd_nm as f32);
-        let est = match result {
-            Ok(e) => e,
-            Err(_) => tracker.last_estimate(),
-        };
-        let theta_hat = est.theta_unwrapped_rad();
-        let omega_hat = est.omega_rad_s as f64;
-
-        // 3. Motion control (torque limited by the current limit), on the homed reference.
-        let mut r = self.control.reference.state(t);
-        if result.is_ok() && self.reference_offset_rad.is_none() {
-            self.reference_offset_rad = Some(theta_hat - r.0);
-        }
-        r.0 += self.reference_offset_rad.unwrap_or(0.0);
-        let t_max = m.peak_torque_nm();
-        let (torque_cmd, id_ref, th_e) = match self.mode {
-            Mode::Reference => (
-                self.motion.torque(r, theta_hat, omega_hat, self.t_s),
-                0.0,
-                p * est.theta_rad as f64,
-            ),
-            Mode::Speed { omega_rad_s } => (
-                self.speed_loop
-                    .torque((0.0, omega_rad_s, 0.0), 0.0, omega_hat, self.t_s),
-                0.0,
-                p * est.theta_rad as f64,
-            ),
-            Mode::Align { current_a } => (0.0, current_a, 0.0),
-            Mode::Off => (0.0, 0.0, 0.0),
-        };
-        let torque_cmd = torque_cmd.clamp(-t_max, t_max);
-        let iq_ref = torque_cmd / m.torque_constant_nm_a();
-
-        // 4. Current control in the estimated frame; the voltage acts during the next
-        //    period, so rotate it by the angle travelled until the middle of that period.
-        let (s, c) = th_e.sin_cos();
-        let id = c * i_meas[0] + s * i_meas[1];
-        let iq = -s * i_meas[0] + c * i_meas[1];
-        let wc = TAU * self.control.current_bandwidth_hz;
-        let (kp, ki) = (m.l_h * wc, m.r_ohm * wc);
-        let we_hat = p * omega_hat;
-        let (ed, eq) = (id_ref - id, iq_ref - iq);
-        self.id_int += ki * ed * self.t_s;
-        self.iq_int += ki * eq * self.t_s;
-        let mut vd = kp * ed + self.id_int - we_hat * m.l_h * iq;
-        let mut vq = kp * eq + self.iq_int + we_hat * (m.l_h * id + m.flux_wb);
-        let v_max = m.vdc_v / SQRT3;
-        let v = (vd * vd + vq * vq).sqrt();
-        if v > v_max {
-            // Saturate and stop integrating (anti-windup by back-calculation).
-            vd *= v_max / v;
-            vq *= v_max / v;
-            self.id_int -= ki * ed * self.t_s;
-            self.iq_int -= ki * eq * self.t_s;
-        }
-        let (s2, c2) = rotate((s, c), sin_cos_small(1.5 * we_hat * self.t_s));
-        let v_cmd = if self.mode == Mode::Off {
-            self.id_int = 0.0;
-            self.iq_int = 0.0;
-            [0.0; 2]
-        } else {
-            [c2 * vd - s2 * vq, s2 * vd + c2 * vq]
-        };
-        let open = self.mode == Mode::Off;
-
-        // 5. Plant over one period with the voltage commanded one period ago.
+        // MOE clears at once; a new enable acts with the next period's duties.
+        let mut open = !out.enable || !self.enabled || self.tripped;
         let c = &self.consts;
         let h = c.h_s;
         let load = self.load_torque_nm(t);
@@ -525,12 +382,21 @@ impl Drive {
             let we_flux = p * self.omega_rm * m.flux_wb;
             let e = [-we_flux * se, we_flux * ce];
             for (i, (v, e)) in self.i_ab.iter_mut().zip(self.v_ab_applied.iter().zip(e)) {
-                // Outputs off: open windings (the freewheel transient is not modelled).
+                // Bridge off: open windings (the freewheel transient is not modelled).
                 *i = if open {
                     0.0
                 } else {
                     (*i + c.h_over_l * (v - e)) * c.k_r
                 };
+            }
+            let [ia, ib] = self.i_ab;
+            let peak = ia
+                .abs()
+                .max((0.5 * ia - 0.5 * SQRT3 * ib).abs())
+                .max((0.5 * ia + 0.5 * SQRT3 * ib).abs());
+            if peak > self.break_level_a {
+                self.tripped = true;
+                open = true;
             }
             // T = 1.5·p·λ·(iβ cos θe - iα sin θe).
             let te = c.kt * (self.i_ab[1] * ce - self.i_ab[0] * se);
@@ -549,40 +415,52 @@ impl Drive {
             self.theta_rm += self.omega_rm * h;
             torque += te;
         }
-        self.v_ab_applied = v_cmd;
-        self.torque_cmd_nm = torque_cmd;
         self.last_torque_nm = torque / self.consts.substeps as f64;
+        self.enabled = out.enable;
+        self.v_ab_applied = if out.enable {
+            duties_to_ab(&out.duties, m.vdc_v)
+        } else {
+            [0.0; 2]
+        };
         self.k += 1;
-
-        DriveSample {
-            t_s: t,
-            theta_rad: theta_sampled,
-            omega_rad_s: omega_sampled,
-            theta_ref_rad: r.0,
-            x,
-            y,
-            torque_cmd_nm: torque_cmd,
-            torque_nm: self.last_torque_nm,
-            result,
-            estimate: est,
-        }
     }
+}
+
+/// Average-value inverter: the αβ voltage of three duty cycles on a DC link (the
+/// common mode does not reach a star-connected motor).
+pub fn duties_to_ab(d: &[f32; 3], vdc_v: f64) -> [f64; 2] {
+    let [a, b, c] = d.map(|x| x as f64 * vdc_v);
+    let mean = (a + b + c) / 3.0;
+    let (an, bn, cn) = (a - mean, b - mean, c - mean);
+    [an, (bn - cn) / SQRT3]
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rig::{self, ControlParams, Reference, Rig, Step};
     use crate::sensor::SensorParams;
-    use mras::sim::{SensorModel, SpatialError};
-    use mras::Config;
+    use drive::commissioning::{Adaptation, Setpoint};
+    use drive::control::ControlPeriod;
+    use drive::motion::LoopMode;
+    use drive::telemetry::Command;
+    use mras::sim::{Adc, SensorModel, SpatialError};
+    use mras::{Config, Tracker};
+    use std::f64::consts::TAU;
 
     const T_S: f64 = 50e-6;
 
     fn sensor(model: SensorModel) -> SensorSim {
-        SensorSim::new(SensorParams::exact(model), 1).unwrap()
+        let mut p = SensorParams::exact(model);
+        p.adc = Some(Adc {
+            bits: 12,
+            full_scale: 1.5,
+        });
+        SensorSim::new(p, 1).unwrap()
     }
 
-    fn drive(motor: MotorParams, model: SensorModel, speed_rev_s: f64) -> (Drive, Tracker) {
+    /// The plant under the firmware's control period, velocity loop, adaptation frozen.
+    fn drive(motor: MotorParams, model: SensorModel, speed_rev_s: f64, substeps: u32) -> Rig {
         let control = ControlParams {
             mode: LoopMode::Velocity,
             bandwidth_hz: 20.0,
@@ -600,36 +478,77 @@ mod tests {
             },
             ..Config::default()
         };
-        let mut t = Tracker::new(cfg).unwrap();
-        t.set_frozen(true);
         let j = motor.j_kg_m2;
-        (
-            Drive::new(motor, control, sensor(model), T_S, j).unwrap(),
-            t,
-        )
+        let plant = Plant::new(motor, sensor(model), T_S, 0.0)
+            .unwrap()
+            .with_substeps(substeps);
+        let d = rig::drive_config(&plant, &control, j, T_S).unwrap();
+        let period = ControlPeriod::new(d, Tracker::new(cfg).unwrap()).unwrap();
+        let mut r = Rig::new(plant, period, Some(control.reference));
+        r.command = Command {
+            setpoint: Setpoint::Application,
+            adaptation: Adaptation::Frozen,
+            ..Command::OFF
+        };
+        r
     }
 
-    fn run(d: &mut Drive, t: &mut Tracker, seconds: f64) -> Vec<DriveSample> {
-        (0..(seconds / T_S) as usize).map(|_| d.step(t)).collect()
+    fn run(d: &mut Rig, seconds: f64) -> Vec<Step> {
+        (0..(seconds / T_S) as usize).map(|_| d.step()).collect()
     }
 
+    /// 2 substeps against 16 on the plant alone: 6 V on the rotor's q axis from rest
+    /// (it runs up to its no-load speed) and a load step; angle and currents agree.
     #[test]
     fn substeps_converge() {
         let mut out = Vec::new();
         for n in [2, 16] {
-            let (d, mut t) = drive(MotorParams::default(), SensorModel::ideal(2), 20.0);
-            let mut d = d.with_substeps(n);
-            let s = run(&mut d, &mut t, 0.3);
-            out.push((s.last().unwrap().theta_rad, d.i_ab));
+            let m = MotorParams {
+                load_steps: vec![LoadStep {
+                    t_s: 0.15,
+                    torque_nm: 0.3,
+                }],
+                ..MotorParams::default()
+            };
+            let mut p = Plant::new(m, sensor(SensorModel::ideal(2)), T_S, 0.0)
+                .unwrap()
+                .with_substeps(n);
+            let vdc = p.motor.vdc_v;
+            for _ in 0..(0.3 / T_S) as usize {
+                // One period ahead, at the middle of the next period.
+                let th = 4.0 * (p.theta_rad() + 1.5 * T_S * p.omega_rad_s());
+                let (va, vb) = (-6.0 * th.sin(), 6.0 * th.cos());
+                let (duties, _) = drive::foc::svpwm(va as f32, vb as f32, vdc as f32);
+                p.advance(&drive::control::Output {
+                    duties,
+                    enable: true,
+                    supervisor_due: false,
+                });
+            }
+            out.push((p.theta_rad(), p.i_ab));
         }
         let (a, b) = (out[0], out[1]);
-        assert!((a.0 - b.0).abs() < 2e-5, "angle {} vs {}", a.0, b.0);
-        let i_scale = b.1[0].hypot(b.1[1]).max(0.1);
+        // 20 rad travelled open loop: 1e-5 of it.
+        assert!((a.0 - b.0).abs() < 2e-4, "angle {} vs {}", a.0, b.0);
+        let i_scale = b.1[0].hypot(b.1[1]);
+        assert!(i_scale > 1.0, "{b:?}");
         for k in 0..2 {
             assert!(
-                (a.1[k] - b.1[k]).abs() < 1e-3 * i_scale,
+                (a.1[k] - b.1[k]).abs() < 5e-3 * i_scale,
                 "current {a:?} vs {b:?}"
             );
+        }
+    }
+
+    #[test]
+    fn duties_become_the_commanded_voltage() {
+        // SVPWM duties of a vector reproduce it through the average-value inverter.
+        for k in 0..12 {
+            let th = k as f32 * 0.5;
+            let (va, vb) = (10.0 * th.cos(), 10.0 * th.sin());
+            let (d, _) = drive::foc::svpwm(va, vb, 48.0);
+            let v = duties_to_ab(&d, 48.0);
+            assert!((v[0] - va as f64).abs() < 1e-4 && (v[1] - vb as f64).abs() < 1e-4);
         }
     }
 
@@ -642,31 +561,28 @@ mod tests {
             }],
             ..MotorParams::default()
         };
-        let (mut d, mut t) = drive(m, SensorModel::ideal(2), 10.0);
-        let s = run(&mut d, &mut t, 1.0);
+        let mut d = drive(m, SensorModel::ideal(2), 10.0, SUBSTEPS);
+        let s = run(&mut d, 1.0);
         let last = s.last().unwrap();
-        assert!(
-            (last.omega_rad_s - 10.0 * TAU).abs() < 0.5,
-            "{}",
-            last.omega_rad_s
-        );
+        let w = last.truth.omega_rad_s;
+        assert!((w - 10.0 * TAU).abs() < 0.5, "{w}");
         // Steady state: electrical torque = load + viscous friction.
-        let expect = 0.5 + 1e-5 * last.omega_rad_s;
+        let expect = 0.5 + 1e-5 * w;
         assert!(
             (last.torque_nm - expect).abs() < 0.02,
             "{} vs {expect}",
             last.torque_nm
         );
-        assert!(s.iter().all(|x| x.result.is_ok()));
+        assert!(s.iter().all(|x| x.fault.is_none()));
     }
 
     /// Torque ripple spectrum vs θrm at constant speed: harmonic `k` amplitude (N·m).
     fn torque_ripple(m: MotorParams, model: SensorModel, k: u32) -> f64 {
-        let (mut d, mut t) = drive(m, model, 10.0);
-        let s = run(&mut d, &mut t, 1.5);
+        let mut d = drive(m, model, 10.0, SUBSTEPS);
+        let s = run(&mut d, 1.5);
         let mut e = SpatialError::<360>::new();
-        for x in s.iter().filter(|x| x.t_s > 0.5) {
-            e.add(x.theta_rad, x.torque_nm);
+        for x in s.iter().filter(|x| x.truth.t_s > 0.5) {
+            e.add(x.truth.theta_rad, x.torque_nm);
         }
         e.harmonic_amplitude_rad(k)
     }
@@ -707,14 +623,15 @@ mod tests {
     #[test]
     fn voltage_limit_caps_speed_without_blowing_up() {
         // Back-EMF at 48 V / √3 limits this motor to ~ 27.7 / (4·0.02) = 346 rad/s.
-        let (mut d, mut t) = drive(MotorParams::default(), SensorModel::ideal(2), 100.0);
-        let s = run(&mut d, &mut t, 1.5);
-        let last = s.last().unwrap();
-        assert!(
-            last.omega_rad_s.is_finite() && last.omega_rad_s < 360.0,
-            "{}",
-            last.omega_rad_s
+        let mut d = drive(
+            MotorParams::default(),
+            SensorModel::ideal(2),
+            100.0,
+            SUBSTEPS,
         );
-        assert!(last.omega_rad_s > 250.0, "{}", last.omega_rad_s);
+        let s = run(&mut d, 1.5);
+        let w = s.last().unwrap().truth.omega_rad_s;
+        assert!(w.is_finite() && w < 360.0, "{w}");
+        assert!(w > 250.0, "{w}");
     }
 }

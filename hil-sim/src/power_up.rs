@@ -1,20 +1,16 @@
-//! The `commissioning` scenario: the firmware's own power-up state machine
-//! (`drive::commissioning`) and flash record (`calib_record`, on a simulated flash)
-//! driving the simulated drive, for two power-ups: the first with an erased flash
-//! (self-commissioning, then store), the second with the stored calibration.
+//! The `commissioning` scenario: the firmware's control period and supervisor
+//! (`drive::control`, `drive::supervisor`, with its flash record on simulated pages)
+//! commissioning the simulated drive, for two power-ups: the first with an erased flash
+//! (self-commissioning, electrical alignment, store), the second with what the first one
+//! stored.
 
-use crate::drive::{Drive, Mode};
-use crate::scenario::{NamedCoefficient, Scenario, Window, WindowStats};
-use crate::sensor::SensorSim;
-use calib_record::{config_hash, RamFlash};
-use drive::commissioning::{
-    Adaptation, Cause, Commissioning, Inputs, LoadStatus, Request, Setpoint, State, StoreStatus,
-};
-use mras::Tracker;
+use crate::rig::{Rig, SimFlash, Step, Streamed};
+use crate::scenario::{NamedCoefficient, Probe, Scenario, Window, WindowStats};
+use calib_record::{config_hash, Alignment, RamFlash};
+use drive::commissioning::{Cause, State};
+use drive::supervisor::Supervisor;
+use drive::telemetry::Event;
 use std::f64::consts::TAU;
-
-/// The supervisor runs every this many control periods (1 kHz at 20 kHz, as on the MCU).
-pub const SUPERVISOR_DIVIDER: u64 = 20;
 
 /// What one power-up did.
 #[derive(Clone, Debug)]
@@ -31,8 +27,22 @@ pub struct Boot {
     /// Time adapting (Adapt state) and revolutions over it.
     pub adapt_s: Option<f64>,
     pub adapt_revs: Option<f64>,
+    /// Periods in which the control period latched a fault.
     pub faulted_samples: u32,
     pub coefficients: Vec<NamedCoefficient>,
+    /// The alignment in force at the end.
+    pub alignment: Alignment,
+    /// Over the Run window: the mean error of the electrical angle the control period
+    /// turns the current by (aligned, corrected estimate) against the rotor's true one.
+    pub run_angle_error_e_rad: Option<f64>,
+    /// Over the Run window: mean torque over mean current magnitude, relative to the
+    /// torque constant (1 when the current is all on the q axis), and the mean speed.
+    pub run_torque_per_amp: Option<f64>,
+    pub run_speed_rad_s: Option<f64>,
+    /// Control periods that did not run (CPU stalled by flash).
+    pub missed_periods: u64,
+    /// Records and events, with the time they came out.
+    pub streamed: Vec<(f64, Streamed)>,
 }
 
 impl Boot {
@@ -44,126 +54,129 @@ impl Boot {
     }
 }
 
-/// Run one power-up for `duration_s` on `flash`.
-pub fn boot(
+/// What an experiment does to the rig during a power-up, after each period.
+pub type Hook<'a> = &'a mut dyn FnMut(&mut Rig, &Step);
+
+/// The scenario's rig with the firmware's supervisor on `flash`.
+pub fn rig(sc: &Scenario, flash: SimFlash, seed: u64) -> Result<Rig, String> {
+    rig_with(sc, flash, seed, |_| {})
+}
+
+/// [`rig`] with the controller's configuration adjusted.
+pub fn rig_with(
     sc: &Scenario,
-    flash: &mut RamFlash,
+    flash: SimFlash,
     seed: u64,
-    duration_s: f64,
-) -> Result<Boot, String> {
+    adjust: impl FnOnce(&mut drive::control::DriveConfig),
+) -> Result<Rig, String> {
     let f = &sc.file;
     let c = f
         .commissioning
         .ok_or_else(|| format!("{}: no [commissioning] table", sc.origin))?;
     let cfg = sc.core_config(None)?;
-    let hash = config_hash(&cfg);
-    let mut tracker = Tracker::new(cfg).map_err(|e| e.to_string())?;
-    let t_s = sc.sample_period_s();
-    let motor = f.motor.to_params()?;
-    let j_hat = motor.j_kg_m2 * f.inertia_estimate_ratio;
-    let sensor = SensorSim::new(f.sensor.to_params()?, seed)?;
-    let mut drive = Drive::new(motor, f.control.to_params()?, sensor, t_s, j_hat)?;
-    let mut sm = Commissioning::new(c.params());
-    let n = f.sensor.sensor_periods as f64;
+    let rig = sc.rig_with(cfg, seed, adjust)?;
+    let d = rig.period.config();
+    let hash = config_hash(&cfg, d.motor.pole_pairs);
+    let rate_hz = (1.0 / sc.sample_period_s()).round() as u32;
+    let sup = Supervisor::new(c.params(), hash, rate_hz, d.supervisor_divider);
+    Ok(rig.with_supervisor(sup, flash))
+}
 
+/// Run one power-up for `duration_s` on `flash`; `hook` runs after every period.
+pub fn boot(
+    sc: &Scenario,
+    flash: SimFlash,
+    seed: u64,
+    duration_s: f64,
+    hook: Option<Hook>,
+) -> Result<(Boot, SimFlash), String> {
+    let mut rig = rig(sc, flash, seed)?;
+    let boot = run_boot(&mut rig, sc, duration_s, hook);
+    let flash = rig.into_flash().unwrap_or_default();
+    Ok((boot, flash))
+}
+
+/// Run a power-up on a rig made by [`rig`] or [`rig_with`].
+pub fn run_boot(rig: &mut Rig, sc: &Scenario, duration_s: f64, mut hook: Option<Hook>) -> Boot {
+    let t_s = sc.sample_period_s();
+    let probe = Probe::of(&rig.plant.sensor.params);
+    let kt = rig.plant.motor.torque_constant_nm_a();
     let steps = (duration_s / t_s).round() as u64;
-    let mut transitions = vec![(0.0, sm.state())];
-    let (mut load, mut store) = (LoadStatus::Pending, StoreStatus::Pending);
-    let (mut fault, mut faulted) = (None, 0u32);
+    let mut transitions = vec![(0.0, State::CheckSensor)];
+    let mut faulted = 0u32;
     // Spin-up error: the last complete 0.1 s slice before adaptation starts.
     const SLICE_S: f64 = 0.1;
     let (mut spin_slice, mut spin_up): (Option<(f64, Window)>, Option<Window>) = (None, None);
-    let mut run = Window::new(0.8 * duration_s, duration_s + t_s);
+    let run_from = 0.8 * duration_s;
+    let mut run = Window::new(run_from, duration_s + t_s);
+    let (mut torque_sum, mut amps_sum, mut speed_sum, mut run_n) = (0.0, 0.0, 0.0, 0u64);
+    let (mut err_sin, mut err_cos) = (0.0, 0.0);
+    let p = rig.plant.motor.pole_pairs as f64;
+    let k = (p / probe.sensor_periods) as f32;
     let mut adapt_start: Option<(f64, f64)> = None;
     let (mut adapt_s, mut adapt_revs) = (None, None);
-    let apply = |sm: &Commissioning, drive: &mut Drive, tracker: &mut Tracker| {
-        let o = sm.outputs();
-        drive.mode = match o.setpoint {
-            Setpoint::Off => Mode::Off,
-            Setpoint::Align { current_a } => Mode::Align {
-                current_a: current_a as f64,
-            },
-            Setpoint::Speed { omega_rad_s } => Mode::Speed {
-                omega_rad_s: omega_rad_s as f64,
-            },
-            Setpoint::Application => Mode::Reference,
-        };
-        tracker.set_frozen(o.adaptation == Adaptation::Frozen);
-    };
-    apply(&sm, &mut drive, &mut tracker);
-    for k in 0..steps {
-        let s = drive.step(&mut tracker);
-        if let Err(e) = s.result {
-            faulted += 1;
-            fault.get_or_insert(e);
+    // States as the supervisor published them (a flash operation delays its output).
+    let (mut state, mut seen) = (State::CheckSensor, 0);
+    for _ in 0..steps {
+        let s = rig.step();
+        faulted += s.fault.is_some() as u32;
+        for (_, item) in &rig.streamed()[seen..] {
+            match item {
+                Streamed::Event(Event::State { state: x, .. }) => state = *x,
+                Streamed::Event(Event::Fault { .. }) => state = State::Safe,
+                _ => {}
+            }
         }
-        match sm.state() {
+        seen = rig.streamed().len();
+        if transitions.last().map(|(_, x)| *x) != Some(state) {
+            transitions.push((s.truth.t_s, state));
+            if state == State::Adapt {
+                adapt_start = Some((s.truth.t_s, s.truth.theta_rad));
+            } else if let Some((t0, th0)) = adapt_start.take() {
+                adapt_s = Some(s.truth.t_s - t0);
+                adapt_revs = Some((s.truth.theta_rad - th0).abs() / TAU);
+            }
+        }
+        match state {
             State::SpinUp => {
-                let (t0, w) =
-                    spin_slice.get_or_insert_with(|| (s.t_s, Window::new(0.0, f64::INFINITY)));
-                if s.t_s - *t0 >= SLICE_S {
+                let (t0, w) = spin_slice
+                    .get_or_insert_with(|| (s.truth.t_s, Window::new(0.0, f64::INFINITY)));
+                if s.truth.t_s - *t0 >= SLICE_S {
                     spin_up = spin_slice.take().map(|(_, w)| w);
                 } else {
-                    w.add(&s, n);
+                    w.add(&s, &probe);
                 }
             }
-            State::Run => run.add(&s, n),
-            _ => {}
-        }
-        if (k + 1) % SUPERVISOR_DIVIDER != 0 {
-            continue;
-        }
-        let o = sm.outputs();
-        match o.request {
-            Request::LoadCalibration if load == LoadStatus::Pending => {
-                load = match calib_record::load(flash, hash) {
-                    Ok(l) if tracker.set_coefficients(&l.record.coefficients).is_ok() => {
-                        LoadStatus::Loaded
-                    }
-                    _ => LoadStatus::Unavailable,
-                }
-            }
-            Request::StoreCalibration if store == StoreStatus::Pending => {
-                store = match calib_record::store(flash, &tracker.coefficients(), hash) {
-                    Ok(_) => StoreStatus::Done,
-                    Err(_) => StoreStatus::Failed,
+            State::Run => {
+                run.add(&s, &probe);
+                if s.truth.t_s >= run_from {
+                    let i = rig.plant.currents_ab();
+                    torque_sum += s.torque_nm;
+                    amps_sum += i[0].hypot(i[1]);
+                    speed_sum += s.truth.omega_rad_s;
+                    run_n += 1;
+                    let a = rig.command.alignment;
+                    let th_e = drive::align::electrical_angle(&a, k, s.estimate.theta_e_rad);
+                    let e = th_e as f64 - p * s.truth.theta_rad;
+                    err_sin += e.sin();
+                    err_cos += e.cos();
                 }
             }
             _ => {}
         }
-        let conv = tracker.convergence();
-        let before = sm.state();
-        sm.step(&Inputs {
-            dt_s: (SUPERVISOR_DIVIDER as f64 * t_s) as f32,
-            fault: fault.take(),
-            overcurrent: false,
-            omega_rad_s: s.estimate.omega_rad_s,
-            converged: conv.converged,
-            residual_max_rad: conv.residual_rad[..conv.len as usize]
-                .iter()
-                .fold(0.0, |a, b| a.max(*b)),
-            load,
-            store,
-        });
-        if sm.state() != before {
-            transitions.push((s.t_s, sm.state()));
-            if sm.state() == State::Adapt {
-                adapt_start = Some((s.t_s, s.theta_rad));
-            }
-            if before == State::Adapt {
-                if let Some((t0, th0)) = adapt_start {
-                    adapt_s = Some(s.t_s - t0);
-                    adapt_revs = Some((s.theta_rad - th0).abs() / TAU);
-                }
-            }
-            apply(&sm, &mut drive, &mut tracker);
+        if let Some(h) = hook.as_mut() {
+            h(rig, &s);
         }
     }
-    let in_run = sm.state() == State::Run;
-    Ok(Boot {
-        final_state: sm.state(),
-        cause: sm.cause(),
-        loaded_from_flash: sm.calibration_loaded(),
+    let sup = rig.supervisor();
+    let final_state = sup.map_or(State::Safe, |p| p.state());
+    let alignment = sup.map_or(Alignment::IDENTITY, |p| p.alignment());
+    let in_run = final_state == State::Run;
+    let tracker = rig.period.tracker();
+    Boot {
+        final_state,
+        cause: sup.and_then(|p| p.cause()),
+        loaded_from_flash: sup.is_some_and(|p| p.calibration_loaded()),
         spin_up: spin_up.map(|w| w.stats()),
         run: in_run.then(|| run.stats()),
         adapt_s,
@@ -174,16 +187,60 @@ pub fn boot(
             .iter()
             .map(|(k, v)| (crate::scenario::path_name(k), v.re, v.im))
             .collect(),
+        alignment,
+        run_angle_error_e_rad: (in_run && run_n > 0).then(|| err_sin.atan2(err_cos)),
+        run_torque_per_amp: (in_run && run_n > 0 && amps_sum > 0.0)
+            .then(|| torque_sum / amps_sum / kt),
+        run_speed_rad_s: (in_run && run_n > 0).then(|| speed_sum / run_n as f64),
+        missed_periods: rig.missed_periods,
+        streamed: rig.streamed().to_vec(),
         transitions,
-    })
+    }
 }
 
 /// Both power-ups: erased flash, then the flash the first one left.
 pub fn run(sc: &Scenario, duration_s: f64) -> Result<(Boot, Boot), String> {
-    let mut flash = RamFlash::default();
-    let first = boot(sc, &mut flash, sc.file.seed, duration_s)?;
-    let second = boot(sc, &mut flash, sc.file.seed + 1, duration_s)?;
+    let flash = SimFlash::new(RamFlash::default());
+    let (first, flash) = boot(sc, flash, sc.file.seed, duration_s, None)?;
+    let (second, _) = boot(sc, flash, sc.file.seed + 1, duration_s, None)?;
     Ok((first, second))
+}
+
+/// The events of a power-up as text lines (state changes, faults, flash).
+pub fn event_lines(b: &Boot) -> Vec<String> {
+    b.streamed
+        .iter()
+        .filter_map(|(t, s)| match s {
+            Streamed::Event(e) => Some(format!("{t:8.3} s  {}", describe(e))),
+            Streamed::Record(_) => None,
+        })
+        .collect()
+}
+
+fn describe(e: &Event) -> String {
+    use drive::telemetry::cause_name;
+    match *e {
+        Event::State { state, .. } => state.name().to_string(),
+        Event::Fault { cause, state, .. } => {
+            format!("SAFE STATE: {} (in {})", cause_name(cause), state.name())
+        }
+        Event::Loaded { sequence, .. } => format!("calibration loaded (record {sequence})"),
+        Event::NotLoaded { reason, .. } => format!("no stored calibration ({reason})"),
+        Event::Stored { .. } => "calibration stored".into(),
+        Event::StoreFailed { reason, .. } => format!("store failed ({reason})"),
+        Event::Aligned {
+            offset_e_rad,
+            reversed,
+            ratio,
+            ..
+        } => format!(
+            "aligned: electrical offset {offset_e_rad:+.3} rad, {}, {ratio:.3} sensor periods per period",
+            if reversed { "reversed" } else { "forward" }
+        ),
+        Event::OffsetCorrected { offset_e_rad, .. } => {
+            format!("electrical offset moved onto the corrected angle: {offset_e_rad:+.3} rad")
+        }
+    }
 }
 
 /// The printed report.
@@ -193,24 +250,26 @@ pub fn report(sc: &Scenario, boots: &[(&str, &Boot)]) -> String {
     let _ = writeln!(s, "scenario {}: {}", sc.file.name, sc.file.description);
     for (title, b) in boots {
         let _ = writeln!(s, "  power-up {title}:");
-        for (t, st) in &b.transitions {
-            let _ = writeln!(s, "    {t:8.3} s  {}", st.name());
+        for line in event_lines(b) {
+            let _ = writeln!(s, "    {line}");
         }
-        match b.cause {
-            Some(c) => {
-                let _ = writeln!(s, "    SAFE STATE: {c:?}");
-            }
-            None => {
-                let _ = writeln!(
-                    s,
-                    "    calibration {}",
-                    if b.loaded_from_flash {
-                        "loaded from flash"
-                    } else {
-                        "commissioned and stored"
-                    }
-                );
-            }
+        if b.cause.is_none() {
+            let _ = writeln!(
+                s,
+                "    calibration {}",
+                if b.loaded_from_flash {
+                    "loaded from flash"
+                } else {
+                    "commissioned and stored"
+                }
+            );
+        }
+        if let Some(e) = b.run_angle_error_e_rad {
+            let _ = writeln!(
+                s,
+                "    electrical angle error in Run (mean, against the rotor): {:+.1} mrad electrical",
+                e * 1e3
+            );
         }
         if let (Some(t), Some(r)) = (b.adapt_s, b.adapt_revs) {
             let _ = writeln!(
@@ -235,7 +294,19 @@ pub fn report(sc: &Scenario, boots: &[(&str, &Boot)]) -> String {
                 w.estimate_rms_mrad
             );
         }
-        let _ = writeln!(s, "    faulted samples: {}", b.faulted_samples);
+        if let (Some(k), Some(w)) = (b.run_torque_per_amp, b.run_speed_rad_s) {
+            let _ = writeln!(
+                s,
+                "    Run: {:.2} rev/s, torque per amp {:.4} of the torque constant",
+                w / TAU,
+                k
+            );
+        }
+        let _ = writeln!(
+            s,
+            "    faulted periods: {}, missed control periods: {}",
+            b.faulted_samples, b.missed_periods
+        );
         let coefs: Vec<String> = b
             .coefficients
             .iter()

@@ -2,10 +2,13 @@
 //! scenario runs twice, the paper-literal law and ours, on the same drive and sensor.
 
 use crate::core_config::CoreConfigToml;
-use crate::drive::{
-    Cogging, ControlParams, Drive, DriveSample, LoadStep, LoopMode, MotorParams, Reference,
-};
-use crate::sensor::{Drift, SensorParams, SensorSim};
+use crate::plant::{Cogging, LoadStep, MotorParams, Plant};
+use crate::rig::{self, ControlParams, Reference, Rig, Step};
+use crate::sensor::{Drift, Mount, SensorParams, SensorSim};
+use drive::commissioning::{Adaptation, Setpoint};
+use drive::control::ControlPeriod;
+use drive::motion::LoopMode;
+use drive::telemetry::Command;
 use mras::sim::{wrap_pi, Adc, SensorHarmonic, SensorModel, SpatialError};
 use mras::{AdaptationLaw, Coefficients, Tracker};
 use serde::{Deserialize, Serialize};
@@ -141,6 +144,10 @@ pub struct SensorToml {
     pub drift: DriftToml,
     pub eccentricity_rad: f64,
     pub eccentricity_phase_deg: f64,
+    /// Mounting: the magnet's zero against the rotor's (mechanical degrees), and
+    /// whether the sensor turns against the motor's phase sequence.
+    pub mount_offset_deg: f64,
+    pub mount_reversed: bool,
 }
 
 impl Default for SensorToml {
@@ -160,6 +167,8 @@ impl Default for SensorToml {
             drift: DriftToml::default(),
             eccentricity_rad: 0.0,
             eccentricity_phase_deg: 0.0,
+            mount_offset_deg: 0.0,
+            mount_reversed: false,
         }
     }
 }
@@ -226,6 +235,10 @@ impl SensorToml {
             },
             eccentricity_rad: self.eccentricity_rad,
             eccentricity_phase_rad: self.eccentricity_phase_deg.to_radians(),
+            mount: Mount {
+                offset_rad: self.mount_offset_deg.to_radians(),
+                reversed: self.mount_reversed,
+            },
         };
         p.validate()?;
         Ok(p)
@@ -467,7 +480,8 @@ impl Scenario {
         f.sensor.to_params().map_err(err)?;
         f.motor.to_params().map_err(err)?;
         f.control.to_params().map_err(err)?;
-        self.core_config(None).map_err(err)?;
+        let cfg = self.core_config(None).map_err(err)?;
+        self.rig(cfg, f.seed).map_err(err)?;
         for c in &f.cases {
             c.sensor.to_params().map_err(err)?;
         }
@@ -497,6 +511,74 @@ impl Scenario {
 }
 
 // ---- running ----
+
+impl Scenario {
+    /// The scenario's plant with the firmware's control period on it (no supervisor:
+    /// the caller commands it), the core configured by `cfg`, sensor noise seeded by
+    /// `seed`.
+    pub fn rig(&self, cfg: mras::Config, seed: u64) -> Result<Rig, String> {
+        self.rig_with(cfg, seed, |_| {})
+    }
+
+    /// [`Scenario::rig`] with the controller's configuration adjusted (e.g. told a pole
+    /// count the motor does not have).
+    pub fn rig_with(
+        &self,
+        cfg: mras::Config,
+        seed: u64,
+        adjust: impl FnOnce(&mut drive::control::DriveConfig),
+    ) -> Result<Rig, String> {
+        let f = &self.file;
+        let t_s = self.sample_period_s();
+        let motor = f.motor.to_params()?;
+        let j_hat = motor.j_kg_m2 * f.inertia_estimate_ratio;
+        let sensor = SensorSim::new(f.sensor.to_params()?, seed)?;
+        let plant = Plant::new(motor, sensor, t_s, 0.0)?;
+        let control = f.control.to_params()?;
+        let mut dcfg = rig::drive_config(&plant, &control, j_hat, t_s)?;
+        adjust(&mut dcfg);
+        let tracker = Tracker::new(cfg).map_err(|e| e.to_string())?;
+        let period = ControlPeriod::new(dcfg, tracker).map_err(|e| e.to_string())?;
+        Ok(Rig::new(plant, period, Some(control.reference)))
+    }
+}
+
+/// How a sensor's reading relates to the rotor: its periods and mounting, for measuring
+/// the error of the raw sensor and of the estimate against the true rotor angle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Probe {
+    pub sensor_periods: f64,
+    pub mount: Mount,
+}
+
+impl Probe {
+    pub fn of(p: &SensorParams) -> Self {
+        Self {
+            sensor_periods: p.model.sensor_periods as f64,
+            mount: p.mount,
+        }
+    }
+
+    /// The magnet's angle for a rotor angle (mechanical).
+    fn magnet_rad(&self, theta_rad: f64) -> f64 {
+        if self.mount.reversed {
+            self.mount.offset_rad - theta_rad
+        } else {
+            self.mount.offset_rad + theta_rad
+        }
+    }
+
+    /// (raw sensor error, estimate error), mechanical rad, each within ±π/N: what one
+    /// sensor period cannot tell apart is removed.
+    pub fn errors_rad(&self, s: &Step) -> (f64, f64) {
+        let n = self.sensor_periods;
+        let truth = self.magnet_rad(s.truth.theta_rad);
+        let (x, y) = (s.truth.x as f64, s.truth.y as f64);
+        let raw = wrap_pi(y.atan2(x) - n * truth) / n;
+        let est = wrap_pi(n * (s.estimate.theta_unwrapped_rad() - truth)) / n;
+        (raw, est)
+    }
+}
 
 /// Which law a run uses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -578,14 +660,15 @@ impl Window {
         }
     }
 
-    pub(crate) fn add(&mut self, s: &DriveSample, n: f64) {
-        if s.t_s < self.from_s || s.t_s >= self.to_s {
+    pub(crate) fn add(&mut self, s: &Step, probe: &Probe) {
+        let t = s.truth.t_s;
+        if t < self.from_s || t >= self.to_s {
             return;
         }
-        let raw = wrap_pi((s.y as f64).atan2(s.x as f64) - n * s.theta_rad) / n;
-        self.raw.add(s.theta_rad, raw);
-        self.est.add(s.theta_rad, s.estimation_error_rad());
-        let e = s.tracking_error_rad();
+        let (raw, est) = probe.errors_rad(s);
+        self.raw.add(s.truth.theta_rad, raw);
+        self.est.add(s.truth.theta_rad, est);
+        let e = s.tracking_error_rad;
         self.track_min = self.track_min.min(e);
         self.track_max = self.track_max.max(e);
     }
@@ -661,13 +744,9 @@ pub fn run(
             Variant::Ours => None,
         };
     let cfg = sc.core_config(paper)?;
-    let mut tracker = Tracker::new(cfg).map_err(|e| e.to_string())?;
+    let mut rig = sc.rig(cfg, f.seed)?;
     let t_s = sc.sample_period_s();
-    let sensor = SensorSim::new(f.sensor.to_params()?, f.seed)?;
-    let motor = f.motor.to_params()?;
-    let j_hat = motor.j_kg_m2 * f.inertia_estimate_ratio;
-    let mut drive = Drive::new(motor, f.control.to_params()?, sensor, t_s, j_hat)?;
-    let n = f.sensor.sensor_periods as f64;
+    let probe = Probe::of(&rig.plant.sensor.params);
 
     let steps = (duration_s / t_s).round() as u64;
     let decim = (steps / MAX_ROWS).max(1);
@@ -677,38 +756,45 @@ pub fn run(
     let mut after = Window::new(0.8 * duration_s, duration_s + t_s);
     let mut rows = Vec::with_capacity((steps / decim + 1) as usize);
     let (mut faults, mut converged_at, mut theta_at_enable) = (0u32, None, None);
-    tracker.set_frozen(enable_s > 0.0);
+    // The application from the start; adaptation from `mras_enable_s` on.
+    rig.command = Command {
+        setpoint: Setpoint::Application,
+        ..Command::OFF
+    };
     for k in 0..steps {
         let t = k as f64 * t_s;
-        if tracker.is_frozen() && t >= enable_s {
-            tracker.set_frozen(false);
-        }
-        let s = drive.step(&mut tracker);
-        faults += s.result.is_err() as u32;
+        rig.command.adaptation = if t >= enable_s {
+            Adaptation::Commissioning
+        } else {
+            Adaptation::Frozen
+        };
+        let s = rig.step();
+        faults += s.fault.is_some() as u32;
         if let Some(w) = before.as_mut() {
-            w.add(&s, n);
+            w.add(&s, &probe);
         }
-        after.add(&s, n);
+        after.add(&s, &probe);
         if t >= enable_s {
-            let th0 = *theta_at_enable.get_or_insert(s.theta_rad);
-            if converged_at.is_none() && k % 64 == 0 && tracker.convergence().converged {
-                converged_at = Some((t - enable_s, (s.theta_rad - th0).abs() / TAU));
+            let th0 = *theta_at_enable.get_or_insert(s.truth.theta_rad);
+            if converged_at.is_none() && k % 64 == 0 && rig.period.tracker().convergence().converged
+            {
+                converged_at = Some((t - enable_s, (s.truth.theta_rad - th0).abs() / TAU));
             }
         }
         if k % decim == 0 {
             rows.push(Row {
                 t_s: t,
-                theta_rad: s.theta_rad,
+                theta_rad: s.truth.theta_rad,
                 theta_hat_rad: s.estimate.theta_unwrapped_rad(),
-                omega_rad_s: s.omega_rad_s,
+                omega_rad_s: s.truth.omega_rad_s,
                 omega_hat_rad_s: s.estimate.omega_rad_s as f64,
-                tracking_error_rad: s.tracking_error_rad(),
+                tracking_error_rad: s.tracking_error_rad,
                 torque_cmd_nm: s.torque_cmd_nm,
-                x: s.x,
-                y: s.y,
+                x: s.input.0,
+                y: s.input.1,
                 zd_x: s.estimate.decoupled.re,
                 zd_y: s.estimate.decoupled.im,
-                coefficients: tracker.coefficients(),
+                coefficients: rig.period.tracker().coefficients(),
             });
         }
         if progress && steps >= 200_000 && k % (steps / 10) == 0 && k > 0 {
@@ -722,6 +808,7 @@ pub fn run(
             );
         }
     }
+    let tracker = rig.period.tracker();
     let coefficients = tracker
         .coefficients()
         .iter()

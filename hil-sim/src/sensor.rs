@@ -29,6 +29,16 @@ pub struct SensorParams {
     /// Mechanical angle error `e·sin(θrm + φ)` of the magnet or code wheel (rad).
     pub eccentricity_rad: f64,
     pub eccentricity_phase_rad: f64,
+    /// How the sensor is mounted on the shaft.
+    pub mount: Mount,
+}
+
+/// The sensor's mounting: the magnet's angle is `dir·θrm + offset_rad` (mechanical),
+/// `dir = -1` when `reversed` (sensor on the other side, or X and Y swapped).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Mount {
+    pub offset_rad: f64,
+    pub reversed: bool,
 }
 
 impl SensorParams {
@@ -42,6 +52,7 @@ impl SensorParams {
             drift: Drift::default(),
             eccentricity_rad: 0.0,
             eccentricity_phase_rad: 0.0,
+            mount: Mount::default(),
         }
     }
 
@@ -63,6 +74,9 @@ impl SensorParams {
                 "`sensor.eccentricity_rad` = {}: must be within ±0.5 rad",
                 self.eccentricity_rad
             ));
+        }
+        if !self.mount.offset_rad.is_finite() {
+            return Err("`sensor.mount_offset_deg` must be finite".into());
         }
         if let Some(adc) = self.adc {
             if !(8..=24).contains(&adc.bits) || adc.full_scale.is_nan() || adc.full_scale <= 0.0 {
@@ -115,14 +129,20 @@ impl SensorSim {
         m
     }
 
-    /// The angle the sensing element sees (eccentricity included).
+    /// The angle the sensing element sees (mounting and eccentricity included).
     pub fn sensed_angle_rad(&self, theta_rm_rad: f64) -> f64 {
-        if self.params.eccentricity_rad == 0.0 {
-            return theta_rm_rad;
+        let p = &self.params;
+        let magnet = if p.eccentricity_rad == 0.0 {
+            theta_rm_rad
+        } else {
+            theta_rm_rad + p.eccentricity_rad * (theta_rm_rad + p.eccentricity_phase_rad).sin()
+        };
+        let m = &p.mount;
+        if m.reversed {
+            m.offset_rad - magnet
+        } else {
+            m.offset_rad + magnet
         }
-        theta_rm_rad
-            + self.params.eccentricity_rad
-                * (theta_rm_rad + self.params.eccentricity_phase_rad).sin()
     }
 
     /// Sample X at θ and Y at θ + ω·skew, add noise, quantise.

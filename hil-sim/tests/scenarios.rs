@@ -144,8 +144,9 @@ fn documented_example_parses() {
     assert!(sc.file.paper.is_some());
 }
 
-/// The firmware's power-up sequence end to end on the simulated drive: erased flash →
-/// every commissioning state in order → Run, stored; second power-up loads and runs.
+/// The firmware's control period and supervisor end to end on the simulated drive:
+/// erased flash → every commissioning state in order → Run, stored; second power-up
+/// loads and runs with the stored alignment.
 #[test]
 fn commissioning_scenario_commissions_stores_and_reloads() {
     use drive::commissioning::State::*;
@@ -158,6 +159,7 @@ fn commissioning_scenario_commissions_stores_and_reloads() {
             CheckSensor,
             LoadCalibration,
             Align,
+            Sweep,
             SpinUp,
             Adapt,
             Verify,
@@ -168,6 +170,14 @@ fn commissioning_scenario_commissions_stores_and_reloads() {
     assert_eq!(first.cause, None);
     assert!(!first.loaded_from_flash);
     assert_eq!(first.faulted_samples, 0);
+    assert_eq!((first.missed_periods, second.missed_periods), (0, 0));
+    // The scenario mounts its sensor reversed at 73°: the drive found it.
+    assert!(first.alignment.reversed);
+    assert_eq!(second.alignment, first.alignment);
+    for b in [&first, &second] {
+        assert!(b.run_angle_error_e_rad.unwrap().abs() < 0.02, "{b:?}");
+        assert!(b.run_torque_per_amp.unwrap() > 0.99);
+    }
     let run = first.run.as_ref().unwrap();
     assert!(
         run.raw_pk_pk_mrad / run.estimate_pk_pk_mrad > 100.0,

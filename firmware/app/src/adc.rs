@@ -3,16 +3,8 @@
 //! followed by the phase currents (JSQ2). RM0440 §21 "Analog-to-digital converters".
 
 use crate::board::pins;
+use drive::control::Sample;
 use stm32g4xx_hal::stm32::{ADC1, ADC12_COMMON, ADC2, RCC};
-
-/// One trigger's conversions, in counts.
-#[derive(Clone, Copy, Debug, Default, defmt::Format)]
-pub struct Sample {
-    pub x: u16,
-    pub y: u16,
-    pub ia: u16,
-    pub ib: u16,
-}
 
 pub struct Adcs {
     adc1: ADC1,
@@ -71,7 +63,8 @@ impl Adcs {
         Self { adc1, adc2 }
     }
 
-    /// Read the sequence and acknowledge the interrupt.
+    /// Read the sequence and acknowledge the interrupt (counts; the hardware flags of the
+    /// sample are the caller's).
     #[inline]
     pub fn read(&self) -> Sample {
         let s = Sample {
@@ -79,6 +72,8 @@ impl Adcs {
             ia: self.adc1.jdr2().read().jdata().bits(),
             y: self.adc2.jdr1().read().jdata().bits(),
             ib: self.adc2.jdr2().read().jdata().bits(),
+            overcurrent: false,
+            cycles: 0,
         };
         self.adc1
             .isr()

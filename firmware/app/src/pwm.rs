@@ -67,6 +67,19 @@ impl Pwm {
         self.tim.ccr3().write(|w| w.ccr().set(to_ccr(d[2])));
     }
 
+    /// The control period's output: duties and MOE.
+    #[inline]
+    pub fn apply(&self, out: &drive::control::Output) {
+        if out.enable {
+            self.set_duties(out.duties);
+            if !self.armed() {
+                self.arm();
+            }
+        } else {
+            self.disarm();
+        }
+    }
+
     /// Outputs on (MOE = 1). Refused while the break input is active.
     pub fn arm(&self) -> bool {
         if self.break_active() {

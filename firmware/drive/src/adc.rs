@@ -17,10 +17,13 @@ pub struct ChannelScaling {
     pub offset_counts: u16,
     /// Scaled units per count.
     pub gain: I2F30,
+    /// The converter's largest count (0 and this are the rails).
+    pub max_counts: u16,
 }
 
 impl ChannelScaling {
-    /// From a nominal amplitude: the counts that correspond to a unit vector.
+    /// From a nominal amplitude (the counts that correspond to a unit vector), for the
+    /// 12-bit converter.
     pub fn from_amplitude(offset_counts: u16, amplitude_counts: u16) -> Option<Self> {
         if amplitude_counts == 0 || offset_counts > ADC_MAX_COUNTS {
             return None;
@@ -31,6 +34,22 @@ impl ChannelScaling {
         Some(Self {
             offset_counts,
             gain,
+            max_counts: ADC_MAX_COUNTS,
+        })
+    }
+
+    /// From the size of one count in scaled units, for a converter of `bits` bits
+    /// (1..=16) with its zero at mid-scale. `None` if the count size is not
+    /// representable (≤ 0, ≥ 2, or not finite).
+    pub fn from_count_size(count_size: f64, bits: u8) -> Option<Self> {
+        if !((1..=16).contains(&bits) && count_size > 0.0 && count_size < 2.0) {
+            return None;
+        }
+        let max_counts = ((1u32 << bits) - 1) as u16;
+        Some(Self {
+            offset_counts: (1u32 << (bits - 1)) as u16,
+            gain: I2F30::checked_from_num(count_size)?,
+            max_counts,
         })
     }
 }
@@ -44,12 +63,13 @@ pub enum SampleError {
     OutOfRange,
 }
 
-/// Scale one channel; exact (a 13-bit signed difference times a 32-bit gain fits i64).
+/// Scale one channel; exact (a 17-bit signed difference times a 32-bit gain fits i64).
+#[inline]
 pub fn scale(counts: u16, s: &ChannelScaling) -> Result<f32, SampleError> {
-    if counts > ADC_MAX_COUNTS {
+    if counts > s.max_counts {
         return Err(SampleError::OutOfRange);
     }
-    if counts == 0 || counts == ADC_MAX_COUNTS {
+    if counts == 0 || counts == s.max_counts {
         return Err(SampleError::Railed);
     }
     let d = counts as i64 - s.offset_counts as i64;
@@ -60,6 +80,7 @@ pub fn scale(counts: u16, s: &ChannelScaling) -> Result<f32, SampleError> {
 }
 
 /// Scale the (X, Y) pair sampled at the same instant.
+#[inline]
 pub fn scale_pair(
     x_counts: u16,
     y_counts: u16,
@@ -107,5 +128,20 @@ mod tests {
         assert_eq!(scale_pair(100, 4095, &s, &s), Err(SampleError::Railed));
         assert!(ChannelScaling::from_amplitude(2048, 0).is_none());
         assert!(ChannelScaling::from_amplitude(5000, 100).is_none());
+    }
+
+    #[test]
+    fn count_size_scaling_is_exact_for_binary_fractions_and_checks_its_range() {
+        // 3/4096 (a ±1.5 range at 12 bits) is exact in I2F30: counts scale exactly.
+        let s = ChannelScaling::from_count_size(3.0 / 4096.0, 12).unwrap();
+        assert_eq!((s.offset_counts, s.max_counts), (2048, 4095));
+        assert_eq!(scale(2048 + 1365, &s), Ok((1365.0 * 3.0 / 4096.0) as f32));
+        assert_eq!(scale(4095, &s), Err(SampleError::Railed));
+        let s16 = ChannelScaling::from_count_size(1.0 / 16384.0, 16).unwrap();
+        assert_eq!(s16.max_counts, 65535);
+        assert_eq!(scale(65534, &s16), Ok(32766.0 / 16384.0));
+        assert!(ChannelScaling::from_count_size(0.0, 12).is_none());
+        assert!(ChannelScaling::from_count_size(f64::NAN, 12).is_none());
+        assert!(ChannelScaling::from_count_size(1e-3, 17).is_none());
     }
 }

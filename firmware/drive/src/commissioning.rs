@@ -1,15 +1,18 @@
 //! The power-up self-commissioning sequence, as a hardware-independent state machine.
 //!
-//! Check sensor health → load the stored calibration if valid (then run, with slow
-//! tracking if enabled) → otherwise align → spin up on the uncorrected sensor to the
-//! commissioning speed → adapt until converged or timeout → verify with the coefficients
-//! frozen → store → run. Any fault at any step ends in [`State::Safe`] (PWM outputs off)
-//! with its [`Cause`], until an explicit [`Commissioning::restart`].
+//! Check sensor health (and measure the current sensors' zero) → load the stored
+//! calibration if valid (then run, with slow tracking if enabled) → otherwise align the
+//! rotor → sweep the field open loop over one sensor period and back (the sensor's
+//! electrical offset and direction against the phase sequence, and a check of the
+//! pole-pair count) → spin up on the uncorrected sensor to the commissioning speed →
+//! adapt until converged or timeout → verify with the coefficients frozen → store →
+//! run. Any fault at any step ends in [`State::Safe`] (PWM outputs off) with its
+//! [`Cause`], until an explicit [`Commissioning::restart`].
 //!
-//! The firmware calls [`Commissioning::step`] periodically with what it measured and
-//! acts on the returned [`Outputs`]; hil-sim does the same with the simulated drive.
+//! [`crate::supervisor::Supervisor`] steps it with the control period's telemetry; the
+//! firmware and hil-sim both run that supervisor.
 
-use mras::Fault;
+use crate::telemetry::{Fault, SweepResult};
 
 /// Where the sequence is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -17,6 +20,7 @@ pub enum State {
     CheckSensor,
     LoadCalibration,
     Align,
+    Sweep,
     SpinUp,
     Adapt,
     Verify,
@@ -31,6 +35,7 @@ impl State {
             State::CheckSensor => "CheckSensor",
             State::LoadCalibration => "LoadCalibration",
             State::Align => "Align",
+            State::Sweep => "Sweep",
             State::SpinUp => "SpinUp",
             State::Adapt => "Adapt",
             State::Verify => "Verify",
@@ -45,21 +50,45 @@ impl State {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Cause {
     /// The core refused a sample or lost lock.
-    Sensor(Fault),
+    Sensor(mras::Fault),
+    /// An ADC count beyond the converter's range (misconfigured ADC).
+    AdcOutOfRange,
     /// Over-current (break input), reported by the hardware layer.
     OverCurrent,
+    /// The current sensors' zero, measured with the bridge off, is implausible.
+    CurrentSensor,
     /// Non-finite or negative time step: a bug in the caller, refused safely.
     BadInput,
     /// The state did not finish in time (spin-up speed not reached, no convergence).
     Timeout(State),
+    /// The rotor did not follow the alignment sweep (phase open, shaft locked, too
+    /// little current).
+    NoRotation,
+    /// The sensor turned by a different angle than one sensor period over the sweep:
+    /// the pole-pair count (or the sensor's period count) is wrong.
+    PolePairs,
     /// With the coefficients frozen, the residual error did not stay below the limit.
     VerifyFailed,
+    /// The core refused the stored coefficients although the record was intact.
+    LoadRefused,
     /// Writing the calibration to flash failed (the previous record is intact).
     StoreFailed,
     /// The independent watchdog reset the MCU (found in the reset flags at boot).
     Watchdog,
     /// A HardFault ended the previous run (found in the fault record at boot).
     HardFault,
+    /// A panic ended the previous run (found in the fault record at boot).
+    Panic,
+}
+
+impl From<Fault> for Cause {
+    fn from(f: Fault) -> Self {
+        match f {
+            Fault::Sensor(s) => Cause::Sensor(s),
+            Fault::AdcOutOfRange => Cause::AdcOutOfRange,
+            Fault::OverCurrent => Cause::OverCurrent,
+        }
+    }
 }
 
 /// Timing and limits of the sequence.
@@ -67,9 +96,13 @@ pub enum Cause {
 pub struct Params {
     /// The sensor must be healthy this long before anything moves.
     pub check_s: f32,
-    /// d-axis current and duration of the alignment.
+    /// d-axis current and duration of the alignment (and current of the sweep).
     pub align_current_a: f32,
     pub align_s: f32,
+    /// Duration of each direction of the alignment sweep (one sensor period forward,
+    /// then back), and how far the sensor's travel may be from one period (relative).
+    pub sweep_s: f32,
+    pub sweep_tolerance: f32,
     /// Commissioning speed (mechanical) and how close and how long ω̂ must be to it.
     pub speed_rad_s: f32,
     pub speed_tolerance: f32,
@@ -93,6 +126,8 @@ impl Default for Params {
             check_s: 0.05,
             align_current_a: 2.0,
             align_s: 0.3,
+            sweep_s: 0.4,
+            sweep_tolerance: 0.1,
             speed_rad_s: 20.0 * core::f32::consts::TAU,
             speed_tolerance: 0.1,
             speed_settle_s: 0.2,
@@ -114,6 +149,9 @@ pub enum LoadStatus {
     Loaded,
     /// No valid record (erased, corrupt, other configuration): commission.
     Unavailable,
+    /// An intact record the core refused: a bug or a configuration mismatch the hash
+    /// did not catch; safe state rather than overwriting it.
+    Refused,
 }
 
 /// What the hardware layer reports about a requested calibration store.
@@ -129,15 +167,20 @@ pub enum StoreStatus {
 pub struct Inputs {
     /// Time since the previous step (s).
     pub dt_s: f32,
-    /// A fault the core raised since the previous step, if any.
+    /// A fault the control period latched since the previous step, if any.
     pub fault: Option<Fault>,
-    pub overcurrent: bool,
+    /// The current sensors' zero is measured, and whether it is implausible.
+    pub currents_ready: bool,
+    pub currents_implausible: bool,
+    /// ω̂ in the motor's frame (mechanical).
     pub omega_rad_s: f32,
     pub converged: bool,
     /// Largest per-path residual (`Convergence::residual_rad`).
     pub residual_max_rad: f32,
     pub load: LoadStatus,
     pub store: StoreStatus,
+    /// The alignment sweep's result, once it finished.
+    pub sweep: Option<SweepResult>,
 }
 
 impl Default for Inputs {
@@ -145,12 +188,14 @@ impl Default for Inputs {
         Self {
             dt_s: 0.0,
             fault: None,
-            overcurrent: false,
+            currents_ready: true,
+            currents_implausible: false,
             omega_rad_s: 0.0,
             converged: false,
             residual_max_rad: f32::INFINITY,
             load: LoadStatus::Pending,
             store: StoreStatus::Pending,
+            sweep: None,
         }
     }
 }
@@ -162,6 +207,9 @@ pub enum Setpoint {
     Off,
     /// d-axis current at electrical angle 0, open loop: pulls the rotor to a known angle.
     Align { current_a: f32 },
+    /// d-axis current on a field turned open loop over one sensor period and back, in
+    /// `duration_s` each way: measures the alignment (`crate::align`).
+    Sweep { current_a: f32, duration_s: f32 },
     /// Closed-loop speed on the (uncorrected or corrected) estimate.
     Speed { omega_rad_s: f32 },
     /// The application's own motion control.
@@ -174,7 +222,8 @@ pub enum Adaptation {
     Frozen,
     /// Full-rate commissioning.
     Commissioning,
-    /// Slow tracking of drift in Run (the firmware lowers the gain).
+    /// Tracking of drift in Run, with the commissioning gain (the gates keep it to
+    /// steady, high-speed motion).
     Tracking,
 }
 
@@ -191,6 +240,11 @@ pub struct Outputs {
     pub setpoint: Setpoint,
     pub adaptation: Adaptation,
     pub request: Request,
+    /// Measure the current sensors' zero (bridge off, sensor check).
+    pub calibrate_currents: bool,
+    /// Measure how far the corrected angle sits from the raw one on average (at speed,
+    /// coefficients frozen), to move the alignment onto the corrected angle.
+    pub measure_shift: bool,
 }
 
 impl Outputs {
@@ -263,10 +317,8 @@ impl Commissioning {
         if self.state != State::Safe {
             if !(i.dt_s.is_finite() && i.dt_s >= 0.0) {
                 self.force_safe(Cause::BadInput);
-            } else if i.overcurrent {
-                self.force_safe(Cause::OverCurrent);
             } else if let Some(f) = i.fault {
-                self.force_safe(Cause::Sensor(f));
+                self.force_safe(f.into());
             } else {
                 self.in_state_s += i.dt_s;
                 let a = if self.params.speed_filter_s > 0.0 {
@@ -285,8 +337,12 @@ impl Commissioning {
         let p = self.params;
         match self.state {
             State::CheckSensor => {
-                if self.in_state_s >= p.check_s {
+                if i.currents_implausible {
+                    self.force_safe(Cause::CurrentSensor);
+                } else if self.in_state_s >= p.check_s && i.currents_ready {
                     self.go(State::LoadCalibration);
+                } else if self.in_state_s >= 10.0 * p.check_s {
+                    self.force_safe(Cause::Timeout(State::CheckSensor));
                 }
             }
             State::LoadCalibration => match i.load {
@@ -296,12 +352,25 @@ impl Commissioning {
                     self.go(State::Run);
                 }
                 LoadStatus::Unavailable => self.go(State::Align),
+                LoadStatus::Refused => self.force_safe(Cause::LoadRefused),
             },
             State::Align => {
                 if self.in_state_s >= p.align_s {
-                    self.go(State::SpinUp);
+                    self.go(State::Sweep);
                 }
             }
+            State::Sweep => match i.sweep {
+                Some(r) if r.ratio < 0.5 => self.force_safe(Cause::NoRotation),
+                Some(r) if libm::fabsf(r.ratio - 1.0) > p.sweep_tolerance => {
+                    self.force_safe(Cause::PolePairs)
+                }
+                Some(_) => self.go(State::SpinUp),
+                // Both directions plus their dwell, with margin.
+                None if self.in_state_s >= 3.0 * p.sweep_s + 1.0 => {
+                    self.force_safe(Cause::Timeout(State::Sweep))
+                }
+                None => {}
+            },
             State::SpinUp => {
                 let err = libm::fabsf(self.speed_lp_rad_s - p.speed_rad_s);
                 if err <= p.speed_tolerance * libm::fabsf(p.speed_rad_s) {
@@ -342,6 +411,9 @@ impl Commissioning {
     /// What the loops and the MRAS should do in the current state.
     pub fn outputs(&self) -> Outputs {
         let p = &self.params;
+        let speed = Setpoint::Speed {
+            omega_rad_s: p.speed_rad_s,
+        };
         let (setpoint, adaptation, request) = match self.state {
             State::CheckSensor => (Setpoint::Off, Adaptation::Frozen, Request::None),
             State::LoadCalibration => (Setpoint::Off, Adaptation::Frozen, Request::LoadCalibration),
@@ -352,30 +424,20 @@ impl Commissioning {
                 Adaptation::Frozen,
                 Request::None,
             ),
-            State::SpinUp => (
-                Setpoint::Speed {
-                    omega_rad_s: p.speed_rad_s,
+            State::Sweep => (
+                Setpoint::Sweep {
+                    current_a: p.align_current_a,
+                    duration_s: p.sweep_s,
                 },
                 Adaptation::Frozen,
                 Request::None,
             ),
-            State::Adapt => (
-                Setpoint::Speed {
-                    omega_rad_s: p.speed_rad_s,
-                },
-                Adaptation::Commissioning,
-                Request::None,
-            ),
-            State::Verify => (
-                Setpoint::Speed {
-                    omega_rad_s: p.speed_rad_s,
-                },
-                Adaptation::Frozen,
-                Request::None,
-            ),
-            // PWM off while storing: a flash page erase stalls code fetch from the same
-            // bank for ~20 ms, longer than the control loop may go without a period.
-            State::Store => (Setpoint::Off, Adaptation::Frozen, Request::StoreCalibration),
+            State::SpinUp => (speed, Adaptation::Frozen, Request::None),
+            State::Adapt => (speed, Adaptation::Commissioning, Request::None),
+            State::Verify => (speed, Adaptation::Frozen, Request::None),
+            // The calibration pages are in the flash bank the code does not run from
+            // (read-while-write): the control period keeps running through the erase.
+            State::Store => (speed, Adaptation::Frozen, Request::StoreCalibration),
             State::Run => (
                 Setpoint::Application,
                 if p.slow_tracking {
@@ -391,6 +453,8 @@ impl Commissioning {
             setpoint,
             adaptation,
             request,
+            calibrate_currents: self.state == State::CheckSensor,
+            measure_shift: self.state == State::Verify,
         }
     }
 }

@@ -1,5 +1,6 @@
-//! Field-oriented current control: Clarke/Park transforms, d/q PI regulators and
-//! space-vector PWM duties (min-max zero-sequence injection).
+//! Field-oriented current control: Clarke/Park transforms, the d/q current loop (PI
+//! with decoupling and back-EMF feed-forward, anti-windup) and space-vector PWM duties
+//! (min-max zero-sequence injection).
 
 const SQRT3: f32 = 1.732_050_8;
 const INV_SQRT3: f32 = 0.577_350_26;
@@ -29,7 +30,7 @@ pub fn svpwm(v_alpha: f32, v_beta: f32, vdc_v: f32) -> ([f32; 3], bool) {
     let v_max = vdc_v * INV_SQRT3;
     let mag2 = v_alpha * v_alpha + v_beta * v_beta;
     let (va, vb, limited) = if mag2 > v_max * v_max {
-        let k = v_max / libm::sqrtf(mag2);
+        let k = v_max * mras::inv_sqrt_f32(mag2);
         (v_alpha * k, v_beta * k, true)
     } else {
         (v_alpha, v_beta, false)
@@ -44,7 +45,7 @@ pub fn svpwm(v_alpha: f32, v_beta: f32, vdc_v: f32) -> ([f32; 3], bool) {
     (duty, limited)
 }
 
-/// A PI regulator with clamping anti-windup.
+/// A PI regulator; the caller stops its integrator while the output is limited.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Pi {
     pub kp: f32,
@@ -74,6 +75,74 @@ impl Pi {
 
     pub fn reset(&mut self) {
         self.integral = 0.0;
+    }
+}
+
+/// The motor as the current loop knows it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CurrentLoopParams {
+    pub r_ohm: f32,
+    pub l_h: f32,
+    /// Permanent-magnet flux linkage ψ (V·s).
+    pub flux_wb: f32,
+    pub vdc_v: f32,
+    pub bandwidth_hz: f32,
+}
+
+/// The d/q current loop in the rotor frame.
+///
+/// `v = PI(i* - i) + feed-forward`, the feed-forward being the cross-coupling and the
+/// back-EMF the PI would otherwise have to integrate: `vd_ff = -ωe·L·iq`,
+/// `vq_ff = ωe·(L·id + ψ)`. The voltage vector is limited to the linear SVPWM range
+/// `Vdc/√3`; in a limited period neither integrator moves (anti-windup), so the loop
+/// leaves the limit as soon as the error reverses.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CurrentLoop {
+    p: CurrentLoopParams,
+    d: Pi,
+    q: Pi,
+    v_max: f32,
+}
+
+impl CurrentLoop {
+    pub fn new(p: CurrentLoopParams) -> Self {
+        let pi = Pi::current_loop(p.r_ohm, p.l_h, p.bandwidth_hz);
+        Self {
+            p,
+            d: pi,
+            q: pi,
+            v_max: p.vdc_v * INV_SQRT3,
+        }
+    }
+
+    pub fn reset(&mut self) {
+        self.d.reset();
+        self.q.reset();
+    }
+
+    /// `(vd, vq, limited)` for the references and measured currents (A) at electrical
+    /// speed `we_rad_s`.
+    pub fn step(
+        &mut self,
+        (id_ref, iq_ref): (f32, f32),
+        (id, iq): (f32, f32),
+        we_rad_s: f32,
+        t_s: f32,
+    ) -> (f32, f32, bool) {
+        let (ed, eq) = (id_ref - id, iq_ref - iq);
+        let (d0, q0) = (self.d.integral, self.q.integral);
+        let l = self.p.l_h;
+        let vd = self.d.step(ed, t_s, false) - we_rad_s * l * iq;
+        let vq = self.q.step(eq, t_s, false) + we_rad_s * (l * id + self.p.flux_wb);
+        let mag2 = vd * vd + vq * vq;
+        if mag2 > self.v_max * self.v_max {
+            self.d.integral = d0;
+            self.q.integral = q0;
+            let k = self.v_max * mras::inv_sqrt_f32(mag2);
+            (vd * k, vq * k, true)
+        } else {
+            (vd, vq, false)
+        }
     }
 }
 
@@ -115,6 +184,47 @@ mod tests {
         }
         let (d, limited) = svpwm(100.0, 0.0, vdc);
         assert!(limited && d.iter().all(|x| (0.0..=1.0).contains(x)));
+    }
+
+    /// An R-L load with back-EMF under the loop: the current settles at the reference
+    /// with the feed-forward; at the voltage limit the integrators hold, so the current
+    /// follows a lowered reference at once instead of unwinding first.
+    #[test]
+    fn current_loop_settles_and_does_not_wind_up() {
+        let p = CurrentLoopParams {
+            r_ohm: 0.3,
+            l_h: 0.5e-3,
+            flux_wb: 0.02,
+            vdc_v: 24.0,
+            bandwidth_hz: 1000.0,
+        };
+        let mut c = CurrentLoop::new(p);
+        let dt = 50e-6;
+        let we = 200.0;
+        // Steady rotor-frame model: L di/dt = v - R i ∓ cross terms - back-EMF.
+        let run = |c: &mut CurrentLoop, iq_ref: f32, n: usize, i: &mut (f32, f32)| {
+            let mut limited_any = false;
+            for _ in 0..n {
+                let (vd, vq, lim) = c.step((0.0, iq_ref), *i, we, dt);
+                limited_any |= lim;
+                let did = (vd - p.r_ohm * i.0 + we * p.l_h * i.1) / p.l_h;
+                let diq = (vq - p.r_ohm * i.1 - we * (p.l_h * i.0 + p.flux_wb)) / p.l_h;
+                i.0 += did * dt;
+                i.1 += diq * dt;
+            }
+            limited_any
+        };
+        let mut i = (0.0, 0.0);
+        assert!(!run(&mut c, 2.0, 400, &mut i));
+        assert!((i.1 - 2.0).abs() < 0.02 && i.0.abs() < 0.02, "{i:?}");
+        // 100 A cannot be reached with 24 V: limited, integrators frozen.
+        assert!(run(&mut c, 100.0, 2000, &mut i));
+        let frozen = (c.d.integral, c.q.integral);
+        run(&mut c, 100.0, 100, &mut i);
+        assert_eq!(frozen, (c.d.integral, c.q.integral));
+        // Back to 2 A within 10 ms, with no integrator to unwind.
+        run(&mut c, 2.0, 200, &mut i);
+        assert!((i.1 - 2.0).abs() < 0.1, "{i:?}");
     }
 
     #[test]

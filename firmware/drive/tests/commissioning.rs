@@ -1,7 +1,8 @@
 //! Every transition and every fault path of the power-up sequence.
 
+use calib_record::Alignment;
 use drive::commissioning::*;
-use mras::Fault;
+use drive::telemetry::{Fault, SweepResult};
 
 const DT: f32 = 1e-3;
 
@@ -39,13 +40,25 @@ fn run_until(
     }
 }
 
-/// A responsive hardware layer: no calibration in flash, store succeeds, converges after
-/// 0.5 s of adaptation.
+/// A sweep that found the pole pairs right.
+fn swept(ratio: f32) -> Option<SweepResult> {
+    Some(SweepResult {
+        ratio,
+        alignment: Alignment {
+            offset_e_rad: 0.4,
+            reversed: true,
+        },
+    })
+}
+
+/// A responsive hardware layer: no calibration in flash, the sweep done at once, store
+/// succeeds, converges as soon as adaptation runs.
 fn hardware(c: &Commissioning) -> Inputs {
     let mut i = healthy();
     i.load = LoadStatus::Unavailable;
     i.store = StoreStatus::Done;
     i.converged = c.state() == State::Adapt;
+    i.sweep = (c.state() == State::Sweep).then_some(swept(1.02)).flatten();
     i
 }
 
@@ -79,6 +92,7 @@ fn full_sequence_without_calibration() {
             CheckSensor,
             LoadCalibration,
             Align,
+            Sweep,
             SpinUp,
             Adapt,
             Verify,
@@ -131,10 +145,12 @@ fn outputs_per_state() {
             Request::LoadCalibration,
         ),
         (Align, true, Adaptation::Frozen, Request::None),
+        (Sweep, true, Adaptation::Frozen, Request::None),
         (SpinUp, true, Adaptation::Frozen, Request::None),
         (Adapt, true, Adaptation::Commissioning, Request::None),
         (Verify, true, Adaptation::Frozen, Request::None),
-        (Store, false, Adaptation::Frozen, Request::StoreCalibration),
+        // The control period runs through the flash erase: the drive holds its speed.
+        (Store, true, Adaptation::Frozen, Request::StoreCalibration),
         (Run, true, Adaptation::Tracking, Request::None),
     ] {
         let o = drive_to(state).outputs();
@@ -146,8 +162,74 @@ fn outputs_per_state() {
         matches!(drive_to(Align).outputs().setpoint, Setpoint::Align { current_a } if current_a > 0.0)
     );
     assert!(
+        matches!(drive_to(Sweep).outputs().setpoint, Setpoint::Sweep { current_a, duration_s } if current_a > 0.0 && duration_s > 0.0)
+    );
+    assert!(
         matches!(drive_to(SpinUp).outputs().setpoint, Setpoint::Speed { omega_rad_s } if omega_rad_s > 0.0)
     );
+    // Only the sensor check measures the current sensors' zero (bridge off).
+    assert!(Commissioning::new(params()).outputs().calibrate_currents);
+    assert!(!drive_to(Align).outputs().calibrate_currents);
+}
+
+#[test]
+fn the_sensor_check_waits_for_the_current_zero_and_refuses_a_broken_one() {
+    let mut c = Commissioning::new(params());
+    let waiting = Inputs {
+        currents_ready: false,
+        ..healthy()
+    };
+    for _ in 0..(3.0 * params().check_s / DT) as usize {
+        c.step(&waiting);
+    }
+    assert_eq!(c.state(), State::CheckSensor);
+    run_until(&mut c, State::Safe, 1.0, |_| waiting);
+    assert_eq!(c.cause(), Some(Cause::Timeout(State::CheckSensor)));
+
+    let mut c = Commissioning::new(params());
+    c.step(&Inputs {
+        currents_implausible: true,
+        ..healthy()
+    });
+    assert_eq!(c.cause(), Some(Cause::CurrentSensor));
+}
+
+#[test]
+fn the_sweep_checks_rotation_and_pole_pairs() {
+    for (ratio, cause) in [
+        (0.0, Some(Cause::NoRotation)),
+        (0.3, Some(Cause::NoRotation)),
+        (0.75, Some(Cause::PolePairs)),
+        (4.0 / 3.0, Some(Cause::PolePairs)),
+        (0.95, None),
+        (1.08, None),
+    ] {
+        let mut c = drive_to(State::Sweep);
+        c.step(&Inputs {
+            sweep: swept(ratio),
+            ..healthy()
+        });
+        assert_eq!(c.cause(), cause, "ratio {ratio}");
+        if cause.is_none() {
+            assert_eq!(c.state(), State::SpinUp);
+        }
+    }
+    // No result: waits, then times out.
+    let mut c = drive_to(State::Sweep);
+    let p = params();
+    run_until(&mut c, State::Safe, 3.0 * p.sweep_s + 1.1, |_| healthy());
+    assert_eq!(c.cause(), Some(Cause::Timeout(State::Sweep)));
+}
+
+#[test]
+fn a_refused_load_ends_safe() {
+    let mut c = Commissioning::new(params());
+    run_until(&mut c, State::LoadCalibration, 1.0, |_| healthy());
+    c.step(&Inputs {
+        load: LoadStatus::Refused,
+        ..healthy()
+    });
+    assert_eq!(c.cause(), Some(Cause::LoadRefused));
 }
 
 #[test]
@@ -164,16 +246,19 @@ fn sensor_check_waits_its_time() {
 fn every_fault_in_every_state_ends_safe_with_its_cause() {
     use State::*;
     let faults = [
-        Fault::NonFiniteInput,
-        Fault::SensorLost,
-        Fault::SensorSaturated,
-        Fault::LossOfLock,
-        Fault::NumericalOverflow,
+        Fault::Sensor(mras::Fault::NonFiniteInput),
+        Fault::Sensor(mras::Fault::SensorLost),
+        Fault::Sensor(mras::Fault::SensorSaturated),
+        Fault::Sensor(mras::Fault::LossOfLock),
+        Fault::Sensor(mras::Fault::NumericalOverflow),
+        Fault::AdcOutOfRange,
+        Fault::OverCurrent,
     ];
     for state in [
         CheckSensor,
         LoadCalibration,
         Align,
+        Sweep,
         SpinUp,
         Adapt,
         Verify,
@@ -187,15 +272,9 @@ fn every_fault_in_every_state_ends_safe_with_its_cause() {
                 ..hardware(&c)
             });
             assert_eq!(c.state(), Safe, "{state:?} {f:?}");
-            assert_eq!(c.cause(), Some(Cause::Sensor(f)));
+            assert_eq!(c.cause(), Some(Cause::from(f)));
             assert_eq!(o.setpoint, Setpoint::Off);
         }
-        let mut c = drive_to(state);
-        c.step(&Inputs {
-            overcurrent: true,
-            ..hardware(&c)
-        });
-        assert_eq!(c.cause(), Some(Cause::OverCurrent), "{state:?}");
         for dt in [f32::NAN, f32::INFINITY, -1e-3] {
             let mut c = drive_to(state);
             c.step(&Inputs {
@@ -296,7 +375,7 @@ fn store_waits_then_fails_or_succeeds() {
 fn safe_is_sticky_until_restart_and_boot_faults_force_it() {
     let mut c = drive_to(State::Adapt);
     c.step(&Inputs {
-        overcurrent: true,
+        fault: Some(Fault::OverCurrent),
         ..healthy()
     });
     for _ in 0..100 {
@@ -307,7 +386,7 @@ fn safe_is_sticky_until_restart_and_boot_faults_force_it() {
     c.restart();
     assert_eq!((c.state(), c.cause()), (State::CheckSensor, None));
 
-    for cause in [Cause::Watchdog, Cause::HardFault] {
+    for cause in [Cause::Watchdog, Cause::HardFault, Cause::Panic] {
         let mut c = Commissioning::new(params());
         c.force_safe(cause);
         assert_eq!(c.state(), State::Safe);

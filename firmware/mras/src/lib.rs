@@ -32,4 +32,4 @@ pub use config::{
 };
 pub use health::{Fault, Faults};
 pub use tracker::{Estimate, Tracker};
-pub use trig::{sin_cos_f32, sqrt_f32, F32Trig, LibmTrig, Trig};
+pub use trig::{inv_sqrt_f32, sin_cos_f32, sqrt_f32, F32Trig, LibmTrig, Trig};

@@ -124,6 +124,11 @@ impl<T: Trig> Tracker<T> {
         &self.gains
     }
 
+    /// The trigonometry the core uses, for callers that must use the same (FOC).
+    pub fn trig(&self) -> &T {
+        &self.trig
+    }
+
     /// One control period: raw ADC values and the torque feedforward T* (N·m).
     ///
     /// On `Err` for bad input (non-finite, |Z| out of band, railed ADC) nothing but the

@@ -31,9 +31,14 @@ pub mod report;
 pub mod stats;
 
 use crate::baselines::{constant_speed_reference, Corrector, Ellipse, Lut, MinMax, Raw};
-use crate::drive::{Cogging, ControlParams, Drive, LoadStep, LoopMode, Mode, MotorParams};
+use crate::plant::{Cogging, LoadStep, MotorParams, Plant};
+use crate::rig::{self, ControlParams, Rig};
 use crate::sensor::SensorSim;
 use crate::Law;
+use drive::commissioning::{Adaptation, Setpoint};
+use drive::control::ControlPeriod;
+use drive::motion::LoopMode;
+use drive::telemetry::Command;
 use mras::sim::{wrap_pi, SpatialError};
 use mras::{Config, Estimate, Fault, PathKind, Tracker};
 use std::f64::consts::TAU;
@@ -313,6 +318,16 @@ fn decoupled_angle(result: &Result<Estimate, Fault>, last: &Estimate) -> Option<
     Some((zd.im as f64).atan2(zd.re as f64))
 }
 
+/// The result of the rig's own tracker in a period, as a passenger's step returns it.
+fn rig_result(s: &rig::Step) -> Result<Estimate, Fault> {
+    match s.fault {
+        None => Ok(s.estimate),
+        Some(drive::telemetry::Fault::Sensor(f)) => Err(f),
+        // ADC range or over-current: no usable sample.
+        Some(_) => Err(Fault::SensorSaturated),
+    }
+}
+
 /// The sensor from `start_s` on: the same sensor, its drift starting at `start_s` (the
 /// simulated sensor drifts from t = 0, so the model is shifted back by the drift up to
 /// `start_s`; a fresh noise stream, still seeded).
@@ -419,18 +434,24 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult, String
         mode: LoopMode::Velocity,
         bandwidth_hz: plan.speed_loop_hz,
         current_bandwidth_hz: 1000.0,
-        // Unused: the run commands `Mode::Speed` phase by phase.
-        reference: crate::drive::Reference::Ramp {
+        // Unused: the run commands the speed loop phase by phase.
+        reference: rig::Reference::Ramp {
             speed_rev_s: 0.0,
             accel_rad_s2: 1.0,
         },
     };
     let sensor = SensorSim::new(case.params.clone(), case.noise_seed)?;
-    let mut drive = Drive::new(motor, control, sensor, SAMPLE_PERIOD_S, j)?;
+    let plant = Plant::new(motor, sensor, SAMPLE_PERIOD_S, 0.0)?;
+    let dcfg = rig::drive_config(&plant, &control, j, SAMPLE_PERIOD_S)?;
+    let period = ControlPeriod::new(
+        dcfg,
+        Tracker::new(tracker_config(Method::Ours, j)?).map_err(|e| e.to_string())?,
+    )
+    .map_err(|e| e.to_string())?;
+    let mut drive = Rig::new(plant, period, None);
     let new_tracker = |m| -> Result<Tracker, String> {
         Tracker::new(tracker_config(m, j)?).map_err(|e| e.to_string())
     };
-    let mut ours = new_tracker(Method::Ours)?;
     let mut passengers = [
         new_tracker(Method::Paper)?,
         new_tracker(Method::OursPaperBank)?,
@@ -456,40 +477,49 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult, String
     for (pi, phase) in plan.phases.iter().enumerate() {
         let commissioning = pi == 0;
         if phase.kind == PhaseKind::Drift {
-            drive.sensor = drifting_sensor(case, drive.time_s())?;
+            drive.plant.sensor = drifting_sensor(case, drive.plant.time_s())?;
         }
         let target = phase.speed_rev_s * TAU;
         let mut acc: Vec<Accumulator> = (0..Method::COUNT).map(|_| Accumulator::new()).collect();
-        let skew_s = drive.sensor.params.skew_s;
-        let mut model = drive.sensor.model_at(drive.time_s());
+        let skew_s = drive.plant.sensor.params.skew_s;
+        let mut model = drive.plant.sensor.model_at(drive.plant.time_s());
         for k in 0..steps(phase.duration_s) {
             let t_rel = k as f64 * SAMPLE_PERIOD_S;
             let after_settle = t_rel >= phase.settle_s;
-            drive.mode = Mode::Speed {
-                omega_rad_s: ramp(speed_rad_s, target, phase.accel_rad_s2, t_rel),
-            };
             let frozen = commissioning && !after_settle;
-            ours.set_frozen(frozen);
+            drive.command = Command {
+                setpoint: Setpoint::Speed {
+                    omega_rad_s: ramp(speed_rad_s, target, phase.accel_rad_s2, t_rel) as f32,
+                },
+                adaptation: if frozen {
+                    Adaptation::Frozen
+                } else {
+                    Adaptation::Commissioning
+                },
+                ..Command::OFF
+            };
             for p in &mut passengers {
                 p.set_frozen(frozen);
             }
 
-            let s = drive.step(&mut ours);
+            let s = drive.step();
+            let (x, y) = s.input;
             let results = [
-                s.result,
-                passengers[0].step(s.x, s.y, torque_in_force),
-                passengers[1].step(s.x, s.y, torque_in_force),
+                rig_result(&s),
+                passengers[0].step(x, y, torque_in_force),
+                passengers[1].step(x, y, torque_in_force),
             ];
             torque_in_force = s.torque_cmd_nm as f32;
+            let theta_rad = s.truth.theta_rad;
             for (r, res) in runs.iter_mut().zip(&results) {
                 r.record(pi, res);
             }
 
             if !frozen {
                 // Revolutions travelled, not net: a reversal must not count backwards.
-                let last = theta_adapt.replace(s.theta_rad).unwrap_or(s.theta_rad);
-                travelled_rad += (s.theta_rad - last).abs();
-                let trackers = [&ours, &passengers[0], &passengers[1]];
+                let last = theta_adapt.replace(theta_rad).unwrap_or(theta_rad);
+                travelled_rad += (theta_rad - last).abs();
+                let trackers = [drive.period.tracker(), &passengers[0], &passengers[1]];
                 for (r, t) in runs.iter_mut().zip(trackers) {
                     if r.outcome.converged_revs.is_none() && t.convergence().converged {
                         r.outcome.converged_revs = Some(travelled_rad / TAU);
@@ -499,7 +529,7 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult, String
             }
             if commissioning {
                 if after_settle {
-                    record.push((s.x, s.y, s.theta_rad));
+                    record.push((x, y, theta_rad));
                 }
                 continue;
             }
@@ -507,12 +537,12 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult, String
                 continue;
             }
 
-            let theta_s = n * s.theta_rad;
+            let theta_s = n * theta_rad;
             for (m, c) in &offline {
-                acc[m.index()].add(theta_s, c.angle_rad(s.x, s.y));
+                acc[m.index()].add(theta_s, c.angle_rad(x, y));
             }
             let lasts = [
-                ours.last_estimate(),
+                drive.period.tracker().last_estimate(),
                 passengers[0].last_estimate(),
                 passengers[1].last_estimate(),
             ];
@@ -522,13 +552,11 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult, String
                 }
             }
             if phase.kind == PhaseKind::Drift {
-                model = drive.sensor.model_at(s.t_s);
+                model = drive.plant.sensor.model_at(s.truth.t_s);
             }
-            let skew_e_rad = n * s.omega_rad_s * skew_s;
-            acc[Method::Oracle.index()].add(
-                theta_s,
-                oracle_angle_rad(&model, skew_e_rad, s.x, s.y, theta_s),
-            );
+            let skew_e_rad = n * s.truth.omega_rad_s * skew_s;
+            acc[Method::Oracle.index()]
+                .add(theta_s, oracle_angle_rad(&model, skew_e_rad, x, y, theta_s));
         }
         speed_rad_s = target;
 

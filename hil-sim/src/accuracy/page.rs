@@ -7,7 +7,7 @@ use super::{
     Method, PhaseKind, Plan, BINS, DISTRIBUTION, SAMPLE_PERIOD_S, SENSOR_PERIODS,
     SPECTRUM_HARMONICS, SPECTRUM_PHASE,
 };
-use crate::drive::MotorParams;
+use crate::plant::MotorParams;
 use mras::Config;
 use std::fmt::Write as _;
 

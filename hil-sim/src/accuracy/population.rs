@@ -1,7 +1,7 @@
 //! The random sensor population: a documented distribution and its seeded generator.
 
 use super::SENSOR_PERIODS;
-use crate::sensor::{Drift, SensorParams};
+use crate::sensor::{Drift, Mount, SensorParams};
 use mras::sim::{Adc, SensorHarmonic, SensorModel};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -102,6 +102,7 @@ pub fn draw_sensor(seed: u64, index: usize) -> SensorCase {
             drift: Drift::default(),
             eccentricity_rad: 0.0,
             eccentricity_phase_rad: 0.0,
+            mount: Mount::default(),
         },
         drift,
         noise_seed,

@@ -1,0 +1,227 @@
+//! The electrical alignment: where the rotor's electrical zero lies in the sensor's
+//! angle, and which way the sensor turns against the phase sequence.
+//!
+//! The FOC angle is `θe = dir·(p/N)·θ̂s + offset_e` (p pole pairs, N sensor periods per
+//! revolution, θ̂s the sensor-electrical estimate). With `N | p` a sensor period holds a
+//! whole number of electrical periods, so the turn the sensor cannot tell apart (2π/N
+//! mechanical) is a whole number of electrical turns and drops out.
+//!
+//! After the rotor has been pulled to θe = 0 (Align), the field is turned open loop with
+//! d-axis current over exactly one sensor period, `2π·p/N` electrical, held, and turned
+//! back, each way with a raised-cosine angle profile. Measured:
+//! - the sensor's travel over the forward sweep, at rest after the hold: `±2π` when p and
+//!   N are right (its sign is the direction); the sensor's error is the same at both ends
+//!   (one whole period apart), so it cancels;
+//! - the offset, as the mean of `θ_cmd - dir·(p/N)·θ̂s` weighted by the commanded angle
+//!   step: a uniform average over one sensor period, so the sensor's harmonic errors
+//!   average out, and over both directions, so the rotor's and the observer's lag behind
+//!   the field cancel.
+//!
+//! The sweep runs on the raw sensor, so its offset holds the raw angle's mean error over
+//! a period. The decoupling paths move the corrected angle's mean (the C/D path, for one,
+//! corrects quadrature on X alone), so after adaptation [`ShiftMeter`] measures the mean
+//! of `arg Zd - arg Z` at speed and the offset is moved by it onto the corrected angle.
+
+use crate::telemetry::SweepResult;
+use calib_record::Alignment;
+use core::f32::consts::{PI, TAU};
+
+/// The hold at each end, as a fraction of one direction's duration: the rotor settles
+/// before the forward travel is read.
+const HOLD_FRACTION: f32 = 0.25;
+
+/// Wrap an angle into [-π, π] (nearest whole turn removed; exact for |x| < 1e4 rad).
+#[inline]
+pub fn wrap_pi(x: f32) -> f32 {
+    let t = x * (1.0 / TAU);
+    // `as` truncates toward zero: add ±0.5 for the nearest integer.
+    let n = if t >= 0.0 {
+        (t + 0.5) as i32
+    } else {
+        (t - 0.5) as i32
+    };
+    x - n as f32 * TAU
+}
+
+/// The electrical angle of the rotor from the sensor-electrical estimate.
+#[inline]
+pub fn electrical_angle(a: &Alignment, electrical_per_sensor: f32, theta_s_rad: f32) -> f32 {
+    let k = if a.reversed {
+        -electrical_per_sensor
+    } else {
+        electrical_per_sensor
+    };
+    wrap_pi(k * theta_s_rad + a.offset_e_rad)
+}
+
+/// One sweep in progress.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Sweep {
+    t_s: f32,
+    last_cmd_rad: f32,
+    /// θ̂s (absolute, [0, 2π)) and θ̂ unwrapped (mechanical) at the start.
+    start: Option<(f32, f32)>,
+    forward_rad: Option<f32>,
+    sum_w: f32,
+    sum_w_cmd: f32,
+    sum_w_s: f32,
+    result: Option<SweepResult>,
+}
+
+impl Sweep {
+    /// The result, once both directions are done.
+    pub fn result(&self) -> Option<SweepResult> {
+        self.result
+    }
+
+    /// Commanded electrical angle at this period, and the measurement of the sensor's
+    /// state at it: `theta_e_rad` (θ̂s in [0, 2π)) and `theta_unwrapped_rad` (mechanical,
+    /// continuous, from the estimate of this period).
+    ///
+    /// `cos` is the caller's cosine (the control period's trigonometry), `k` is p/N.
+    #[allow(clippy::too_many_arguments)]
+    pub fn step(
+        &mut self,
+        duration_s: f32,
+        dt_s: f32,
+        k: f32,
+        sensor_periods: f32,
+        theta_e_rad: f32,
+        theta_unwrapped_rad: f32,
+        cos: impl Fn(f32) -> f32,
+    ) -> f32 {
+        let span = TAU * k;
+        let hold = HOLD_FRACTION * duration_s;
+        let t = self.t_s;
+        self.t_s += dt_s;
+        let (s0_abs, s0_mech) = *self.start.get_or_insert((theta_e_rad, theta_unwrapped_rad));
+        // Sensor-electrical travel since the start.
+        let s_rel = sensor_periods * (theta_unwrapped_rad - s0_mech);
+        let back_start = duration_s + hold;
+        let cmd = if t < duration_s {
+            0.5 * span * (1.0 - cos(PI * t / duration_s))
+        } else if t < back_start {
+            span
+        } else if t < back_start + duration_s {
+            0.5 * span * (1.0 + cos(PI * (t - back_start) / duration_s))
+        } else {
+            0.0
+        };
+        if t >= back_start && self.forward_rad.is_none() {
+            self.forward_rad = Some(s_rel);
+        }
+        let w = libm::fabsf(cmd - self.last_cmd_rad);
+        self.last_cmd_rad = cmd;
+        self.sum_w += w;
+        self.sum_w_cmd += w * cmd;
+        self.sum_w_s += w * s_rel;
+        if t >= back_start + duration_s + hold && self.result.is_none() {
+            self.result = Some(self.finish(k, s0_abs));
+        }
+        cmd
+    }
+
+    fn finish(&self, k: f32, s0_abs: f32) -> SweepResult {
+        let forward = self.forward_rad.unwrap_or(0.0);
+        let reversed = forward < 0.0;
+        let ratio = libm::fabsf(forward) / TAU;
+        let offset_e_rad = if self.sum_w > 0.0 && ratio > 0.0 {
+            let mean_cmd = self.sum_w_cmd / self.sum_w;
+            let mean_s = s0_abs + self.sum_w_s / self.sum_w;
+            let dir = if reversed { -1.0 } else { 1.0 };
+            wrap_pi(mean_cmd - dir * k * mean_s)
+        } else {
+            0.0
+        };
+        SweepResult {
+            ratio,
+            alignment: Alignment {
+                offset_e_rad,
+                reversed,
+            },
+        }
+    }
+}
+
+/// Mean of `sin(arg Zd - arg Z)`: the shift of the corrected angle against the raw one
+/// (sensor electrical), for uniformly covered angles.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ShiftMeter {
+    sum: f32,
+    count: u32,
+}
+
+/// Samples before the mean is reported: several sensor periods at the commissioning
+/// speed.
+const SHIFT_SAMPLES: u32 = 2000;
+
+impl ShiftMeter {
+    /// Add one sample's raw vector `z` and decoupled vector `zd`.
+    #[inline]
+    pub fn add(&mut self, z: (f32, f32), zd: (f32, f32)) {
+        let cross = zd.1 * z.0 - zd.0 * z.1;
+        let n2 = (zd.0 * zd.0 + zd.1 * zd.1) * (z.0 * z.0 + z.1 * z.1);
+        if n2 > f32::MIN_POSITIVE {
+            self.sum += cross * mras::inv_sqrt_f32(n2);
+            self.count += 1;
+        }
+    }
+
+    /// The mean shift (rad), once enough samples came in.
+    pub fn shift_rad(&self) -> Option<f32> {
+        (self.count >= SHIFT_SAMPLES).then(|| self.sum / self.count as f32)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wrap_pi_keeps_angles_in_range() {
+        for k in -200..200 {
+            let x = k as f32 * 0.37;
+            let w = wrap_pi(x);
+            assert!((-PI..=PI).contains(&w), "{x} -> {w}");
+            let turns = (x - w) / TAU;
+            assert!((turns - libm::roundf(turns)).abs() < 1e-4, "{x} -> {w}");
+        }
+    }
+
+    /// An ideal rotor that follows the field: the sensor reads `dir·θe/k + s0` (sensor
+    /// electrical) plus a periodic error; the sweep finds dir, ratio 1 and the offset.
+    fn sweep_ideal(k: f32, n: f32, reversed: bool, s0: f32, err: f32) -> SweepResult {
+        let mut s = Sweep::default();
+        let dt = 50e-6;
+        let dir = if reversed { -1.0 } else { 1.0 };
+        let mut cmd = 0.0f32;
+        for _ in 0..40_000 {
+            let true_s = s0 + dir * cmd / k;
+            let meas = true_s + err * libm::sinf(3.0 * true_s + 0.4);
+            let theta_e = meas - TAU * libm::floorf(meas / TAU);
+            // Mechanical unwrapped = sensor electrical / N (relative values only matter).
+            cmd = s.step(0.2, dt, k, n, theta_e, meas / n, libm::cosf);
+            if let Some(r) = s.result() {
+                return r;
+            }
+        }
+        panic!("sweep did not finish");
+    }
+
+    #[test]
+    fn finds_direction_ratio_and_offset_despite_a_harmonic_error() {
+        for (k, n) in [(2.0, 2.0), (4.0, 1.0), (1.0, 4.0)] {
+            for reversed in [false, true] {
+                for s0 in [0.3, 2.0, 5.9] {
+                    let r = sweep_ideal(k, n, reversed, s0, 0.05);
+                    assert_eq!(r.alignment.reversed, reversed);
+                    assert!((r.ratio - 1.0).abs() < 1e-3, "{r:?}");
+                    // At the start the rotor is at θe = 0 and the sensor at s0.
+                    let a = r.alignment;
+                    let e = electrical_angle(&a, k, s0 - TAU * libm::floorf(s0 / TAU));
+                    assert!(e.abs() < 2e-3, "k {k} rev {reversed} s0 {s0}: {e}");
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,574 @@
+//! The control period: one call per PWM period, the whole hot path.
+//!
+//! ADC counts in → scaling → [`mras::Tracker::step`] → motion loop (speed or the
+//! application's) → d/q current loop in the frame of the aligned, corrected estimate →
+//! SVPWM duties out, with the bridge enable and the torque feed-forward for the next
+//! period. The firmware's control interrupt is "read registers, [`ControlPeriod::step`],
+//! write registers"; hil-sim calls the same function on its simulated ADC counts.
+//!
+//! One latched safe state: a fault in any period (sensor, ADC range, over-current)
+//! switches the bridge off from that period on, and it stays off, whatever the command,
+//! until the supervisor releases it ([`Command::release`]).
+//!
+//! No f64, no panics, no allocation; the trigonometry is the core's (the CORDIC on the
+//! target), so the FOC angle and the observer use the same sine and cosine.
+
+use crate::adc::{scale_pair, ChannelScaling, SampleError};
+use crate::align::{electrical_angle, wrap_pi, ShiftMeter, Sweep};
+use crate::commissioning::{Adaptation, Setpoint};
+use crate::foc::{clarke, inverse_park, park, svpwm, CurrentLoop, CurrentLoopParams};
+use crate::motion::{Angle, LoopMode, MotionLoop, MotionRef};
+use crate::telemetry::{Command, CycleStats, Fault, Install, InstallAck, Telemetry};
+use mras::{ConfigError, Estimate, Tracker, Trig};
+
+/// The motor as the controller knows it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MotorConfig {
+    pub pole_pairs: u16,
+    pub r_ohm: f32,
+    pub l_h: f32,
+    /// Permanent-magnet flux linkage ψ (V·s); torque constant 1.5·p·ψ.
+    pub flux_wb: f32,
+    /// Estimated inertia Ĵ of rotor and load: the motion loops' poles are placed on it.
+    pub inertia_kg_m2: f32,
+    pub vdc_v: f32,
+    /// Peak phase current the loops may command.
+    pub i_max_a: f32,
+}
+
+/// Phase-current sensing: `i = (counts - zero)·amps_per_count`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CurrentSensing {
+    /// Signed: low-side shunt amplifiers often read the current inverted.
+    pub amps_per_count: f32,
+    /// Nominal zero (mid-scale); measured at start-up when the supervisor asks.
+    pub zero_counts: u16,
+    /// The converter's largest count (4095 at 12 bits): 0 and this are rails.
+    pub max_counts: u16,
+    /// How far the measured zero may be from the nominal before the current sensing
+    /// is judged broken.
+    pub zero_tolerance_counts: u16,
+}
+
+/// Everything the control period needs besides the core.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DriveConfig {
+    /// Control (PWM) period; must equal the core's sample period.
+    pub control_period_s: f32,
+    pub motor: MotorConfig,
+    pub sensor_x: ChannelScaling,
+    pub sensor_y: ChannelScaling,
+    pub current: CurrentSensing,
+    pub current_bandwidth_hz: f32,
+    /// The speed loop of [`Setpoint::Speed`] (commissioning).
+    pub speed_bandwidth_hz: f32,
+    /// The application's loop of [`Setpoint::Application`].
+    pub application_loop: LoopMode,
+    pub application_bandwidth_hz: f32,
+    /// The supervisor runs every this many periods ([`Output::supervisor_due`]).
+    pub supervisor_divider: u32,
+}
+
+/// Samples averaged for the current sensors' zero.
+const CURRENT_ZERO_SAMPLES: u32 = 256;
+
+/// One period's ADC conversions and hardware flags.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Sample {
+    /// Sensor X and Y, sampled at the same instant (counts).
+    pub x: u16,
+    pub y: u16,
+    /// Phase currents a and b (counts).
+    pub ia: u16,
+    pub ib: u16,
+    /// The break input fired (hardware has already cleared MOE).
+    pub overcurrent: bool,
+    /// The previous control interrupt's cycle count, 0 when not measured.
+    pub cycles: u32,
+}
+
+/// What the hardware layer applies for the next period.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Output {
+    /// Duty cycles 0..=1 of phases a, b, c.
+    pub duties: [f32; 3],
+    /// Bridge on (MOE); false is the safe state.
+    pub enable: bool,
+    /// Take a [`ControlPeriod::snapshot`] and run the supervisor.
+    pub supervisor_due: bool,
+}
+
+/// The control period and its state.
+#[derive(Clone, Debug)]
+pub struct ControlPeriod<T: Trig> {
+    cfg: DriveConfig,
+    tracker: Tracker<T>,
+    /// Electrical periods per sensor period, p/N.
+    electrical_per_sensor: f32,
+    pole_pairs: f32,
+    sensor_periods: f32,
+    torque_constant_nm_a: f32,
+    torque_limit_nm: f32,
+    current: CurrentLoop,
+    speed: MotionLoop,
+    application: MotionLoop,
+    reference: MotionRef,
+    sweep: Sweep,
+    sweeping: bool,
+    shift: ShiftMeter,
+    /// The offset the shift is measured against.
+    shift_base: Option<calib_record::Alignment>,
+    /// Torque commanded for the period under way (motor frame): next period's
+    /// feed-forward to the observer.
+    torque_cmd_nm: f32,
+    /// The sensor's direction of the command in force (+1 / -1).
+    direction: f32,
+    latched: Option<Fault>,
+    release: u8,
+    current_zero: [f32; 2],
+    zero_sum: [u32; 2],
+    zero_count: u32,
+    currents_ready: bool,
+    currents_implausible: bool,
+    ticks: u32,
+    /// Periods until the next supervisor step.
+    until_supervisor: u32,
+    /// Since the previous snapshot.
+    cycles: CycleStats,
+    install: Option<InstallAck>,
+    /// The scaled sensor vector fed to the core, and the fault of the period.
+    last_xy: (f32, f32),
+    last_fault: Option<Fault>,
+    last_currents_a: (f32, f32),
+}
+
+fn positive(v: f32, field: &'static str) -> Result<(), ConfigError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(ConfigError::new(field, "must be finite and > 0"))
+    }
+}
+
+impl DriveConfig {
+    /// Check the configuration against itself and the core's; names the first bad field.
+    pub fn validate(&self, core: &mras::Config) -> Result<(), ConfigError> {
+        let m = &self.motor;
+        positive(self.control_period_s, "drive.control_period_s")?;
+        if self.control_period_s != core.sample_period_s {
+            return Err(ConfigError::new(
+                "drive.control_period_s",
+                "must equal the core's sample_period_s",
+            ));
+        }
+        if m.pole_pairs == 0 || m.pole_pairs % core.sensor_periods != 0 {
+            return Err(ConfigError::new(
+                "motor.pole_pairs",
+                "must be a multiple of the sensor periods N (else the sensor's 2π/N ambiguity is not a whole electrical turn)",
+            ));
+        }
+        for (v, f) in [
+            (m.r_ohm, "motor.r_ohm"),
+            (m.l_h, "motor.l_h"),
+            (m.flux_wb, "motor.flux_wb"),
+            (m.inertia_kg_m2, "motor.inertia_kg_m2"),
+            (m.vdc_v, "motor.vdc_v"),
+            (m.i_max_a, "motor.i_max_a"),
+            (self.current_bandwidth_hz, "drive.current_bandwidth_hz"),
+            (self.speed_bandwidth_hz, "drive.speed_bandwidth_hz"),
+            (
+                self.application_bandwidth_hz,
+                "drive.application_bandwidth_hz",
+            ),
+        ] {
+            positive(v, f)?;
+        }
+        if !(self.current.amps_per_count.is_finite() && self.current.amps_per_count != 0.0) {
+            return Err(ConfigError::new(
+                "drive.current.amps_per_count",
+                "must be finite and non-zero",
+            ));
+        }
+        if self.current_bandwidth_hz * self.control_period_s > 0.1 {
+            return Err(ConfigError::new(
+                "drive.current_bandwidth_hz",
+                "at most a tenth of the control rate",
+            ));
+        }
+        if self.speed_bandwidth_hz > 0.2 * self.current_bandwidth_hz
+            || self.application_bandwidth_hz > 0.2 * self.current_bandwidth_hz
+        {
+            return Err(ConfigError::new(
+                "drive.speed_bandwidth_hz",
+                "motion loops at most a fifth of the current loop's bandwidth",
+            ));
+        }
+        if self.supervisor_divider == 0 {
+            return Err(ConfigError::new("drive.supervisor_divider", "must be >= 1"));
+        }
+        Ok(())
+    }
+}
+
+impl<T: Trig> ControlPeriod<T> {
+    pub fn new(cfg: DriveConfig, tracker: Tracker<T>) -> Result<Self, ConfigError> {
+        cfg.validate(tracker.config())?;
+        let m = &cfg.motor;
+        let kt = 1.5 * m.pole_pairs as f32 * m.flux_wb;
+        let n = tracker.config().sensor_periods;
+        Ok(Self {
+            electrical_per_sensor: (m.pole_pairs / n) as f32,
+            pole_pairs: m.pole_pairs as f32,
+            sensor_periods: n as f32,
+            torque_constant_nm_a: kt,
+            torque_limit_nm: kt * m.i_max_a,
+            current: CurrentLoop::new(CurrentLoopParams {
+                r_ohm: m.r_ohm,
+                l_h: m.l_h,
+                flux_wb: m.flux_wb,
+                vdc_v: m.vdc_v,
+                bandwidth_hz: cfg.current_bandwidth_hz,
+            }),
+            speed: MotionLoop::new(LoopMode::Velocity, cfg.speed_bandwidth_hz, m.inertia_kg_m2),
+            application: MotionLoop::new(
+                cfg.application_loop,
+                cfg.application_bandwidth_hz,
+                m.inertia_kg_m2,
+            ),
+            reference: MotionRef::default(),
+            sweep: Sweep::default(),
+            sweeping: false,
+            shift: ShiftMeter::default(),
+            shift_base: None,
+            torque_cmd_nm: 0.0,
+            direction: 1.0,
+            latched: None,
+            release: 0,
+            current_zero: [cfg.current.zero_counts as f32; 2],
+            zero_sum: [0; 2],
+            zero_count: 0,
+            currents_ready: false,
+            currents_implausible: false,
+            ticks: 0,
+            until_supervisor: cfg.supervisor_divider,
+            cycles: CycleStats::EMPTY,
+            install: None,
+            last_xy: (0.0, 0.0),
+            last_fault: None,
+            last_currents_a: (0.0, 0.0),
+            cfg,
+            tracker,
+        })
+    }
+
+    /// The application's motion reference for [`Setpoint::Application`].
+    pub fn set_reference(&mut self, r: MotionRef) {
+        self.reference = r;
+    }
+
+    /// Install coefficients (loaded from flash); the answer goes out with the next
+    /// snapshot.
+    pub fn install(&mut self, i: &Install) {
+        let accepted = self.tracker.set_coefficients(&i.coefficients).is_ok();
+        self.install = Some(InstallAck {
+            generation: i.generation,
+            accepted,
+        });
+    }
+
+    /// One period.
+    pub fn step(&mut self, s: &Sample, cmd: &Command) -> Output {
+        self.ticks = self.ticks.wrapping_add(1);
+        if s.cycles != 0 {
+            self.cycles.add(s.cycles);
+        }
+        if cmd.release != self.release {
+            self.release = cmd.release;
+            self.latched = None;
+            self.tracker.clear_faults();
+            self.tracker.reset_observer();
+        }
+        self.direction = if cmd.alignment.reversed { -1.0 } else { 1.0 };
+        self.tracker
+            .set_frozen(cmd.adaptation == Adaptation::Frozen);
+
+        // Sensor → core, with the torque in force as feed-forward (the sensor's frame).
+        let sensor = match scale_pair(s.x, s.y, &self.cfg.sensor_x, &self.cfg.sensor_y) {
+            Ok((x, y)) => {
+                self.last_xy = (x, y);
+                self.tracker
+                    .step(x, y, self.direction * self.torque_cmd_nm)
+                    .map_err(Fault::Sensor)
+            }
+            Err(SampleError::Railed) => Err(Fault::Sensor(mras::Fault::SensorSaturated)),
+            Err(SampleError::OutOfRange) => Err(Fault::AdcOutOfRange),
+        };
+        if cmd.measure_shift {
+            if self.shift_base != Some(cmd.alignment) {
+                self.shift = ShiftMeter::default();
+                self.shift_base = Some(cmd.alignment);
+            }
+            if sensor.is_ok() {
+                let zd = self.tracker.last_estimate().decoupled;
+                self.shift.add(self.last_xy, (zd.re, zd.im));
+            }
+        } else {
+            self.shift_base = None;
+        }
+        let currents = self.currents(s.ia, s.ib);
+        let fault = if s.overcurrent {
+            Some(Fault::OverCurrent)
+        } else {
+            sensor.err().or(currents.err())
+        };
+        self.last_fault = fault;
+        if let Some(f) = fault {
+            self.latched.get_or_insert(f);
+        }
+        if cmd.setpoint == Setpoint::Off && cmd.calibrate_currents {
+            self.measure_current_zero(s.ia, s.ib);
+        }
+
+        // A countdown, not `ticks % divider`: no division (and no panic path) per period.
+        self.until_supervisor = self.until_supervisor.saturating_sub(1);
+        let supervisor_due = self.until_supervisor == 0;
+        if supervisor_due {
+            self.until_supervisor = self.cfg.supervisor_divider;
+        }
+        let (ia, ib) = currents.unwrap_or((0.0, 0.0));
+        self.last_currents_a = (ia, ib);
+        let sweeping = matches!(cmd.setpoint, Setpoint::Sweep { .. });
+        if sweeping && !self.sweeping {
+            self.sweep = Sweep::default();
+        }
+        self.sweeping = sweeping;
+        if self.latched.is_some() || cmd.setpoint == Setpoint::Off {
+            return self.disarm(supervisor_due);
+        }
+
+        let est = self.tracker.last_estimate();
+        let t = self.cfg.control_period_s;
+        let (theta_e, id_ref, iq_ref, we) = match cmd.setpoint {
+            Setpoint::Align { current_a } => (0.0, self.limit_current(current_a), 0.0, 0.0),
+            Setpoint::Sweep {
+                current_a,
+                duration_s,
+            } => {
+                let trig = self.tracker.trig();
+                let angle = self.sweep.step(
+                    duration_s,
+                    t,
+                    self.electrical_per_sensor,
+                    self.sensor_periods,
+                    est.theta_e_rad,
+                    est.turns as f32 * core::f32::consts::TAU + est.theta_rad,
+                    |x| trig.sin_cos(x).1,
+                );
+                (angle, self.limit_current(current_a), 0.0, 0.0)
+            }
+            Setpoint::Speed { .. } | Setpoint::Application => {
+                let omega = self.direction * est.omega_rad_s;
+                let theta = if cmd.alignment.reversed {
+                    mech_angle(&est).negated()
+                } else {
+                    mech_angle(&est)
+                };
+                let torque = match cmd.setpoint {
+                    Setpoint::Speed { omega_rad_s } => {
+                        self.application.reset();
+                        let r = MotionRef {
+                            omega_rad_s,
+                            ..MotionRef::default()
+                        };
+                        self.speed.torque(&r, theta, omega, t, self.torque_limit_nm)
+                    }
+                    _ => {
+                        self.speed.reset();
+                        self.application.torque(
+                            &self.reference,
+                            theta,
+                            omega,
+                            t,
+                            self.torque_limit_nm,
+                        )
+                    }
+                };
+                let theta_e =
+                    electrical_angle(&cmd.alignment, self.electrical_per_sensor, est.theta_e_rad);
+                (
+                    theta_e,
+                    0.0,
+                    torque / self.torque_constant_nm_a,
+                    self.pole_pairs * omega,
+                )
+            }
+            Setpoint::Off => (0.0, 0.0, 0.0, 0.0),
+        };
+        if !matches!(cmd.setpoint, Setpoint::Speed { .. } | Setpoint::Application) {
+            self.speed.reset();
+            self.application.reset();
+        }
+
+        let trig = self.tracker.trig();
+        let (i_alpha, i_beta) = clarke(ia, ib);
+        let (id, iq) = park(i_alpha, i_beta, trig.sin_cos(theta_e));
+        let (vd, vq, _) = self.current.step((id_ref, iq_ref), (id, iq), we, t);
+        // The voltage acts through the next period: rotate it to the angle the rotor
+        // reaches in the middle of that period.
+        let lead = 1.5 * we * t;
+        let (va, vb) = inverse_park(vd, vq, trig.sin_cos(theta_e + lead));
+        let (duties, _) = svpwm(va, vb, self.cfg.motor.vdc_v);
+        self.torque_cmd_nm = self.torque_constant_nm_a * iq_ref;
+        Output {
+            duties,
+            enable: true,
+            supervisor_due,
+        }
+    }
+
+    fn disarm(&mut self, supervisor_due: bool) -> Output {
+        self.current.reset();
+        self.speed.reset();
+        self.application.reset();
+        self.torque_cmd_nm = 0.0;
+        Output {
+            duties: [0.5; 3],
+            enable: false,
+            supervisor_due,
+        }
+    }
+
+    fn limit_current(&self, i_a: f32) -> f32 {
+        i_a.clamp(-self.cfg.motor.i_max_a, self.cfg.motor.i_max_a)
+    }
+
+    /// Phase currents a, b (A). A channel at a rail is beyond the measurable current.
+    fn currents(&self, ia: u16, ib: u16) -> Result<(f32, f32), Fault> {
+        let c = &self.cfg.current;
+        let amps = |counts: u16, zero: f32| {
+            if counts > c.max_counts {
+                Err(Fault::AdcOutOfRange)
+            } else if counts == 0 || counts == c.max_counts {
+                Err(Fault::OverCurrent)
+            } else {
+                Ok((counts as f32 - zero) * c.amps_per_count)
+            }
+        };
+        Ok((
+            amps(ia, self.current_zero[0])?,
+            amps(ib, self.current_zero[1])?,
+        ))
+    }
+
+    fn measure_current_zero(&mut self, ia: u16, ib: u16) {
+        if self.currents_ready {
+            return;
+        }
+        self.zero_sum[0] += ia as u32;
+        self.zero_sum[1] += ib as u32;
+        self.zero_count += 1;
+        if self.zero_count >= CURRENT_ZERO_SAMPLES {
+            let c = &self.cfg.current;
+            let n = self.zero_count as f32;
+            self.current_zero = [self.zero_sum[0] as f32 / n, self.zero_sum[1] as f32 / n];
+            let off = |z: f32| libm::fabsf(z - c.zero_counts as f32);
+            self.currents_implausible = off(self.current_zero[0]) > c.zero_tolerance_counts as f32
+                || off(self.current_zero[1]) > c.zero_tolerance_counts as f32;
+            self.currents_ready = true;
+        }
+    }
+
+    /// The snapshot the supervisor works on; restarts the per-snapshot statistics.
+    pub fn snapshot(&mut self) -> Telemetry {
+        let est = self.tracker.last_estimate();
+        let conv = self.tracker.convergence();
+        let residual_max_rad = conv
+            .residual_rad
+            .iter()
+            .take(conv.len as usize)
+            .fold(0.0f32, |a, b| a.max(*b));
+        let t = Telemetry {
+            ticks: self.ticks,
+            fault: self.latched,
+            release: self.release,
+            core_faults: self.tracker.faults().bits(),
+            omega_rad_s: self.direction * est.omega_rad_s,
+            amplitude: est.amplitude,
+            converged: conv.converged,
+            revs: conv.revs_adapted,
+            residual_max_rad,
+            coefficients: self.tracker.coefficients(),
+            sweep: self.sweep.result(),
+            corrected_offset_e_rad: self.corrected_offset(),
+            currents_ready: self.currents_ready,
+            currents_implausible: self.currents_implausible,
+            install: self.install,
+            cycles: self.cycles,
+        };
+        self.cycles = CycleStats::EMPTY;
+        t
+    }
+
+    /// The offset in force moved onto the corrected angle by the measured shift:
+    /// `θe = dir·k·(θs_raw) + offset = dir·k·(θs_corrected - shift) + offset`.
+    fn corrected_offset(&self) -> Option<f32> {
+        let base = self.shift_base?;
+        let shift = self.shift.shift_rad()?;
+        let dir = if base.reversed { -1.0 } else { 1.0 };
+        Some(wrap_pi(
+            base.offset_e_rad - dir * self.electrical_per_sensor * shift,
+        ))
+    }
+
+    pub fn tracker(&self) -> &Tracker<T> {
+        &self.tracker
+    }
+
+    pub fn config(&self) -> &DriveConfig {
+        &self.cfg
+    }
+
+    /// The scaled sensor vector of the last period that had a valid one.
+    pub fn last_input(&self) -> (f32, f32) {
+        self.last_xy
+    }
+
+    /// The fault of the last period, if any (the latch may hold an older one).
+    pub fn last_fault(&self) -> Option<Fault> {
+        self.last_fault
+    }
+
+    /// The latched fault holding the bridge off.
+    pub fn latched(&self) -> Option<Fault> {
+        self.latched
+    }
+
+    /// Torque commanded for the period under way (motor frame, N·m).
+    pub fn torque_command_nm(&self) -> f32 {
+        self.torque_cmd_nm
+    }
+
+    /// The measured phase currents a, b of the last period (A).
+    pub fn last_currents_a(&self) -> (f32, f32) {
+        self.last_currents_a
+    }
+
+    /// Where the application's position loop homed: θ̂ - θ* when it started.
+    pub fn application_home(&self) -> Option<Angle> {
+        self.application.home()
+    }
+
+    /// The current sensors' measured zero (counts).
+    pub fn current_zero_counts(&self) -> [f32; 2] {
+        self.current_zero
+    }
+}
+
+/// The estimate's continuous mechanical angle in the sensor's frame.
+#[inline]
+fn mech_angle(e: &Estimate) -> Angle {
+    Angle {
+        turns: e.turns,
+        rad: e.theta_rad,
+    }
+}

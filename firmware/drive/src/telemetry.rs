@@ -1,0 +1,391 @@
+//! What the control period, the supervisor and the host exchange: the one schema.
+//!
+//! - [`Command`]: supervisor → control period, read every period (small, `Copy`).
+//! - [`Telemetry`]: control period → supervisor, a snapshot taken at the supervisor's
+//!   divider ticks only.
+//! - [`Record`] and [`Event`]: supervisor → RTT stream (and hil-sim's stream file). The
+//!   defmt format strings live in this module ([`log_record`], [`log_event`], feature
+//!   `defmt`), next to the field names the host decodes them by ([`RECORD_KEYS`]), so
+//!   that the firmware and the host cannot drift apart.
+
+use crate::commissioning::{Adaptation, Cause, Setpoint, State};
+use calib_record::Alignment;
+use mras::{Coefficients, MAX_PATHS};
+
+/// A fault the control period latched: the bridge is off from the faulted period on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Fault {
+    /// The core refused a sample or lost lock.
+    Sensor(mras::Fault),
+    /// An ADC count above the converter's range: a misconfigured ADC, not the sensor.
+    AdcOutOfRange,
+    /// The break input (over-current comparator) fired; hardware already cleared MOE.
+    OverCurrent,
+}
+
+/// Supervisor → control period, in force from the next period on.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Command {
+    pub setpoint: Setpoint,
+    pub adaptation: Adaptation,
+    /// The rotor's electrical zero as the sensor sees it (commissioned or loaded).
+    pub alignment: Alignment,
+    /// Measure the current sensors' zero while the bridge is off.
+    pub calibrate_currents: bool,
+    /// Measure the mean shift of the corrected angle against the raw one
+    /// ([`Telemetry::corrected_offset_e_rad`]).
+    pub measure_shift: bool,
+    /// A value other than the last one seen releases a latched fault.
+    pub release: u8,
+}
+
+impl Command {
+    /// Bridge off, nothing adapts: the command before the supervisor's first step.
+    pub const OFF: Self = Self {
+        setpoint: Setpoint::Off,
+        adaptation: Adaptation::Frozen,
+        alignment: Alignment::IDENTITY,
+        calibrate_currents: false,
+        measure_shift: false,
+        release: 0,
+    };
+}
+
+/// Coefficients handed to the control period (loaded from flash), acknowledged in
+/// [`Telemetry::install`] with the same generation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Install {
+    pub generation: u8,
+    pub coefficients: Coefficients,
+}
+
+/// The control period's answer to an [`Install`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct InstallAck {
+    pub generation: u8,
+    /// The core accepted them (paths match, values finite and in range).
+    pub accepted: bool,
+}
+
+/// Result of the open-loop alignment sweep (see `crate::align`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SweepResult {
+    /// Sensor periods travelled over one commanded sensor period (1 when the pole-pair
+    /// count and the sensor periods are right; 0 when the rotor did not follow).
+    pub ratio: f32,
+    pub alignment: Alignment,
+}
+
+/// min / mean / max of a per-period count (the firmware's DWT cycles of the control
+/// interrupt), since the previous snapshot.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CycleStats {
+    pub min: u32,
+    pub max: u32,
+    pub sum: u64,
+    pub count: u32,
+}
+
+impl CycleStats {
+    pub const EMPTY: Self = Self {
+        min: u32::MAX,
+        max: 0,
+        sum: 0,
+        count: 0,
+    };
+
+    pub fn add(&mut self, c: u32) {
+        self.min = self.min.min(c);
+        self.max = self.max.max(c);
+        self.sum += c as u64;
+        self.count += 1;
+    }
+
+    pub fn merge(&mut self, o: &Self) {
+        self.min = self.min.min(o.min);
+        self.max = self.max.max(o.max);
+        self.sum += o.sum;
+        self.count += o.count;
+    }
+
+    pub fn mean(&self) -> u32 {
+        if self.count == 0 {
+            0
+        } else {
+            (self.sum / self.count as u64) as u32
+        }
+    }
+
+    /// The minimum, 0 when nothing was counted.
+    pub fn min_or_zero(&self) -> u32 {
+        if self.count == 0 {
+            0
+        } else {
+            self.min
+        }
+    }
+}
+
+/// Control period → supervisor: a snapshot at a divider tick.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Telemetry {
+    /// Control periods since start.
+    pub ticks: u32,
+    /// The latched fault holding the bridge off, until the supervisor releases it.
+    pub fault: Option<Fault>,
+    /// The last [`Command::release`] the control period applied: a snapshot with an
+    /// older one was taken before the supervisor's release reached it.
+    pub release: u8,
+    /// The core's latched fault set (`mras::Faults::bits`).
+    pub core_faults: u8,
+    /// ω̂ in the motor's frame (the sensor's direction applied), mechanical.
+    pub omega_rad_s: f32,
+    pub amplitude: f32,
+    pub converged: bool,
+    pub revs: u32,
+    /// Largest per-path residual (`mras::Convergence::residual_rad`).
+    pub residual_max_rad: f32,
+    pub coefficients: Coefficients,
+    /// The alignment sweep's result, once it finished.
+    pub sweep: Option<SweepResult>,
+    /// The offset in force moved by the measured mean shift of the corrected angle
+    /// against the raw one: the alignment for the corrected angle (once measured over
+    /// enough samples).
+    pub corrected_offset_e_rad: Option<f32>,
+    /// The current sensors' zero has been measured (or was never asked for).
+    pub currents_ready: bool,
+    /// Measured current zero is implausible (counts far from nominal).
+    pub currents_implausible: bool,
+    pub install: Option<InstallAck>,
+    /// The control interrupt's cycles (firmware only; empty on the host).
+    pub cycles: CycleStats,
+}
+
+/// Where the control period leaves its snapshots for the supervisor (an RTIC shared
+/// resource in the firmware). A snapshot published while the supervisor is busy (a
+/// flash erase) replaces the unread one, keeping its cycle statistics.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TelemetrySlot {
+    unread: Option<Telemetry>,
+}
+
+impl TelemetrySlot {
+    pub const EMPTY: Self = Self { unread: None };
+
+    pub fn publish(&mut self, mut t: Telemetry) {
+        if let Some(old) = &self.unread {
+            t.cycles.merge(&old.cycles);
+        }
+        self.unread = Some(t);
+    }
+
+    pub fn take(&mut self) -> Option<Telemetry> {
+        self.unread.take()
+    }
+}
+
+/// One line of the coefficient stream (every [`crate::supervisor::RECORD_DIVIDER`]-th
+/// supervisor step).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Record {
+    pub t_ms: u32,
+    pub state: State,
+    /// The core's latched fault bits.
+    pub faults: u8,
+    pub omega_rad_s: f32,
+    pub amplitude: f32,
+    pub converged: bool,
+    pub revs: u32,
+    pub residual_max_rad: f32,
+    pub cycles_max: u32,
+    pub cycles_mean: u32,
+    pub cycles_min: u32,
+    /// Re and im of each path, in configuration order; unused paths are 0.
+    pub coef: [f32; 2 * MAX_PATHS],
+}
+
+impl Record {
+    /// The coefficients' values as the stream carries them.
+    pub fn coef_of(c: &Coefficients) -> [f32; 2 * MAX_PATHS] {
+        let mut out = [0.0; 2 * MAX_PATHS];
+        for (pair, (_, v)) in out.chunks_exact_mut(2).zip(c.iter()) {
+            pair[0] = v.re;
+            pair[1] = v.im;
+        }
+        out
+    }
+}
+
+/// Field names of a `mras` record line, in stream order; the host decodes by them.
+/// `coef` carries `2 * MAX_PATHS` values.
+pub const RECORD_KEYS: [&str; 12] = [
+    "t_ms",
+    "state",
+    "faults",
+    "omega_rad_s",
+    "amplitude",
+    "converged",
+    "revs",
+    "residual_max_rad",
+    "cycles_max",
+    "cycles_mean",
+    "cycles_min",
+    "coef",
+];
+
+/// Something that happened, streamed when it happens.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Event {
+    /// Entered a state (other than Safe).
+    State { t_ms: u32, state: State },
+    /// Entered the safe state from `state`, because of `cause`.
+    Fault {
+        t_ms: u32,
+        cause: Cause,
+        state: State,
+    },
+    /// The stored calibration was loaded and accepted by the core.
+    Loaded { t_ms: u32, sequence: u32 },
+    /// No usable stored calibration (the reason's name): commissioning.
+    NotLoaded { t_ms: u32, reason: &'static str },
+    /// A calibration was written.
+    Stored { t_ms: u32 },
+    /// A store failed (the previous record is intact); the reason's name.
+    StoreFailed { t_ms: u32, reason: &'static str },
+    /// The alignment sweep's measurement.
+    Aligned {
+        t_ms: u32,
+        offset_e_rad: f32,
+        reversed: bool,
+        ratio: f32,
+    },
+    /// The offset moved onto the corrected angle, after adaptation.
+    OffsetCorrected { t_ms: u32, offset_e_rad: f32 },
+}
+
+/// Names of the causes as streamed (`mras-fault cause=...`).
+pub fn cause_name(c: Cause) -> &'static str {
+    match c {
+        Cause::Sensor(f) => fault_name(Fault::Sensor(f)),
+        Cause::AdcOutOfRange => "AdcOutOfRange",
+        Cause::OverCurrent => "OverCurrent",
+        Cause::CurrentSensor => "CurrentSensor",
+        Cause::BadInput => "BadInput",
+        Cause::Timeout(_) => "Timeout",
+        Cause::NoRotation => "NoRotation",
+        Cause::PolePairs => "PolePairs",
+        Cause::VerifyFailed => "VerifyFailed",
+        Cause::LoadRefused => "LoadRefused",
+        Cause::StoreFailed => "StoreFailed",
+        Cause::Watchdog => "Watchdog",
+        Cause::HardFault => "HardFault",
+        Cause::Panic => "Panic",
+    }
+}
+
+/// Names of the control period's faults.
+pub fn fault_name(f: Fault) -> &'static str {
+    match f {
+        Fault::Sensor(mras::Fault::NonFiniteInput) => "NonFiniteInput",
+        Fault::Sensor(mras::Fault::SensorLost) => "SensorLost",
+        Fault::Sensor(mras::Fault::SensorSaturated) => "SensorSaturated",
+        Fault::Sensor(mras::Fault::LossOfLock) => "LossOfLock",
+        Fault::Sensor(mras::Fault::NumericalOverflow) => "NumericalOverflow",
+        Fault::AdcOutOfRange => "AdcOutOfRange",
+        Fault::OverCurrent => "OverCurrent",
+    }
+}
+
+/// The stream's record line. One format string, here only.
+#[cfg(feature = "defmt")]
+pub fn log_record(r: &Record) {
+    let c = &r.coef;
+    defmt::info!(
+        "mras t_ms={=u32} state={=str} faults={=u8} omega_rad_s={=f32} amplitude={=f32} converged={=bool} revs={=u32} residual_max_rad={=f32} cycles_max={=u32} cycles_mean={=u32} cycles_min={=u32} coef={=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32}",
+        r.t_ms,
+        r.state.name(),
+        r.faults,
+        r.omega_rad_s,
+        r.amplitude,
+        r.converged,
+        r.revs,
+        r.residual_max_rad,
+        r.cycles_max,
+        r.cycles_mean,
+        r.cycles_min,
+        c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7],
+        c[8], c[9], c[10], c[11], c[12], c[13], c[14], c[15]
+    );
+}
+
+/// The stream's event lines. One format string per kind, here only.
+#[cfg(feature = "defmt")]
+pub fn log_event(e: &Event) {
+    match *e {
+        Event::State { t_ms, state } => {
+            defmt::info!("mras-state state={=str} t_ms={=u32}", state.name(), t_ms)
+        }
+        Event::Fault { t_ms, cause, state } => defmt::error!(
+            "mras-fault cause={=str} state={=str} t_ms={=u32}",
+            cause_name(cause),
+            state.name(),
+            t_ms
+        ),
+        Event::Loaded { t_ms, sequence } => {
+            defmt::info!("mras-loaded sequence={=u32} t_ms={=u32}", sequence, t_ms)
+        }
+        Event::NotLoaded { t_ms, reason } => {
+            defmt::info!("mras-not-loaded reason={=str} t_ms={=u32}", reason, t_ms)
+        }
+        Event::Stored { t_ms } => defmt::info!("mras-stored t_ms={=u32}", t_ms),
+        Event::StoreFailed { t_ms, reason } => {
+            defmt::error!("mras-store-failed reason={=str} t_ms={=u32}", reason, t_ms)
+        }
+        Event::Aligned {
+            t_ms,
+            offset_e_rad,
+            reversed,
+            ratio,
+        } => defmt::info!(
+            "mras-aligned offset_e_rad={=f32} reversed={=bool} ratio={=f32} t_ms={=u32}",
+            offset_e_rad,
+            reversed,
+            ratio,
+            t_ms
+        ),
+        Event::OffsetCorrected { t_ms, offset_e_rad } => defmt::info!(
+            "mras-offset-corrected offset_e_rad={=f32} t_ms={=u32}",
+            offset_e_rad,
+            t_ms
+        ),
+    }
+}
+
+/// The path names line, once at boot: names the `coef` columns of the records.
+#[cfg(feature = "defmt")]
+pub fn log_paths(names: &str) {
+    defmt::info!("mras-paths {=str}", names);
+}
+
+/// A path's name in the stream and in CSV columns: `offset`, `amplitude_quadrature`,
+/// `h<h>` (e.g. `h4`, `h-2`).
+pub fn write_path_name(kind: mras::PathKind, w: &mut impl core::fmt::Write) -> core::fmt::Result {
+    match kind {
+        mras::PathKind::Offset => w.write_str("offset"),
+        mras::PathKind::AmplitudeQuadrature => w.write_str("amplitude_quadrature"),
+        mras::PathKind::Harmonic(h) => write!(w, "h{h}"),
+    }
+}
+
+/// The comma-separated path names of a configuration (the `mras-paths` line).
+pub fn path_names(cfg: &mras::Config) -> heapless::String<128> {
+    let mut s = heapless::String::new();
+    for (i, k) in cfg.paths().iter().enumerate() {
+        // 8 names of at most 20 characters fit: the writes cannot fail.
+        if i > 0 {
+            let _ = s.push(',');
+        }
+        let _ = write_path_name(*k, &mut s);
+    }
+    s
+}

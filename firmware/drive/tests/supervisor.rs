@@ -1,0 +1,402 @@
+//! The supervisor against scripted telemetry and a RAM flash: loads are reported only
+//! once the control period accepted them, stores carry the alignment, failures are named.
+
+use calib_record::{
+    config_hash, Alignment, Calibration, FlashSlots, RamFlash, RamFlashError, Slot,
+};
+use drive::commissioning::{Cause, Params, Setpoint, State};
+use drive::supervisor::{NamedError, Supervisor, RECORD_DIVIDER};
+use drive::telemetry::{Command, CycleStats, Event, Fault, InstallAck, SweepResult, Telemetry};
+use mras::{Coefficients, Config, Cplx, PathKind};
+
+/// RAM flash whose programming can be made to fail.
+#[derive(Default)]
+struct Flash {
+    ram: RamFlash,
+    fail_program: bool,
+}
+
+#[derive(Debug)]
+struct FlashError(&'static str);
+
+impl NamedError for FlashError {
+    fn name(&self) -> &'static str {
+        self.0
+    }
+}
+
+impl FlashSlots for Flash {
+    type Error = FlashError;
+    fn read(&self, slot: Slot, buf: &mut [u8]) -> Result<(), FlashError> {
+        self.ram.read(slot, buf).map_err(ram)
+    }
+    fn erase(&mut self, slot: Slot) -> Result<(), FlashError> {
+        self.ram.erase(slot).map_err(ram)
+    }
+    fn program(&mut self, slot: Slot, offset: usize, data: &[u8]) -> Result<(), FlashError> {
+        if self.fail_program {
+            return Err(FlashError("ProgErr"));
+        }
+        self.ram.program(slot, offset, data).map_err(ram)
+    }
+}
+
+fn ram(e: RamFlashError) -> FlashError {
+    FlashError(match e {
+        RamFlashError::PowerLost => "PowerLost",
+        _ => "Ram",
+    })
+}
+
+const POLE_PAIRS: u16 = 4;
+
+fn hash() -> u32 {
+    config_hash(&Config::default(), POLE_PAIRS)
+}
+
+fn supervisor() -> Supervisor {
+    Supervisor::new(Params::default(), hash(), 20_000, 20)
+}
+
+fn coefficients() -> Coefficients {
+    let mut c = Coefficients::zeros(Config::default().paths());
+    c.set(PathKind::Offset, Cplx::new(0.1, -0.08));
+    c.set(PathKind::Harmonic(5), Cplx::new(0.01, 0.02));
+    c
+}
+
+/// A healthy control period at the commissioning speed.
+fn telemetry(ticks: u32) -> Telemetry {
+    Telemetry {
+        ticks,
+        fault: None,
+        release: 0,
+        core_faults: 0,
+        omega_rad_s: Params::default().speed_rad_s,
+        amplitude: 1.0,
+        converged: false,
+        revs: 0,
+        residual_max_rad: 1e-4,
+        coefficients: coefficients(),
+        sweep: None,
+        corrected_offset_e_rad: None,
+        currents_ready: true,
+        currents_implausible: false,
+        install: None,
+        cycles: CycleStats::EMPTY,
+    }
+}
+
+/// Step with `f` shaping each snapshot from the last command, collecting events, until
+/// `until` holds or `max` steps.
+fn run(
+    s: &mut Supervisor,
+    flash: &mut Flash,
+    ticks: &mut u32,
+    max: usize,
+    mut f: impl FnMut(&Supervisor, &mut Telemetry),
+    until: impl Fn(&Supervisor) -> bool,
+) -> (Vec<Event>, Command) {
+    let mut events = Vec::new();
+    let mut cmd = Command::OFF;
+    for _ in 0..max {
+        *ticks += 20;
+        let mut tm = telemetry(*ticks);
+        f(s, &mut tm);
+        let out = s.step(&tm, flash);
+        events.extend(out.events.iter().copied());
+        cmd = out.command;
+        if until(s) {
+            break;
+        }
+    }
+    (events, cmd)
+}
+
+fn sweep_result() -> SweepResult {
+    SweepResult {
+        ratio: 1.01,
+        alignment: Alignment {
+            offset_e_rad: -1.25,
+            reversed: true,
+        },
+    }
+}
+
+/// The whole first power-up on a blank flash: named events in order, the alignment
+/// measured by the sweep goes into the command and into the record.
+#[test]
+fn first_power_up_commissions_and_stores_the_alignment() {
+    let mut s = supervisor();
+    let mut flash = Flash::default();
+    let mut ticks = 0;
+    let (events, cmd) = run(
+        &mut s,
+        &mut flash,
+        &mut ticks,
+        20_000,
+        |s, tm| {
+            tm.sweep = (s.state() == State::Sweep).then(sweep_result);
+            tm.converged = s.state() == State::Adapt;
+        },
+        |s| s.state() == State::Run,
+    );
+    assert_eq!(s.state(), State::Run, "{events:?}");
+    assert!(
+        events.iter().any(|e| matches!(
+            e,
+            Event::NotLoaded {
+                reason: "Erased",
+                ..
+            }
+        )),
+        "{events:?}"
+    );
+    let states: Vec<State> = events
+        .iter()
+        .filter_map(|e| match e {
+            Event::State { state, .. } => Some(*state),
+            _ => None,
+        })
+        .collect();
+    use State::*;
+    assert_eq!(
+        states,
+        [
+            LoadCalibration,
+            Align,
+            Sweep,
+            SpinUp,
+            Adapt,
+            Verify,
+            Store,
+            Run
+        ]
+    );
+    assert!(events
+        .iter()
+        .any(|e| matches!(e, Event::Aligned { reversed: true, .. })));
+    assert!(events.iter().any(|e| matches!(e, Event::Stored { .. })));
+    assert_eq!(cmd.alignment, sweep_result().alignment);
+    assert_eq!(cmd.setpoint, Setpoint::Application);
+
+    let loaded = calib_record::load(&flash, hash()).unwrap();
+    assert_eq!(
+        loaded.record.calibration,
+        Calibration {
+            coefficients: coefficients(),
+            alignment: sweep_result().alignment,
+        }
+    );
+}
+
+/// Second power-up: the coefficients go to the control period, and Loaded (and Run)
+/// come only with its acceptance; a refusal is the safe state.
+#[test]
+fn a_load_is_reported_only_once_the_control_period_accepted_it() {
+    for accepted in [true, false] {
+        let mut flash = Flash::default();
+        let cal = Calibration {
+            coefficients: coefficients(),
+            alignment: sweep_result().alignment,
+        };
+        calib_record::store(&mut flash, &cal, hash()).unwrap();
+        let mut s = supervisor();
+        let mut ticks = 0;
+        let mut install = None;
+        // Until the install comes out, the control period has nothing to acknowledge.
+        for _ in 0..200 {
+            ticks += 20;
+            let out = s.step(&telemetry(ticks), &mut flash);
+            if let Some(i) = out.install {
+                install = Some(i);
+                assert!(!out.events.iter().any(|e| matches!(e, Event::Loaded { .. })));
+                assert_eq!(out.command.alignment, cal.alignment);
+                break;
+            }
+        }
+        let install = install.expect("the stored coefficients are sent to the control period");
+        assert_eq!(install.coefficients, cal.coefficients);
+        // No acknowledgement yet: still loading.
+        for _ in 0..20 {
+            ticks += 20;
+            s.step(&telemetry(ticks), &mut flash);
+            assert_eq!(s.state(), State::LoadCalibration);
+        }
+        ticks += 20;
+        let mut tm = telemetry(ticks);
+        tm.install = Some(InstallAck {
+            generation: install.generation,
+            accepted,
+        });
+        let out = s.step(&tm, &mut flash);
+        if accepted {
+            assert_eq!(s.state(), State::Run);
+            assert!(s.calibration_loaded());
+            assert!(out
+                .events
+                .iter()
+                .any(|e| matches!(e, Event::Loaded { sequence: 1, .. })));
+        } else {
+            assert_eq!(s.cause(), Some(Cause::LoadRefused));
+            assert!(out.events.iter().any(|e| matches!(
+                e,
+                Event::Fault {
+                    cause: Cause::LoadRefused,
+                    ..
+                }
+            )));
+        }
+    }
+}
+
+#[test]
+fn a_failed_store_is_the_safe_state_with_the_flash_error_named() {
+    let mut s = supervisor();
+    let mut flash = Flash {
+        fail_program: true,
+        ..Flash::default()
+    };
+    let mut ticks = 0;
+    let (events, cmd) = run(
+        &mut s,
+        &mut flash,
+        &mut ticks,
+        20_000,
+        |s, tm| {
+            tm.sweep = (s.state() == State::Sweep).then(sweep_result);
+            tm.converged = s.state() == State::Adapt;
+        },
+        |s| s.state() == State::Safe,
+    );
+    assert_eq!(s.cause(), Some(Cause::StoreFailed));
+    assert!(events.iter().any(|e| matches!(
+        e,
+        Event::StoreFailed {
+            reason: "ProgErr",
+            ..
+        }
+    )));
+    assert_eq!(cmd.setpoint, Setpoint::Off);
+}
+
+#[test]
+fn a_store_in_run_keeps_running_and_a_failed_one_too() {
+    let mut s = supervisor();
+    let mut flash = Flash::default();
+    let mut ticks = 0;
+    run(
+        &mut s,
+        &mut flash,
+        &mut ticks,
+        20_000,
+        |s, tm| {
+            tm.sweep = (s.state() == State::Sweep).then(sweep_result);
+            tm.converged = s.state() == State::Adapt;
+        },
+        |s| s.state() == State::Run,
+    );
+    let mut drifted = coefficients();
+    drifted.set(PathKind::Offset, Cplx::new(0.11, -0.07));
+    s.request_store();
+    let mut tm = telemetry(ticks + 20);
+    tm.coefficients = drifted;
+    let out = s.step(&tm, &mut flash);
+    assert_eq!(s.state(), State::Run);
+    assert!(out.events.iter().any(|e| matches!(e, Event::Stored { .. })));
+    let l = calib_record::load(&flash, hash()).unwrap();
+    assert_eq!(l.record.calibration.coefficients, drifted);
+    assert_eq!(l.record.sequence, 2);
+
+    flash.fail_program = true;
+    s.request_store();
+    let out = s.step(&telemetry(ticks + 40), &mut flash);
+    assert_eq!(s.state(), State::Run);
+    assert!(out.events.iter().any(|e| matches!(
+        e,
+        Event::StoreFailed {
+            reason: "ProgErr",
+            ..
+        }
+    )));
+    // The previous record is intact.
+    assert_eq!(
+        calib_record::load(&flash, hash())
+            .unwrap()
+            .record
+            .calibration
+            .coefficients,
+        drifted
+    );
+}
+
+#[test]
+fn a_latched_fault_ends_safe_and_a_restart_releases_the_latch() {
+    let mut s = supervisor();
+    let mut flash = Flash::default();
+    let mut ticks = 0;
+    let (_, before) = run(
+        &mut s,
+        &mut flash,
+        &mut ticks,
+        2000,
+        |_, _| {},
+        |s| s.state() == State::Align,
+    );
+    let mut tm = telemetry(ticks + 20);
+    tm.fault = Some(Fault::Sensor(mras::Fault::SensorLost));
+    let out = s.step(&tm, &mut flash);
+    assert_eq!(s.state(), State::Safe);
+    assert_eq!(out.command.setpoint, Setpoint::Off);
+    assert!(out.events.iter().any(|e| matches!(
+        e,
+        Event::Fault {
+            cause: Cause::Sensor(mras::Fault::SensorLost),
+            state: State::Align,
+            ..
+        }
+    )));
+    assert_eq!(out.command.release, before.release);
+    s.restart();
+    let out = s.step(&telemetry(ticks + 40), &mut flash);
+    assert_ne!(out.command.release, before.release);
+    assert_eq!(s.state(), State::CheckSensor);
+    // A snapshot taken before the control period saw the release still shows the
+    // latched fault: not a new one.
+    let mut stale = telemetry(ticks + 60);
+    stale.fault = Some(Fault::Sensor(mras::Fault::SensorLost));
+    s.step(&stale, &mut flash);
+    assert_eq!(s.state(), State::CheckSensor);
+    let mut fresh = stale;
+    fresh.release = out.command.release;
+    s.step(&fresh, &mut flash);
+    assert_eq!(s.state(), State::Safe);
+}
+
+#[test]
+fn boot_faults_are_reported_and_records_come_every_divider_steps() {
+    let mut s = supervisor();
+    s.boot_fault(Cause::Watchdog);
+    let mut flash = Flash::default();
+    let mut records = 0;
+    for k in 0..100 {
+        let out = s.step(&telemetry(20 * (k + 1)), &mut flash);
+        if k == 0 {
+            assert!(matches!(
+                out.events[0],
+                Event::Fault {
+                    cause: Cause::Watchdog,
+                    ..
+                }
+            ));
+        }
+        if let Some(r) = out.record {
+            records += 1;
+            assert_eq!(r.state, State::Safe);
+            assert_eq!(r.t_ms, k + 1);
+            assert_eq!(r.coef[0], 0.1);
+            assert_eq!(r.coef[1], -0.08);
+        }
+    }
+    assert_eq!(records, 100 / RECORD_DIVIDER);
+}

@@ -1,0 +1,212 @@
+//! The firmware's control period and supervisor commissioning the simulated drive:
+//! alignment at any sensor mounting, a wire break in Run, a store in Run.
+
+use calib_record::RamFlash;
+use drive::commissioning::{Cause, State};
+use drive::telemetry::{Event, Fault};
+use hil_sim::power_up::{self, Boot};
+use hil_sim::rig::{SimFlash, Streamed};
+use hil_sim::scenario::Scenario;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use std::f64::consts::TAU;
+
+fn scenario(offset_deg: f64, reversed: bool) -> Scenario {
+    let mut sc = Scenario::load("commissioning").unwrap();
+    sc.file.sensor.mount_offset_deg = offset_deg;
+    sc.file.sensor.mount_reversed = reversed;
+    sc
+}
+
+/// One power-up on an erased flash, long enough for a Run window.
+fn first_boot(sc: &Scenario, seconds: f64) -> Boot {
+    let flash = SimFlash::new(RamFlash::default());
+    power_up::boot(sc, flash, sc.file.seed, seconds, None)
+        .unwrap()
+        .0
+}
+
+/// ≥ 20 random mountings, each both ways: every run aligns, commissions, reaches Run and
+/// holds the application's speed, with the torque per amp within 2 % of the run with
+/// the sensor mounted at the rotor's zero.
+#[test]
+fn any_mounting_either_direction_commissions_with_full_torque_per_amp() {
+    let aligned = first_boot(&scenario(0.0, false), 3.5);
+    let reference = aligned.run_torque_per_amp.expect("aligned run reaches Run");
+    assert!(reference > 0.97, "aligned torque per amp {reference}");
+    let mut rng = ChaCha8Rng::seed_from_u64(2015);
+    let mounts: Vec<(f64, bool)> = (0..20)
+        .map(|_| rng.random_range(0.0..360.0))
+        .flat_map(|deg| [(deg, false), (deg, true)])
+        .collect();
+    let results: Vec<(f64, bool, Boot)> = mounts
+        .par_iter()
+        .map(|&(deg, rev)| (deg, rev, first_boot(&scenario(deg, rev), 3.5)))
+        .collect();
+    let mut worst: f64 = 1.0;
+    for (deg, rev, b) in &results {
+        let what = format!("mount {deg:.1}° reversed {rev}: {:?}", b.transitions);
+        assert_eq!(b.final_state, State::Run, "{what} cause {:?}", b.cause);
+        assert_eq!(b.alignment.reversed, *rev, "{what}");
+        let err = b.run_angle_error_e_rad.unwrap();
+        assert!(err.abs() < 0.1, "{what}: electrical angle error {err} rad");
+        let speed = b.run_speed_rad_s.unwrap() / TAU;
+        assert!((speed - 20.0).abs() < 0.2, "{what}: {speed} rev/s");
+        let k = b.run_torque_per_amp.unwrap() / reference;
+        worst = worst.min(k);
+        assert!(k > 0.98, "{what}: torque per amp {k:.4} of the aligned run");
+        assert_eq!(b.faulted_samples, 0, "{what}");
+    }
+    eprintln!(
+        "{} mountings: worst torque per amp {worst:.4} of the aligned run",
+        results.len()
+    );
+}
+
+/// The controller told 4 pole pairs on a 6-pole-pair motor: the sweep sees the sensor
+/// travel 4/6 of a period and refuses, by name, before anything spins.
+#[test]
+fn a_wrong_pole_pair_count_is_refused_by_the_sweep() {
+    let mut sc = scenario(40.0, false);
+    sc.file.motor.pole_pairs = 6;
+    let flash = SimFlash::new(RamFlash::default());
+    let mut rig = power_up::rig_with(&sc, flash, 1, |d| d.motor.pole_pairs = 4).unwrap();
+    let b = power_up::run_boot(&mut rig, &sc, 2.0, None);
+    assert_eq!(b.cause, Some(Cause::PolePairs), "{:?}", b.transitions);
+    assert!(b.entered(State::SpinUp).is_none());
+    let ratio = b.streamed.iter().find_map(|(_, s)| match s {
+        Streamed::Event(Event::Aligned { ratio, .. }) => Some(*ratio),
+        _ => None,
+    });
+    // Refused before it is accepted: no alignment event.
+    assert_eq!(ratio, None);
+}
+
+/// Wire break in Run: the bridge is off from the faulted period on, stays off while the
+/// sensor comes back, the supervisor reports SensorLost; a restart clears it.
+#[test]
+fn a_wire_break_in_run_latches_the_bridge_off_until_cleared() {
+    let sc = scenario(120.0, true);
+    let flash = SimFlash::new(RamFlash::default());
+    let healthy = sc.file.sensor.to_params().unwrap();
+    // Both wires of the sensor's bridge open: X and Y at the amplifier's zero.
+    let mut broken = healthy.clone();
+    broken.model = mras::sim::SensorModel::ideal(2);
+    broken.model.bx1 = 0.0;
+    broken.model.by1 = 0.0;
+    let (mut t_break, mut first_fault, mut enabled_after) = (None, None, 0u32);
+    let mut restarted_at = None;
+    let mut enabled_after_restart = 0u32;
+    let mut hook = |rig: &mut hil_sim::rig::Rig, s: &hil_sim::rig::Step| {
+        let t = s.truth.t_s;
+        let state = rig.supervisor().unwrap().state();
+        if t_break.is_none() && state == State::Run && t > 3.0 {
+            t_break = Some(t);
+            rig.plant.sensor = hil_sim::sensor::SensorSim::new(broken.clone(), 7).unwrap();
+        }
+        if let Some(tb) = t_break {
+            if s.fault.is_some() && first_fault.is_none() {
+                first_fault = Some(t);
+                assert!(!s.output.enable, "the faulted period itself is off");
+            }
+            if first_fault.is_some() && restarted_at.is_none() {
+                enabled_after += s.output.enable as u32;
+            }
+            // The wire comes back after 20 ms; the operator clears after 0.3 s.
+            if t > tb + 0.02 && t < tb + 0.0201 {
+                rig.plant.sensor = hil_sim::sensor::SensorSim::new(healthy.clone(), 8).unwrap();
+            }
+            if t > tb + 0.3 && restarted_at.is_none() {
+                assert_eq!(rig.supervisor().unwrap().state(), State::Safe);
+                restarted_at = Some(t);
+                rig.supervisor_mut().unwrap().restart();
+            }
+            if restarted_at.is_some() {
+                enabled_after_restart += s.output.enable as u32;
+            }
+        }
+    };
+    let (b, _) = power_up::boot(&sc, flash, 3, 5.0, Some(&mut hook)).unwrap();
+    let tb = t_break.expect("reached Run");
+    let tf = first_fault.expect("the break faulted");
+    assert!(
+        tf - tb < 1e-4,
+        "fault {tf} vs break {tb}: in the first period"
+    );
+    assert_eq!(enabled_after, 0, "bridge re-armed before the restart");
+    let fault = b.streamed.iter().find_map(|(_, s)| match s {
+        Streamed::Event(Event::Fault { cause, state, .. }) => Some((*cause, *state)),
+        _ => None,
+    });
+    assert_eq!(
+        fault,
+        Some((Cause::Sensor(mras::Fault::SensorLost), State::Run))
+    );
+    // Cleared: the calibration reloads and the drive runs again.
+    assert!(
+        enabled_after_restart > 1000,
+        "{:?} {:?}",
+        b.transitions,
+        b.cause
+    );
+    assert_eq!(b.final_state, State::Run);
+    assert!(b.loaded_from_flash);
+    let _ = Fault::OverCurrent;
+}
+
+/// The operator stores the tracked calibration in Run at 20 rev/s: the erase takes its
+/// time, the control period runs through it, lock holds. With the pages in the bank the
+/// code runs from, the same store stalls the CPU and loses lock.
+#[test]
+fn a_store_in_run_at_speed_keeps_lock_unless_the_flash_stalls_the_cpu() {
+    for stall in [false, true] {
+        let sc = scenario(200.0, false);
+        let mut flash = SimFlash::new(RamFlash::default());
+        flash.stall_cpu = false;
+        let mut requested = None;
+        let mut hook = |rig: &mut hil_sim::rig::Rig, s: &hil_sim::rig::Step| {
+            let t = s.truth.t_s;
+            if requested.is_none() && rig.supervisor().unwrap().state() == State::Run && t > 3.0 {
+                requested = Some(t);
+                rig.flash_mut().unwrap().stall_cpu = stall;
+                rig.supervisor_mut().unwrap().request_store();
+            }
+        };
+        let (b, _) = power_up::boot(&sc, flash, 5, 4.0, Some(&mut hook)).unwrap();
+        let t_req = requested.expect("reached Run");
+        let stored: Vec<f64> = b
+            .streamed
+            .iter()
+            .filter_map(|(t, s)| matches!(s, Streamed::Event(Event::Stored { .. })).then_some(*t))
+            .collect();
+        if stall {
+            // The timer keeps the last duties while the CPU stalls: a standing voltage
+            // vector on a spinning motor, the over-current break, then lock lost.
+            assert!(b.missed_periods > 500, "{}", b.missed_periods);
+            eprintln!(
+                "stalled store: {} missed periods, {:?}",
+                b.missed_periods, b.cause
+            );
+            assert_eq!(b.final_state, State::Safe, "{:?}", b.transitions);
+            assert!(
+                matches!(
+                    b.cause,
+                    Some(Cause::OverCurrent | Cause::Sensor(mras::Fault::LossOfLock))
+                ),
+                "{:?}",
+                b.cause
+            );
+        } else {
+            assert_eq!(b.missed_periods, 0);
+            assert_eq!(b.final_state, State::Run, "{:?}", b.transitions);
+            assert_eq!(b.faulted_samples, 0);
+            // Commissioning's store and the operator's; the latter took the erase time.
+            assert_eq!(stored.len(), 2, "{stored:?}");
+            let took = stored[1] - t_req;
+            assert!(took >= hil_sim::rig::ERASE_S, "store took {took} s");
+            let speed = b.run_speed_rad_s.unwrap() / TAU;
+            assert!((speed - 20.0).abs() < 0.2, "{speed}");
+        }
+    }
+}
