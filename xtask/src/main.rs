@@ -3,6 +3,7 @@
 //! Every command does its own set-up (the thumbv7em target, rustfmt and clippy) so that
 //! it runs on a fresh machine.
 
+mod isr;
 mod qemu;
 
 use std::path::{Path, PathBuf};
@@ -13,7 +14,7 @@ pub(crate) const TARGET: &str = "thumbv7em-none-eabihf";
 /// Portable crates that must build for the MCU (and are tested on the host).
 const CORE_CRATES: &[&str] = &["mras", "drive", "calib-record"];
 /// The firmware binary (target only).
-const FIRMWARE: &str = "drive-fw";
+pub(crate) const FIRMWARE: &str = "drive-fw";
 /// The emulator image of the core (target only, built by `xtask qemu`).
 const QEMU_IMAGE: &str = "mras-qemu";
 /// Budgets of the size report.
@@ -28,6 +29,8 @@ cargo xtask <command>
   test-host     host tests only
   build-cross   release cross-build of the portable crates and the firmware, size report
   size          size report of the firmware (flash and static RAM against budgets)
+  isr-check     the release firmware's control interrupt reaches no f64 soft-float
+                routine, no panic path and no indirect call (disassembly scan)
   flash         build, flash and attach to the RTT stream (probe-rs, board attached)
   qemu          the core on an emulated Cortex-M4F: bit-exact against the host
   cycles        instructions and estimated cycles per core step (emulator trace)
@@ -44,6 +47,7 @@ fn main() -> ExitCode {
         Some("test-host") => test_host(),
         Some("build-cross") => setup().and_then(|_| build_cross()),
         Some("size") => setup().and_then(|_| build_cross()),
+        Some("isr-check") => setup().and_then(|_| build_cross()).and_then(|_| isr::check()),
         Some("flash") => setup().and_then(|_| flash()),
         Some("docs-tables") => docs_tables(),
         Some("bench-accuracy") => bench_accuracy(&args[1..]),
@@ -248,6 +252,7 @@ fn ci() -> Result<(), String> {
     c.args(["--", "-D", "warnings"]);
     run(c)?;
     build_cross()?;
+    isr::check()?;
     qemu::bit_exact()?;
     test_host()?;
     eprintln!("\nxtask ci: all checks passed");

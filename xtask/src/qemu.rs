@@ -31,7 +31,7 @@ fn dir() -> PathBuf {
 }
 
 /// Install a Debian package when its command is missing (the machines here run as root).
-fn ensure(command: &str, package: &str) -> Result<(), String> {
+pub(crate) fn ensure(command: &str, package: &str) -> Result<(), String> {
     if output_of("which", &[command]).is_some() {
         return Ok(());
     }

@@ -439,7 +439,9 @@ impl<T: Trig> ControlPeriod<T> {
     }
 
     fn limit_current(&self, i_a: f32) -> f32 {
-        i_a.clamp(-self.cfg.motor.i_max_a, self.cfg.motor.i_max_a)
+        // min/max, not `clamp`: `clamp` has a panic path for bounds it cannot prove.
+        let m = self.cfg.motor.i_max_a;
+        i_a.max(-m).min(m)
     }
 
     /// Phase currents a, b (A). A channel at a rail is beyond the measurable current.

@@ -139,7 +139,8 @@ impl MotionLoop {
         };
         let integral = self.integral + e_int * t_s;
         let unclamped = self.inertia_kg_m2 * (r.accel_rad_s2 + alpha_pd + gain_i * integral);
-        let torque = unclamped.clamp(-limit_nm, limit_nm);
+        // min/max, not `clamp`: no panic path for a limit the compiler cannot prove.
+        let torque = unclamped.max(-limit_nm).min(limit_nm);
         // Integrate unless that winds further into the limit.
         if torque == unclamped || (unclamped > limit_nm) != (e_int > 0.0) {
             self.integral = integral;

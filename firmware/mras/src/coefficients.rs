@@ -30,7 +30,9 @@ impl Coefficients {
     pub fn zeros(paths: &[PathKind]) -> Self {
         let mut kinds = [PathKind::Offset; MAX_PATHS];
         let len = paths.len().min(MAX_PATHS);
-        kinds[..len].copy_from_slice(&paths[..len]);
+        for (k, p) in kinds.iter_mut().zip(paths) {
+            *k = *p;
+        }
         Self {
             kinds,
             values: [Cplx::ZERO; MAX_PATHS],
@@ -47,10 +49,11 @@ impl Coefficients {
     }
 
     pub fn iter(&self) -> impl Iterator<Item = (PathKind, Cplx)> + '_ {
-        self.kinds[..self.len()]
+        self.kinds
             .iter()
             .copied()
-            .zip(self.values[..self.len()].iter().copied())
+            .zip(self.values.iter().copied())
+            .take(self.len())
     }
 
     pub fn get(&self, kind: PathKind) -> Option<Cplx> {

@@ -328,7 +328,9 @@ impl Config {
 
     /// The active paths.
     pub fn paths(&self) -> &[PathKind] {
-        &self.paths[..(self.path_count as usize).min(MAX_PATHS)]
+        self.paths
+            .get(..self.path_count as usize)
+            .unwrap_or(&self.paths)
     }
 
     /// Largest power of the reference unit vector the path bank needs.

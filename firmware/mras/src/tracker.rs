@@ -6,7 +6,7 @@ use crate::config::{Config, ConfigError};
 use crate::decoupler::{PathBank, Powers, Sample};
 use crate::health::{Fault, Faults};
 use crate::observer::{DiscreteGains, ObserverGains, ObserverState};
-use crate::trig::{inv_sqrt_f32, F32Trig, Trig};
+use crate::trig::{inv_sqrt_f32, sin_cos_f32, F32Trig, Trig};
 use crate::{Coefficients, MAX_PATHS};
 use core::f32::consts::TAU;
 
@@ -103,7 +103,7 @@ impl<T: Trig> Tracker<T> {
             faults: Faults::default(),
             last: Estimate::default(),
             max_order: cfg.max_order().min(31),
-            cos_lock: libm::cosf(cfg.health.lock_threshold_rad),
+            cos_lock: sin_cos_f32(cfg.health.lock_threshold_rad).1,
             inv_n: 1.0 / cfg.sensor_periods as f32,
             lag_rad: 0.0,
             lag_alpha: (cfg.sample_period_s / LAG_TAU_S).min(1.0),
@@ -329,7 +329,9 @@ impl<T: Trig> Tracker<T> {
     /// Snapshot of the persistent coefficients (proportional parts excluded).
     pub fn coefficients(&self) -> Coefficients {
         let mut c = Coefficients::zeros(self.cfg.paths());
-        for (v, s) in c.values.iter_mut().zip(&self.bank.state[..self.bank.len]) {
+        // `take`, not `[..len]`: no panic path (the snapshot is taken in the control
+        // interrupt).
+        for (v, s) in c.values.iter_mut().zip(self.bank.state.iter().take(self.bank.len)) {
             *v = s.coef;
         }
         c
@@ -338,7 +340,7 @@ impl<T: Trig> Tracker<T> {
     /// Load coefficients (e.g. from flash). Refused unless the paths match the
     /// configuration exactly and every value is finite and within the coefficient limit.
     pub fn set_coefficients(&mut self, c: &Coefficients) -> Result<(), CoefficientsError> {
-        if c.kinds[..c.len()] != *self.cfg.paths() {
+        if !c.kinds.iter().take(c.len()).eq(self.cfg.paths().iter()) {
             return Err(CoefficientsError::PathMismatch);
         }
         let limit = self.cfg.health.coefficient_limit * self.cfg.health.amplitude_max;
@@ -360,11 +362,11 @@ impl<T: Trig> Tracker<T> {
             converged: false,
         };
         let mut all_small = true;
-        for (i, s) in self.bank.state[..self.bank.len].iter().enumerate() {
-            out.residual_rad[i] = s.residual.abs();
-            out.change_per_rev[i] = s.change_last_rev;
-            all_small &=
-                out.residual_rad[i] < cc.residual_rad && out.change_per_rev[i] < cc.change_per_rev;
+        let per_path = out.residual_rad.iter_mut().zip(out.change_per_rev.iter_mut());
+        for (s, (residual, change)) in self.bank.state.iter().take(self.bank.len).zip(per_path) {
+            *residual = s.residual.abs();
+            *change = s.change_last_rev;
+            all_small &= *residual < cc.residual_rad && *change < cc.change_per_rev;
         }
         out.converged = all_small && self.bank.revs_adapted >= cc.min_revs as u32;
         out
