@@ -21,6 +21,10 @@ pub struct ScenarioArgs {
     /// Skip the PNG/SVG plots.
     #[arg(long)]
     pub no_plots: bool,
+    /// The firmware ELF whose stream format the `commissioning` scenario writes its RTT
+    /// streams in (default: this checkout's release build, if built).
+    #[arg(long)]
+    pub elf: Option<PathBuf>,
 }
 
 impl ScenarioArgs {
@@ -32,6 +36,7 @@ impl ScenarioArgs {
             ci: false,
             out: None,
             no_plots: false,
+            elf: None,
         }
     }
 }
@@ -42,6 +47,39 @@ fn out_dir(a: &ScenarioArgs, name: &str) -> PathBuf {
             .join("out")
             .join(name)
     })
+}
+
+/// The power-ups' RTT streams in the firmware's own format (its ELF's defmt table), for
+/// `hil-sim rtt-log` and any defmt tool.
+fn write_streams(
+    a: &ScenarioArgs,
+    sc: &Scenario,
+    dir: &std::path::Path,
+    boots: &[&crate::power_up::Boot],
+) -> Result<(), String> {
+    let elf_path = a.elf.clone().unwrap_or_else(crate::stream::release_elf);
+    let Ok(elf) = std::fs::read(&elf_path) else {
+        println!(
+            "  no firmware ELF at {}: RTT streams not written (`cargo xtask build-cross`, or --elf)",
+            elf_path.display()
+        );
+        return Ok(());
+    };
+    let formats = crate::stream::Formats::from_elf(&elf)
+        .map_err(|e| format!("{}: {e:#}", elf_path.display()))?;
+    let names = drive::telemetry::path_names(&sc.core_config(None)?);
+    for (k, b) in boots.iter().enumerate() {
+        let bytes = crate::stream::encode_streamed(&formats, &names, &b.streamed)
+            .map_err(|e| format!("{}: {e:#}", elf_path.display()))?;
+        let path = dir.join(format!("rtt-{}.defmt", k + 1));
+        std::fs::write(&path, bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+        println!(
+            "  RTT stream of power-up {} in the firmware's format: {} (hil-sim rtt-log --input ...)",
+            k + 1,
+            path.display()
+        );
+    }
+    Ok(())
 }
 
 pub fn scenario(a: &ScenarioArgs) -> Result<(), String> {
@@ -77,6 +115,7 @@ pub fn scenario(a: &ScenarioArgs) -> Result<(), String> {
         std::fs::write(dir.join("summary.txt"), &text)
             .map_err(|e| format!("{}: {e}", dir.display()))?;
         println!("  output: {}", dir.join("summary.txt").display());
+        write_streams(a, &sc, &dir, &[&first, &second])?;
         return Ok(());
     }
     let mut variants = vec![];

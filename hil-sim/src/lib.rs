@@ -16,6 +16,7 @@ pub mod rig;
 pub mod rtt_log;
 pub mod scenario;
 pub mod sensor;
+pub mod stream;
 pub mod study;
 pub mod vector;
 

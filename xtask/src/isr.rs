@@ -250,7 +250,12 @@ fn scan(p: &Program, root_name: &str) -> Result<Findings, String> {
     let chain = |parent: &HashMap<u64, Option<u64>>, mut at: u64| {
         let mut names = Vec::new();
         loop {
-            names.push(p.functions.get(&at).map_or("?", |(n, _)| n.as_str()).to_string());
+            names.push(
+                p.functions
+                    .get(&at)
+                    .map_or("?", |(n, _)| n.as_str())
+                    .to_string(),
+            );
             match parent.get(&at).copied().flatten() {
                 Some(up) => at = up,
                 None => break,
@@ -280,22 +285,23 @@ fn scan(p: &Program, root_name: &str) -> Result<Findings, String> {
             body.iter().enumerate().map(|(k, i)| (i.addr, k)).collect();
         let mut seen = vec![false; body.len()];
         let mut todo = vec![0usize];
-        let mut enter = |callee: u64, at: &Insn, f: &mut Findings, parent: &mut HashMap<u64, Option<u64>>| {
-            match p.containing(callee) {
-                Some(c) if c != start => {
-                    if !parent.contains_key(&c) {
-                        parent.insert(c, Some(start));
-                        queue.push_back(c);
+        let mut enter =
+            |callee: u64, at: &Insn, f: &mut Findings, parent: &mut HashMap<u64, Option<u64>>| {
+                match p.containing(callee) {
+                    Some(c) if c != start => {
+                        if let std::collections::hash_map::Entry::Vacant(e) = parent.entry(c) {
+                            e.insert(Some(start));
+                            queue.push_back(c);
+                        }
                     }
+                    Some(_) => {}
+                    None => f.problems.push(format!(
+                        "branch to {callee:#x} outside any function at {:#x}: {}",
+                        at.addr,
+                        chain(parent, start)
+                    )),
                 }
-                Some(_) => {}
-                None => f.problems.push(format!(
-                    "branch to {callee:#x} outside any function at {:#x}: {}",
-                    at.addr,
-                    chain(parent, start)
-                )),
-            }
-        };
+            };
         while let Some(k) = todo.pop() {
             let mut k = k;
             while let Some(i) = body.get(k) {
@@ -487,7 +493,10 @@ mod tests {
         let f = scan(&Program::parse(text), "ADC1_2").unwrap();
         assert_eq!(
             f.problems,
-            ["indirect `blx r3` at 0x8000108: ADC1_2", "udf at 0x800010a: ADC1_2"],
+            [
+                "indirect `blx r3` at 0x8000108: ADC1_2",
+                "udf at 0x800010a: ADC1_2"
+            ],
         );
         assert_eq!(f.reachable_functions, 1);
         // Neither the padding after the return nor the dead branch to `panic`.

@@ -47,7 +47,9 @@ fn main() -> ExitCode {
         Some("test-host") => test_host(),
         Some("build-cross") => setup().and_then(|_| build_cross()),
         Some("size") => setup().and_then(|_| build_cross()),
-        Some("isr-check") => setup().and_then(|_| build_cross()).and_then(|_| isr::check()),
+        Some("isr-check") => setup()
+            .and_then(|_| build_cross())
+            .and_then(|_| isr::check()),
         Some("flash") => setup().and_then(|_| flash()),
         Some("docs-tables") => docs_tables(),
         Some("bench-accuracy") => bench_accuracy(&args[1..]),

@@ -30,6 +30,24 @@ pub enum State {
 }
 
 impl State {
+    pub const ALL: [State; 10] = [
+        State::CheckSensor,
+        State::LoadCalibration,
+        State::Align,
+        State::Sweep,
+        State::SpinUp,
+        State::Adapt,
+        State::Verify,
+        State::Store,
+        State::Run,
+        State::Safe,
+    ];
+
+    /// The state of a streamed name.
+    pub fn from_name(name: &str) -> Option<State> {
+        State::ALL.into_iter().find(|s| s.name() == name)
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             State::CheckSensor => "CheckSensor",

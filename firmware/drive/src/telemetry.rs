@@ -263,6 +263,99 @@ pub enum Event {
     OffsetCorrected { t_ms: u32, offset_e_rad: f32 },
 }
 
+/// A value of a streamed field, as its defmt parameter carries it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum FieldValue {
+    U32(u32),
+    U8(u8),
+    F32(f32),
+    Bool(bool),
+    Str(&'static str),
+}
+
+impl Record {
+    /// The record's fields in stream order, named by [`RECORD_KEYS`] (`coef` once per
+    /// value): the order of [`log_record`]'s parameters.
+    pub fn fields(&self) -> impl Iterator<Item = (&'static str, FieldValue)> + '_ {
+        use FieldValue::*;
+        let head = [
+            U32(self.t_ms),
+            Str(self.state.name()),
+            U8(self.faults),
+            F32(self.omega_rad_s),
+            F32(self.amplitude),
+            Bool(self.converged),
+            U32(self.revs),
+            F32(self.residual_max_rad),
+            U32(self.cycles_max),
+            U32(self.cycles_mean),
+            U32(self.cycles_min),
+        ];
+        RECORD_KEYS
+            .iter()
+            .copied()
+            .zip(head)
+            .chain(self.coef.iter().map(|c| ("coef", F32(*c))))
+    }
+}
+
+/// Most fields an event line has.
+pub const MAX_EVENT_FIELDS: usize = 4;
+
+impl Event {
+    /// The line's marker (its first word), as [`log_event`] prints it.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Event::State { .. } => "mras-state",
+            Event::Fault { .. } => "mras-fault",
+            Event::Loaded { .. } => "mras-loaded",
+            Event::NotLoaded { .. } => "mras-not-loaded",
+            Event::Stored { .. } => "mras-stored",
+            Event::StoreFailed { .. } => "mras-store-failed",
+            Event::Aligned { .. } => "mras-aligned",
+            Event::OffsetCorrected { .. } => "mras-offset-corrected",
+        }
+    }
+
+    /// The fields in the order of [`log_event`]'s parameters.
+    pub fn fields(&self) -> heapless::Vec<(&'static str, FieldValue), MAX_EVENT_FIELDS> {
+        use FieldValue::*;
+        let mut v = heapless::Vec::new();
+        let fields: &[(&'static str, FieldValue)] = match *self {
+            Event::State { t_ms, state } => &[("state", Str(state.name())), ("t_ms", U32(t_ms))],
+            Event::Fault { t_ms, cause, state } => &[
+                ("cause", Str(cause_name(cause))),
+                ("state", Str(state.name())),
+                ("t_ms", U32(t_ms)),
+            ],
+            Event::Loaded { t_ms, sequence } => &[("sequence", U32(sequence)), ("t_ms", U32(t_ms))],
+            Event::NotLoaded { t_ms, reason } | Event::StoreFailed { t_ms, reason } => {
+                &[("reason", Str(reason)), ("t_ms", U32(t_ms))]
+            }
+            Event::Stored { t_ms } => &[("t_ms", U32(t_ms))],
+            Event::Aligned {
+                t_ms,
+                offset_e_rad,
+                reversed,
+                ratio,
+            } => &[
+                ("offset_e_rad", F32(offset_e_rad)),
+                ("reversed", Bool(reversed)),
+                ("ratio", F32(ratio)),
+                ("t_ms", U32(t_ms)),
+            ],
+            Event::OffsetCorrected { t_ms, offset_e_rad } => {
+                &[("offset_e_rad", F32(offset_e_rad)), ("t_ms", U32(t_ms))]
+            }
+        };
+        for f in fields {
+            // At most MAX_EVENT_FIELDS by construction.
+            let _ = v.push(*f);
+        }
+        v
+    }
+}
+
 /// Names of the causes as streamed (`mras-fault cause=...`).
 pub fn cause_name(c: Cause) -> &'static str {
     match c {

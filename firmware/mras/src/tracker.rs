@@ -331,7 +331,11 @@ impl<T: Trig> Tracker<T> {
         let mut c = Coefficients::zeros(self.cfg.paths());
         // `take`, not `[..len]`: no panic path (the snapshot is taken in the control
         // interrupt).
-        for (v, s) in c.values.iter_mut().zip(self.bank.state.iter().take(self.bank.len)) {
+        for (v, s) in c
+            .values
+            .iter_mut()
+            .zip(self.bank.state.iter().take(self.bank.len))
+        {
             *v = s.coef;
         }
         c
@@ -362,7 +366,10 @@ impl<T: Trig> Tracker<T> {
             converged: false,
         };
         let mut all_small = true;
-        let per_path = out.residual_rad.iter_mut().zip(out.change_per_rev.iter_mut());
+        let per_path = out
+            .residual_rad
+            .iter_mut()
+            .zip(out.change_per_rev.iter_mut());
         for (s, (residual, change)) in self.bank.state.iter().take(self.bank.len).zip(per_path) {
             *residual = s.residual.abs();
             *change = s.change_last_rev;

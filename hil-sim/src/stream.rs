@@ -1,0 +1,524 @@
+//! The firmware's RTT stream, decoded with `defmt-decoder` against the ELF that produced
+//! it, and encoded in that ELF's format for hil-sim's own streams.
+//!
+//! The schema has one owner, `drive::telemetry`: its log functions are the format
+//! strings, `Record::fields` and `Event::fields` the same fields in the same order. A line
+//! is decoded by the format string's own structure: each parameter's type comes from the
+//! format string in the ELF, its name from the `name=` before it (a `,` continues the
+//! previous name: `coef=` is a list), its value from the decoder's rendering of that one
+//! parameter (exact: f32 prints shortest-round-trip). Nothing is matched by pattern over
+//! printed text.
+
+use anyhow::{anyhow, bail, Context, Result};
+use defmt_decoder::{DecodeError, Table};
+use defmt_parser::{Fragment, ParserMode, Type};
+use drive::commissioning::State;
+use drive::telemetry::{FieldValue, Record, RECORD_KEYS};
+use mras::MAX_PATHS;
+use std::path::{Path, PathBuf};
+
+/// A decoded value.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Value {
+    Uint(u64),
+    F32(f32),
+    Bool(bool),
+    Str(String),
+}
+
+impl Value {
+    fn parse(ty: &Type, text: &str) -> Result<Self> {
+        Ok(match ty {
+            Type::U8 | Type::U16 | Type::U32 | Type::U64 | Type::Usize => Value::Uint(
+                text.parse()
+                    .with_context(|| format!("`{text}` is not an integer"))?,
+            ),
+            Type::F32 => Value::F32(
+                text.parse()
+                    .with_context(|| format!("`{text}` is not an f32"))?,
+            ),
+            Type::Bool => Value::Bool(
+                text.parse()
+                    .with_context(|| format!("`{text}` is not a bool"))?,
+            ),
+            Type::Str | Type::IStr => Value::Str(text.to_string()),
+            other => bail!("parameter type {other:?} is not part of the stream schema"),
+        })
+    }
+
+    fn from_field(v: FieldValue) -> Self {
+        match v {
+            FieldValue::U32(x) => Value::Uint(x as u64),
+            FieldValue::U8(x) => Value::Uint(x as u64),
+            FieldValue::F32(x) => Value::F32(x),
+            FieldValue::Bool(x) => Value::Bool(x),
+            FieldValue::Str(x) => Value::Str(x.to_string()),
+        }
+    }
+
+    fn uint(&self, key: &str, max: u64) -> Result<u64> {
+        match self {
+            Value::Uint(v) if *v <= max => Ok(*v),
+            other => bail!("`{key}`: {other:?} is not an integer up to {max}"),
+        }
+    }
+
+    fn f32(&self, key: &str) -> Result<f32> {
+        match self {
+            Value::F32(v) => Ok(*v),
+            other => bail!("`{key}`: {other:?} is not an f32"),
+        }
+    }
+
+    fn text(&self) -> String {
+        match self {
+            Value::Uint(v) => v.to_string(),
+            Value::F32(v) => v.to_string(),
+            Value::Bool(v) => v.to_string(),
+            Value::Str(v) => v.clone(),
+        }
+    }
+}
+
+/// One decoded line of ours: its marker (`mras`, `mras-state`, ...) and named fields
+/// (an unnamed field, as in `mras-paths`, has the empty name).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Line {
+    pub kind: String,
+    pub fields: Vec<(String, Value)>,
+}
+
+impl Line {
+    pub fn get(&self, key: &str) -> Option<&Value> {
+        self.fields.iter().find(|(k, _)| k == key).map(|(_, v)| v)
+    }
+
+    /// The `t_ms` of the line, if it has one.
+    pub fn t_ms(&self) -> Option<u32> {
+        match self.get("t_ms")? {
+            Value::Uint(v) => u32::try_from(*v).ok(),
+            _ => None,
+        }
+    }
+
+    /// `key=value` pairs as text, for event tables.
+    pub fn describe(&self) -> String {
+        self.fields
+            .iter()
+            .filter(|(k, _)| k != "t_ms")
+            .map(|(k, v)| format!("{k}={}", v.text()))
+            .collect::<Vec<_>>()
+            .join(" ")
+    }
+
+    /// A record line as the typed record.
+    pub fn record(&self) -> Result<Record> {
+        if self.kind != "mras" {
+            bail!("a `{}` line is not a record", self.kind);
+        }
+        let one = |key: &str| -> Result<&Value> {
+            let mut it = self.fields.iter().filter(|(k, _)| k == key);
+            let v = it
+                .next()
+                .map(|(_, v)| v)
+                .ok_or_else(|| anyhow!("no `{key}`"))?;
+            if it.next().is_some() {
+                bail!("`{key}` appears twice");
+            }
+            Ok(v)
+        };
+        for (k, _) in &self.fields {
+            if !RECORD_KEYS.contains(&k.as_str()) {
+                bail!("unknown field `{k}`");
+            }
+        }
+        let state_name = match one("state")? {
+            Value::Str(s) => s,
+            other => bail!("`state`: {other:?} is not a name"),
+        };
+        let coefs: Vec<f32> = self
+            .fields
+            .iter()
+            .filter(|(k, _)| k == "coef")
+            .map(|(_, v)| v.f32("coef"))
+            .collect::<Result<_>>()?;
+        let coef: [f32; 2 * MAX_PATHS] = coefs.try_into().map_err(|v: Vec<f32>| {
+            anyhow!(
+                "`coef`: {} values, the schema has {}",
+                v.len(),
+                2 * MAX_PATHS
+            )
+        })?;
+        let u32_of = |k: &str| -> Result<u32> { Ok(one(k)?.uint(k, u32::MAX as u64)? as u32) };
+        Ok(Record {
+            t_ms: u32_of("t_ms")?,
+            state: State::from_name(state_name)
+                .ok_or_else(|| anyhow!("`state`: unknown state `{state_name}`"))?,
+            faults: one("faults")?.uint("faults", u8::MAX as u64)? as u8,
+            omega_rad_s: one("omega_rad_s")?.f32("omega_rad_s")?,
+            amplitude: one("amplitude")?.f32("amplitude")?,
+            converged: match one("converged")? {
+                Value::Bool(b) => *b,
+                other => bail!("`converged`: {other:?} is not a bool"),
+            },
+            revs: u32_of("revs")?,
+            residual_max_rad: one("residual_max_rad")?.f32("residual_max_rad")?,
+            cycles_max: u32_of("cycles_max")?,
+            cycles_mean: u32_of("cycles_mean")?,
+            cycles_min: u32_of("cycles_min")?,
+            coef,
+        })
+    }
+
+    /// The path names of a `mras-paths` line.
+    pub fn paths(&self) -> Result<Vec<String>> {
+        match (self.kind.as_str(), self.fields.as_slice()) {
+            ("mras-paths", [(_, Value::Str(s))]) => {
+                let names: Vec<String> = s.split(',').map(|n| n.trim().to_string()).collect();
+                if names.iter().any(|n| n.is_empty()) {
+                    bail!("empty path name in `{s}`");
+                }
+                Ok(names)
+            }
+            _ => bail!("not a `mras-paths` line"),
+        }
+    }
+}
+
+/// Each parameter's name and type, in order.
+type Params = Vec<(String, Type)>;
+
+/// The marker of a format of ours and each parameter's name and type: a literal's
+/// trailing `name=` names the parameters after it (a `,` continues the name, for lists);
+/// None for a format that is not ours.
+fn schema(frags: &[Fragment<'_>]) -> Result<Option<(String, Params)>> {
+    let Some(Fragment::Literal(first)) = frags.first() else {
+        return Ok(None);
+    };
+    let kind = first.split_whitespace().next().unwrap_or("");
+    if kind != "mras" && !kind.starts_with("mras-") {
+        return Ok(None);
+    }
+    let mut key = String::new();
+    let mut params = Vec::new();
+    for (n, frag) in frags.iter().enumerate() {
+        match frag {
+            Fragment::Literal(lit) => {
+                let lit: &str = lit;
+                let rest = if n == 0 { &lit[kind.len()..] } else { lit }.trim();
+                if let Some(name) = rest.strip_suffix('=') {
+                    key = name
+                        .rsplit(char::is_whitespace)
+                        .next()
+                        .unwrap_or("")
+                        .to_string();
+                } else if !rest.is_empty() && rest != "," {
+                    bail!("`{kind}`: unexpected text `{rest}` between fields");
+                }
+            }
+            Fragment::Parameter(p) => params.push((key.clone(), p.ty.clone())),
+        }
+    }
+    Ok(Some((kind.to_string(), params)))
+}
+
+/// A line of ours from a frame's fragments and each parameter's rendered text.
+fn line_of(frags: &[Fragment<'_>], texts: impl Iterator<Item = String>) -> Result<Option<Line>> {
+    let Some((kind, params)) = schema(frags)? else {
+        return Ok(None);
+    };
+    let mut texts = texts;
+    let mut fields = Vec::with_capacity(params.len());
+    for (key, ty) in params {
+        let text = texts
+            .next()
+            .ok_or_else(|| anyhow!("`{kind}` `{key}`: no value"))?;
+        let v = Value::parse(&ty, &text).with_context(|| format!("`{kind}` `{key}`"))?;
+        fields.push((key, v));
+    }
+    Ok(Some(Line { kind, fields }))
+}
+
+/// A decoded frame: one of ours, or any other log line (as the decoder prints it).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Item {
+    Line(Line),
+    Other(String),
+}
+
+/// What a byte stream held.
+#[derive(Debug, Default)]
+pub struct Decoded {
+    pub items: Vec<Item>,
+    /// Frames the decoder could not decode (corrupt or truncated bytes).
+    pub malformed: u64,
+    /// Lines of ours whose fields did not fit the schema, with the reason.
+    pub bad_lines: Vec<String>,
+}
+
+/// Decode a raw defmt byte stream (RTT channel 0) against the ELF that produced it.
+pub fn decode(elf: &[u8], bytes: &[u8]) -> Result<Decoded> {
+    let table = Table::parse(elf)
+        .context("reading the defmt table")?
+        .ok_or_else(|| anyhow!("the ELF has no defmt table"))?;
+    let mut dec = table.new_stream_decoder();
+    dec.received(bytes);
+    let mut out = Decoded::default();
+    loop {
+        match dec.decode() {
+            Ok(frame) => {
+                let frags = frame.fragments();
+                // The rendering of each parameter on its own, in order.
+                let texts = frags
+                    .iter()
+                    .zip(frame.display_fragments())
+                    .filter(|(f, _)| matches!(f, Fragment::Parameter(_)))
+                    .map(|(_, t)| t);
+                match line_of(&frags, texts) {
+                    Ok(Some(l)) => out.items.push(Item::Line(l)),
+                    Ok(None) => out
+                        .items
+                        .push(Item::Other(frame.display_message().to_string())),
+                    Err(e) => out.bad_lines.push(format!("{e:#}")),
+                }
+            }
+            Err(DecodeError::UnexpectedEof) => break,
+            Err(DecodeError::Malformed) => out.malformed += 1,
+        }
+    }
+    Ok(out)
+}
+
+/// The ELF's format strings of our lines: (index, format) by marker.
+pub struct Formats {
+    by_kind: Vec<(String, u16, String)>,
+}
+
+impl Formats {
+    /// Read the log statements' format strings from the ELF's `.defmt` symbols (each
+    /// symbol's address is the index the firmware sends; its name is JSON).
+    pub fn from_elf(elf: &[u8]) -> Result<Self> {
+        use object::{Object, ObjectSection, ObjectSymbol};
+        let file = object::File::parse(elf).context("parsing the ELF")?;
+        let defmt: Vec<_> = file
+            .sections()
+            .filter(|s| {
+                s.name()
+                    .is_ok_and(|n| n == ".defmt" || n.starts_with(".defmt."))
+            })
+            .map(|s| s.index())
+            .collect();
+        let mut by_kind = Vec::new();
+        for sym in file.symbols() {
+            if !sym.section_index().is_some_and(|i| defmt.contains(&i)) {
+                continue;
+            }
+            let Ok(name) = sym.name() else { continue };
+            let Ok(json) = serde_json::from_str::<serde_json::Value>(name) else {
+                continue;
+            };
+            let tag = json["tag"].as_str().unwrap_or("");
+            let data = json["data"].as_str().unwrap_or("");
+            if !matches!(tag, "defmt_info" | "defmt_error" | "defmt_warn") {
+                continue;
+            }
+            let word = data.split_whitespace().next().unwrap_or("");
+            if word == "mras" || word.starts_with("mras-") {
+                let index = u16::try_from(sym.address())
+                    .map_err(|_| anyhow!("defmt index {:#x} beyond u16", sym.address()))?;
+                by_kind.push((word.to_string(), index, data.to_string()));
+            }
+        }
+        if by_kind.is_empty() {
+            bail!("the ELF has no `mras` log statement: not the drive firmware, or DEFMT_LOG filtered them out");
+        }
+        Ok(Self { by_kind })
+    }
+
+    fn get(&self, kind: &str) -> Result<(u16, &str)> {
+        let mut it = self.by_kind.iter().filter(|(k, _, _)| k == kind);
+        let (_, index, format) = it
+            .next()
+            .ok_or_else(|| anyhow!("the ELF has no `{kind}` log statement"))?;
+        if it.next().is_some() {
+            bail!("the ELF has two `{kind}` log statements");
+        }
+        Ok((*index, format))
+    }
+
+    /// One frame of `kind` with `fields` in the format's order, rzCOBS-framed as defmt-rtt
+    /// sends it (no timestamp: the firmware defines none). The names the format gives its
+    /// parameters must be the fields' names.
+    pub fn encode(&self, kind: &str, fields: &[(String, Value)], out: &mut Vec<u8>) -> Result<()> {
+        let (index, format) = self.get(kind)?;
+        let frags = defmt_parser::parse(format, ParserMode::Strict)
+            .map_err(|e| anyhow!("`{format}`: {e:?}"))?;
+        let (_, params) = schema(&frags)?.ok_or_else(|| anyhow!("`{format}` is not ours"))?;
+        if params.len() != fields.len() {
+            bail!(
+                "`{kind}`: the format has {} parameters, the schema {} fields",
+                params.len(),
+                fields.len()
+            );
+        }
+        let mut raw = index.to_le_bytes().to_vec();
+        for ((key, ty), (name, v)) in params.iter().zip(fields) {
+            if key != name {
+                bail!("`{kind}`: parameter `{key}` where the schema has `{name}`");
+            }
+            put(ty, v, &mut raw).with_context(|| format!("`{kind}` `{name}`"))?;
+        }
+        let mut enc = defmt::Encoder::new();
+        enc.start_frame(|b| out.extend_from_slice(b));
+        enc.write(&raw, |b| out.extend_from_slice(b));
+        enc.end_frame(|b| out.extend_from_slice(b));
+        Ok(())
+    }
+
+    pub fn encode_record(&self, r: &Record, out: &mut Vec<u8>) -> Result<()> {
+        let fields: Vec<(String, Value)> = r
+            .fields()
+            .map(|(k, v)| (k.to_string(), Value::from_field(v)))
+            .collect();
+        self.encode("mras", &fields, out)
+    }
+
+    pub fn encode_event(&self, e: &drive::telemetry::Event, out: &mut Vec<u8>) -> Result<()> {
+        let fields: Vec<(String, Value)> = e
+            .fields()
+            .iter()
+            .map(|(k, v)| (k.to_string(), Value::from_field(*v)))
+            .collect();
+        self.encode(e.kind(), &fields, out)
+    }
+
+    pub fn encode_paths(&self, names: &str, out: &mut Vec<u8>) -> Result<()> {
+        self.encode(
+            "mras-paths",
+            &[(String::new(), Value::Str(names.to_string()))],
+            out,
+        )
+    }
+}
+
+/// The stream a simulated power-up would have sent: the `mras-paths` line (as the
+/// firmware's init sends it), then the supervisor's records and events in order.
+pub fn encode_streamed(
+    formats: &Formats,
+    path_names: &str,
+    items: &[(f64, crate::rig::Streamed)],
+) -> Result<Vec<u8>> {
+    let mut out = Vec::new();
+    formats.encode_paths(path_names, &mut out)?;
+    for (_, item) in items {
+        match item {
+            crate::rig::Streamed::Record(r) => formats.encode_record(r, &mut out)?,
+            crate::rig::Streamed::Event(e) => formats.encode_event(e, &mut out)?,
+        }
+    }
+    Ok(out)
+}
+
+/// The release firmware ELF of this checkout.
+pub fn release_elf() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/thumbv7em-none-eabihf/release/drive-fw")
+}
+
+/// A value in defmt's wire format for its parameter type (little-endian, str as a u32
+/// length and the bytes, bool as one byte).
+fn put(ty: &Type, v: &Value, raw: &mut Vec<u8>) -> Result<()> {
+    match (ty, v) {
+        (Type::U8, Value::Uint(x)) => raw.push(u8::try_from(*x)?),
+        (Type::U16, Value::Uint(x)) => raw.extend(u16::try_from(*x)?.to_le_bytes()),
+        (Type::U32, Value::Uint(x)) => raw.extend(u32::try_from(*x)?.to_le_bytes()),
+        (Type::F32, Value::F32(x)) => raw.extend(x.to_bits().to_le_bytes()),
+        (Type::Bool, Value::Bool(x)) => raw.push(*x as u8),
+        (Type::Str, Value::Str(s)) => {
+            raw.extend(u32::try_from(s.len())?.to_le_bytes());
+            raw.extend(s.as_bytes());
+        }
+        (ty, v) => bail!("a {v:?} for a {ty:?} parameter"),
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frags(format: &str) -> Vec<Fragment<'_>> {
+        defmt_parser::parse(format, ParserMode::Strict).unwrap()
+    }
+
+    fn line(format: &str, texts: &[&str]) -> Result<Option<Line>> {
+        line_of(&frags(format), texts.iter().map(|t| t.to_string()))
+    }
+
+    #[test]
+    fn lines_take_names_from_the_literals_and_lists_continue() {
+        let l = line(
+            "mras t_ms={=u32} ok={=bool} coef={=f32},{=f32}",
+            &["12", "true", "0.5", "-1e-7"],
+        )
+        .unwrap()
+        .unwrap();
+        assert_eq!(l.kind, "mras");
+        assert_eq!(
+            l.fields,
+            [
+                ("t_ms".to_string(), Value::Uint(12)),
+                ("ok".to_string(), Value::Bool(true)),
+                ("coef".to_string(), Value::F32(0.5)),
+                ("coef".to_string(), Value::F32(-1e-7)),
+            ]
+        );
+        assert_eq!(l.t_ms(), Some(12));
+        let p = line("mras-paths {=str}", &["offset,h4"]).unwrap().unwrap();
+        assert_eq!(p.paths().unwrap(), ["offset", "h4"]);
+    }
+
+    #[test]
+    fn other_lines_are_not_ours_and_bad_values_are_named() {
+        assert_eq!(line("drive-fw: {=u32} Hz", &["1"]).unwrap(), None);
+        let e = line("mras t_ms={=u32}", &["x1"]).unwrap_err();
+        assert!(format!("{e:#}").contains("`t_ms`"), "{e:#}");
+        let e = line("mras t_ms={=u32} junk {=u32}", &["1", "2"]).unwrap_err();
+        assert!(format!("{e:#}").contains("junk"), "{e:#}");
+    }
+
+    #[test]
+    fn record_lines_check_the_schema() {
+        let r = Record {
+            t_ms: 5,
+            state: State::Adapt,
+            faults: 0,
+            omega_rad_s: 125.0,
+            amplitude: 1.0,
+            converged: false,
+            revs: 3,
+            residual_max_rad: 1e-3,
+            cycles_max: 0,
+            cycles_mean: 0,
+            cycles_min: 0,
+            coef: [0.25; 2 * MAX_PATHS],
+        };
+        let fields: Vec<(String, Value)> = r
+            .fields()
+            .map(|(k, v)| (k.to_string(), Value::from_field(v)))
+            .collect();
+        let line = Line {
+            kind: "mras".into(),
+            fields: fields.clone(),
+        };
+        assert_eq!(line.record().unwrap(), r);
+        let mut short = line.clone();
+        short.fields.pop();
+        assert!(format!("{:#}", short.record().unwrap_err()).contains("coef"));
+        let mut unknown = line.clone();
+        unknown.fields.push(("speed".into(), Value::F32(1.0)));
+        assert!(format!("{:#}", unknown.record().unwrap_err()).contains("speed"));
+        let mut state = line;
+        state.fields[1].1 = Value::Str("Spinning".into());
+        assert!(format!("{:#}", state.record().unwrap_err()).contains("Spinning"));
+    }
+}
