@@ -8,30 +8,32 @@
 //! in the flash bank it does not run from (read-while-write). The addresses belong to
 //! `memory.x`; this crate only sees slots through [`crate::FlashSlots`].
 //!
-//! # Record, format 2 (little-endian, [`RECORD_BYTES`] = 128 bytes at the start of a slot)
+//! # Record (little-endian, [`RECORD_BYTES`] = 128 bytes at the start of a slot)
+//!
+//! Format version 2: version 1 (120 bytes, no alignment, a configuration hash without
+//! the pole-pair count) is refused as
+//! [`crate::RecordError::UnsupportedVersion`].
 //!
 //! | offset | size | field |
 //! |---:|---:|---|
 //! | 0 | 4 | magic [`MAGIC`] ("MRAS" read as a big-endian u32) |
 //! | 4 | 2 | format version [`FORMAT_VERSION`] |
 //! | 6 | 1 | path count (≤ `MAX_PATHS` = 8) |
-//! | 7 | 1 | alignment flags: bit 0 = sensor reversed, other bits 0 |
+//! | 7 | 1 | direction flags: bit 0 = alignment `reversed`; bits 1-7 are 0 (else refused) |
 //! | 8 | 4 | sequence number (serial-number arithmetic, wraps) |
 //! | 12 | 4 | configuration hash ([`crate::config_hash`]) |
-//! | 16 | 4 | electrical offset of the alignment (f32 bits, rad, in [-π, π]) |
+//! | 16 | 4 | alignment `offset_e_rad` (f32 bits, finite, within [-π, π]) |
 //! | 20 | 4 | reserved, written 0 |
 //! | 24 + 12·i | 12 | path i: kind tag (u8), h (i8), 2 reserved (0), re (f32 bits), im (f32 bits) |
 //! | 120 | 4 | CRC-32/ISO-HDLC over bytes 0..120 |
 //! | 124 | 4 | commit mark [`COMMIT_MARK`] |
 //!
-//! Format 1 (120 bytes, no alignment, byte 7 reserved) is refused by version: its
-//! coefficients are fine, but without the electrical alignment the drive cannot use
-//! them, so it commissions again.
-//!
 //! All eight path entries are always present (unused ones are zero), so the CRC sits at
 //! a fixed offset that does not depend on the (untrusted) path count. The last double
 //! word (CRC + commit mark) is programmed last; since the mark is not 0xFFFF_FFFF, a
 //! write interrupted before it can never look complete, whatever the CRC value.
+//! Reserved bytes are covered by the CRC but not otherwise checked: a layout change
+//! bumps [`FORMAT_VERSION`] rather than giving them a meaning.
 
 use mras::MAX_PATHS;
 
@@ -53,10 +55,8 @@ pub const FORMAT_VERSION: u16 = 2;
 /// last double word was programmed.
 pub const COMMIT_MARK: u32 = !MAGIC;
 
-/// Magic, version, count, flags, sequence, hash, offset, reserved.
+/// Magic, version, count, direction flags, sequence, hash, alignment offset, reserved.
 pub const HEADER_BYTES: usize = 24;
-/// Bit 0 of the flags byte: the sensor turns against the phase sequence.
-pub(crate) const FLAG_REVERSED: u8 = 1;
 /// Tag, h, 2 reserved, re, im.
 pub const PATH_ENTRY_BYTES: usize = 12;
 /// Offset of the CRC, i.e. length of the CRC-protected part.
@@ -66,12 +66,16 @@ pub const COMMIT_OFFSET: usize = CRC_OFFSET;
 /// Size of an encoded record: a whole number of double words.
 pub const RECORD_BYTES: usize = COMMIT_OFFSET + DOUBLE_WORD_BYTES;
 
+/// Bit 0 of the direction flags byte: [`crate::Alignment::reversed`].
+pub(crate) const FLAG_REVERSED: u8 = 0x01;
+
 /// [`crate::PathKind`] tags in the record (and in the configuration hash).
 pub(crate) const TAG_OFFSET: u8 = 0;
 pub(crate) const TAG_AMPLITUDE_QUADRATURE: u8 = 1;
 pub(crate) const TAG_HARMONIC: u8 = 2;
 
 const _: () = {
+    assert!(HEADER_BYTES % DOUBLE_WORD_BYTES == 0);
     assert!(COMMIT_OFFSET % DOUBLE_WORD_BYTES == 0);
     assert!(RECORD_BYTES % DOUBLE_WORD_BYTES == 0);
     assert!(RECORD_BYTES <= PAGE_BYTES);

@@ -1,13 +1,14 @@
-//! Power-loss-safe flash record of the MRAS calibration, so that a drive can skip
-//! self-commissioning at the next power-up.
+//! Power-loss-safe flash record of the drive's sensor calibration, so that a drive
+//! can skip self-commissioning at the next power-up.
 //!
 //! A [`Calibration`] (the [`mras::Coefficients`] snapshot and the electrical
 //! [`Alignment`]) is stored as a checksummed record (magic, format version,
-//! configuration hash, sequence number, CRC) in one of two alternating slots,
-//! one flash page each. [`store`] always writes the slot that does not hold the record
+//! configuration hash, sequence number, CRC) in one of two alternating slots, one
+//! flash page each. [`store`] always writes the slot that does not hold the record
 //! [`load`] would return and programs the commit double word last, so a power loss at
 //! any point leaves either the previous calibration or the new one. Layout and flash
-//! rules: [`layout`].
+//! rules: [`layout`]. Records of another format version are refused
+//! ([`RecordError::UnsupportedVersion`]); every error has a stable `name()` for logs.
 //!
 //! `no_std`, no allocation, no panics on any flash content.
 //!
@@ -16,18 +17,23 @@
 //! use mras::{Coefficients, Config, Cplx, PathKind};
 //!
 //! let cfg = Config::default();
-//! let hash = config_hash(&cfg, 4); // and the motor's 4 pole pairs
+//! let pole_pairs = 4;
+//! let hash = config_hash(&cfg, pole_pairs);
 //! let mut coefficients = Coefficients::zeros(cfg.paths());
 //! coefficients.set(PathKind::Offset, Cplx::new(0.1, -0.08));
-//! let cal = Calibration {
+//! let calibration = Calibration {
 //!     coefficients,
 //!     alignment: Alignment { offset_e_rad: -1.2, reversed: true },
 //! };
 //!
 //! let mut flash = RamFlash::new(); // the firmware implements `FlashSlots` on the chip
-//! store(&mut flash, &cal, hash).unwrap();
+//! match load(&flash, hash) {
+//!     Ok(_) => unreachable!("blank flash"),
+//!     Err(e) => assert_eq!(e.name(), "Erased"), // self-commission, then store
+//! }
+//! store(&mut flash, &calibration, hash).unwrap();
 //! let loaded = load(&flash, hash).unwrap();
-//! assert_eq!(loaded.record.calibration, cal);
+//! assert_eq!(loaded.record.calibration, calibration);
 //! ```
 #![no_std]
 #![deny(unsafe_code)]

@@ -1,10 +1,12 @@
 //! The record codec and the configuration hash.
 //!
 //! Flash content is untrusted input: [`decode`] checks everything (length, erased
-//! state, magic, version, commit mark, CRC, path list, finiteness, configuration) and
-//! never panics. Values are not range-checked against the coefficient limit: that
-//! limit depends on the health configuration, and `mras::Tracker::set_coefficients`
-//! enforces it when the record is applied.
+//! state, magic, version, commit mark, CRC, path list, finiteness, alignment,
+//! configuration) and never panics. Coefficients are not range-checked against the
+//! coefficient limit: that limit depends on the health configuration, and
+//! `mras::Tracker::set_coefficients` enforces it when the record is applied.
+
+use core::f32::consts::PI;
 
 use crc::{Crc, NoTable, CRC_32_ISO_HDLC};
 use mras::config::MAX_HARMONIC;
@@ -19,25 +21,29 @@ use crate::layout::{
 /// Bitwise CRC (no 1 KiB table in flash): the record is checked once per boot.
 const CRC32: Crc<u32, NoTable> = Crc::<u32, NoTable>::new(&CRC_32_ISO_HDLC);
 
-/// Electrical zero of the rotor as the sensor sees it: `θe = dir·(p/N)·θs + offset_e_rad`
-/// (p pole pairs, N sensor periods, θs the sensor's electrical angle), `dir = -1` when
-/// the sensor turns against the motor's phase sequence.
+/// Electrical zero of the rotor as the sensor sees it: θe = dir·(p/N)·θs + offset_e_rad,
+/// with dir = -1 when `reversed`.
+///
+/// p is the motor's pole-pair count and N the sensor's periods per mechanical
+/// revolution; both are covered by [`config_hash`], so an alignment is never applied
+/// to another motor or sensor. A record holds only an offset that is finite and
+/// within [-π, π] (`core::f32::consts::PI`, both ends included).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Alignment {
     pub offset_e_rad: f32,
+    /// The sensor angle turns against the motor's phase sequence.
     pub reversed: bool,
 }
 
 impl Alignment {
-    /// Sensor zero on the rotor's electrical zero, turning with the phase sequence.
+    /// No offset, same direction.
     pub const IDENTITY: Self = Self {
         offset_e_rad: 0.0,
         reversed: false,
     };
 }
 
-/// What a record persists: the sensor's decoupling coefficients and the electrical
-/// alignment measured with them.
+/// What a record persists.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Calibration {
     pub coefficients: Coefficients,
@@ -50,7 +56,7 @@ pub struct Record {
     pub calibration: Calibration,
     /// Store counter; the newer of two records wins (serial-number arithmetic).
     pub sequence: u32,
-    /// [`config_hash`] of the configuration that produced the coefficients.
+    /// [`config_hash`] of the configuration (and motor) that produced the calibration.
     pub config_hash: u32,
 }
 
@@ -63,7 +69,8 @@ pub enum RecordError {
     Erased,
     /// Not a calibration record (or a partial erase).
     BadMagic,
-    /// Written by another format version; its layout cannot be trusted.
+    /// Written by another format version (`expected` is [`FORMAT_VERSION`]); its layout
+    /// cannot be trusted, so nothing else is read.
     UnsupportedVersion { found: u16, expected: u16 },
     /// The last double word is still erased: a write was interrupted.
     Incomplete,
@@ -74,8 +81,8 @@ pub enum RecordError {
     BadPathList,
     /// A coefficient is NaN or infinite.
     NonFiniteValue,
-    /// The alignment's offset is not finite or outside [-π, π], or its flags hold
-    /// unknown bits.
+    /// The alignment offset is not finite or outside [-π, π], or a direction flag
+    /// other than bit 0 is set.
     BadAlignment,
     /// Intact, but produced under another configuration (sensor periods, pole pairs,
     /// input scaling or path list differ).
@@ -83,8 +90,9 @@ pub enum RecordError {
 }
 
 impl RecordError {
-    /// A stable short name, for logs and the stream.
-    pub fn name(&self) -> &'static str {
+    /// The variant's name, without its fields: stable, for logs (`defmt`, a console)
+    /// that should not depend on `Debug` formatting.
+    pub const fn name(&self) -> &'static str {
         match self {
             RecordError::Truncated => "Truncated",
             RecordError::Erased => "Erased",
@@ -100,13 +108,14 @@ impl RecordError {
     }
 }
 
-/// Hash of the configuration fields that give the coefficients their meaning.
+/// Hash of the configuration fields that give a [`Calibration`] its meaning.
 ///
-/// Covered: `sensor_periods` and the motor's `pole_pairs` (the alignment is in
-/// electrical angle: it means nothing for another pole count), the input scaling offsets
-/// and gains (coefficients are in scaled units) and the path list (count, kinds, order).
-/// Not covered: sample period, observer, adaptation law, gates, health and convergence
-/// settings, and `input.raw_limit`: retuning those must not throw away a calibration.
+/// Covered: `sensor_periods` and the motor's `pole_pairs` (the alignment maps the
+/// sensor angle to the electrical angle through p/N: for another sensor or motor it
+/// means nothing), the input scaling offsets and gains (coefficients are in scaled
+/// units) and the path list (count, kinds, order). Not covered: sample period,
+/// observer, adaptation law, gates, health and convergence settings, and
+/// `input.raw_limit`: retuning those must not throw away a calibration.
 ///
 /// CRC-32/ISO-HDLC over, little-endian: `sensor_periods` (u16); `pole_pairs` (u16);
 /// `offset_x`, `offset_y`, `gain_x`, `gain_y` (f32 bits, `-0.0` as `0.0`); path count
@@ -166,25 +175,28 @@ fn kind_from_bytes(tag: u8, h: u8) -> Option<PathKind> {
 
 /// Encode a record into `buf`; returns the number of bytes to program ([`RECORD_BYTES`]).
 ///
-/// Does not validate: a snapshot with non-finite values, an invalid path list or an
-/// alignment out of range encodes, and [`decode`] refuses it ([`crate::store`] checks
-/// before erasing anything).
-pub fn encode(cal: &Calibration, seq: u32, cfg_hash: u32, buf: &mut [u8; RECORD_BYTES]) -> usize {
-    let coefs = &cal.coefficients;
+/// Does not validate: a calibration with non-finite values, an invalid path list or
+/// an out-of-range alignment offset encodes, and [`decode`] refuses it
+/// ([`crate::store`] checks before erasing anything). The offset is stored bit for bit
+/// (`-0.0` stays `-0.0`).
+pub fn encode(
+    calibration: &Calibration,
+    seq: u32,
+    cfg_hash: u32,
+    buf: &mut [u8; RECORD_BYTES],
+) -> usize {
+    let coefs = &calibration.coefficients;
+    let alignment = &calibration.alignment;
     buf.fill(0);
     let mut w = Writer { rest: &mut buf[..] };
     w.put(MAGIC.to_le_bytes());
     w.put(FORMAT_VERSION.to_le_bytes());
-    let flags = if cal.alignment.reversed {
-        FLAG_REVERSED
-    } else {
-        0
-    };
+    let flags = if alignment.reversed { FLAG_REVERSED } else { 0 };
     // `Coefficients` holds at most MAX_PATHS (8) paths.
     w.put([coefs.len() as u8, flags]);
     w.put(seq.to_le_bytes());
     w.put(cfg_hash.to_le_bytes());
-    w.put(cal.alignment.offset_e_rad.to_bits().to_le_bytes());
+    w.put(alignment.offset_e_rad.to_bits().to_le_bytes());
     w.put([0u8; 4]);
     for (kind, v) in coefs.iter() {
         let [tag, h] = kind_bytes(kind);
@@ -204,8 +216,8 @@ pub fn encode(cal: &Calibration, seq: u32, cfg_hash: u32, buf: &mut [u8; RECORD_
 /// Decode and validate a record read from flash (`bytes` may be longer, e.g. a page).
 ///
 /// Checks, in order: length, erased, magic, version (it fixes the layout), commit
-/// double word programmed, CRC and commit mark, alignment, path list, finite values, and
-/// last the configuration hash.
+/// double word programmed, CRC and commit mark, path list, finite values, alignment,
+/// and last the configuration hash.
 pub fn decode(bytes: &[u8], expected_hash: u32) -> Result<Record, RecordError> {
     let rec = decode_intact(bytes)?;
     if rec.config_hash != expected_hash {
@@ -251,16 +263,7 @@ pub(crate) fn decode_intact(bytes: &[u8]) -> Result<Record, RecordError> {
     let sequence = r.u32()?;
     let config_hash = r.u32()?;
     let offset_e_rad = f32::from_bits(r.u32()?);
-    let _reserved = r.u32()?;
-    if flags & !FLAG_REVERSED != 0
-        || !(offset_e_rad.is_finite() && offset_e_rad.abs() <= core::f32::consts::PI)
-    {
-        return Err(RecordError::BadAlignment);
-    }
-    let alignment = Alignment {
-        offset_e_rad,
-        reversed: flags & FLAG_REVERSED != 0,
-    };
+    let _reserved = r.take::<4>()?;
     if count > MAX_PATHS {
         return Err(RecordError::BadPathList);
     }
@@ -296,10 +299,23 @@ pub(crate) fn decode_intact(bytes: &[u8]) -> Result<Record, RecordError> {
             return Err(RecordError::BadPathList);
         }
     }
+    // Bits 1-7 have no meaning in this version: refuse rather than ignore them.
+    let reversed = match flags {
+        0 => false,
+        FLAG_REVERSED => true,
+        _ => return Err(RecordError::BadAlignment),
+    };
+    // `contains` is false for NaN and for ±∞ (outside the range).
+    if !(-PI..=PI).contains(&offset_e_rad) {
+        return Err(RecordError::BadAlignment);
+    }
     Ok(Record {
         calibration: Calibration {
             coefficients,
-            alignment,
+            alignment: Alignment {
+                offset_e_rad,
+                reversed,
+            },
         },
         sequence,
         config_hash,

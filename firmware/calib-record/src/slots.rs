@@ -59,6 +59,37 @@ pub enum Rejected<E> {
     Flash(E),
 }
 
+impl<E> Rejected<E> {
+    /// [`RecordError::name`], or "Flash" for a failed read.
+    pub const fn name(&self) -> &'static str {
+        match self {
+            Rejected::Record(e) => e.name(),
+            Rejected::Flash(_) => "Flash",
+        }
+    }
+
+    /// How much the rejection says about what the slot holds, for
+    /// [`LoadError::reason`]: nothing (erased) lowest, then a failed read, then damaged
+    /// or interrupted writes (in [`decode`]'s order), then a record of another format
+    /// version, then a sealed record with invalid content, and highest an intact record
+    /// of another configuration.
+    const fn rank(&self) -> u8 {
+        match self {
+            Rejected::Record(RecordError::Erased) => 0,
+            Rejected::Flash(_) => 1,
+            Rejected::Record(RecordError::Truncated) => 2,
+            Rejected::Record(RecordError::BadMagic) => 3,
+            Rejected::Record(RecordError::Incomplete) => 4,
+            Rejected::Record(RecordError::BadCrc) => 5,
+            Rejected::Record(RecordError::UnsupportedVersion { .. }) => 6,
+            Rejected::Record(RecordError::BadPathList) => 7,
+            Rejected::Record(RecordError::NonFiniteValue) => 8,
+            Rejected::Record(RecordError::BadAlignment) => 9,
+            Rejected::Record(RecordError::ConfigMismatch { .. }) => 10,
+        }
+    }
+}
+
 /// What the slot that was not loaded holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum OtherSlot<E> {
@@ -84,18 +115,28 @@ pub enum LoadError<E> {
 }
 
 impl<E> LoadError<E> {
-    /// The most informative reason by name: a slot rejected for something other than
-    /// being erased (a read error is "Flash"), else "Erased".
-    pub fn name(&self) -> &'static str {
-        let LoadError::NoValidRecord { a, b } = self;
-        let name = |r: &Rejected<E>| match r {
-            Rejected::Record(e) => e.name(),
-            Rejected::Flash(_) => "Flash",
-        };
-        match (name(a), name(b)) {
-            ("Erased", other) => other,
-            (first, _) => first,
+    /// The more informative of the two slots' rejections: `Erased` only if both slots
+    /// are erased; otherwise the one that says more about what the flash holds: a
+    /// record of another configuration or format version over a damaged or
+    /// interrupted write (e.g. a version-1 record's `UnsupportedVersion` over an
+    /// interrupted store's `Incomplete`, a `ConfigMismatch` over a `BadCrc`). Slot A's
+    /// on a tie.
+    pub const fn reason(&self) -> &Rejected<E> {
+        match self {
+            LoadError::NoValidRecord { a, b } => {
+                if b.rank() > a.rank() {
+                    b
+                } else {
+                    a
+                }
+            }
         }
+    }
+
+    /// The name of [`LoadError::reason`] (see [`RecordError::name`]; "Flash" for a
+    /// failed read): why the drive self-commissions, for the log.
+    pub const fn name(&self) -> &'static str {
+        self.reason().name()
     }
 }
 
@@ -103,8 +144,8 @@ impl<E> LoadError<E> {
 /// untouched: [`load`] still returns it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum StoreError<E> {
-    /// The calibration would not decode (non-finite value, invalid path list, alignment
-    /// out of range); flash was not touched.
+    /// The calibration would not decode (non-finite coefficient, invalid path list,
+    /// alignment offset not finite or outside [-π, π]); flash was not touched.
     InvalidCalibration(RecordError),
     /// Erase, program or read failed.
     Flash(E),
@@ -113,8 +154,8 @@ pub enum StoreError<E> {
 }
 
 impl<E> StoreError<E> {
-    /// A stable short name, for logs and the stream.
-    pub fn name(&self) -> &'static str {
+    /// The variant's name, without its fields: stable, for logs.
+    pub const fn name(&self) -> &'static str {
         match self {
             StoreError::InvalidCalibration(_) => "InvalidCalibration",
             StoreError::Flash(_) => "Flash",
@@ -186,7 +227,7 @@ pub fn load<F: FlashSlots>(
     }
 }
 
-/// Write `cal` as a new record and return the slot it went to.
+/// Write `calibration` as a new record and return the slot it went to.
 ///
 /// The target is the slot *not* holding the record [`load`] would return for
 /// `cfg_hash` (failing that, not the newest intact record of another configuration);
@@ -199,7 +240,7 @@ pub fn load<F: FlashSlots>(
 /// so store once per commissioning, not periodically.
 pub fn store<F: FlashSlots>(
     flash: &mut F,
-    cal: &Calibration,
+    calibration: &Calibration,
     cfg_hash: u32,
 ) -> Result<Slot, StoreError<F::Error>> {
     let a = examine(flash, Slot::A, decode_intact).ok();
@@ -229,7 +270,7 @@ pub fn store<F: FlashSlots>(
     let sequence = newest_seq.map_or(FIRST_SEQUENCE, |s| s.wrapping_add(1));
 
     let mut buf = [0u8; RECORD_BYTES];
-    encode(cal, sequence, cfg_hash, &mut buf);
+    encode(calibration, sequence, cfg_hash, &mut buf);
     // Refuse before erasing anything what load would refuse.
     decode(&buf, cfg_hash).map_err(StoreError::InvalidCalibration)?;
 

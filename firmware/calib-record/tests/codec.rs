@@ -2,60 +2,64 @@
 
 mod common;
 
+use core::f32::consts::PI;
+
 use calib_record::layout::{COMMIT_OFFSET, DOUBLE_WORD_BYTES, FORMAT_VERSION, HEADER_BYTES};
 use calib_record::{
-    config_hash, decode, encode, load, Alignment, Calibration, FlashSlots, RamFlash, Record,
-    RecordError, Slot, PAGE_BYTES, RECORD_BYTES,
+    config_hash, decode, encode, Alignment, Calibration, Record, RecordError, PAGE_BYTES,
+    RECORD_BYTES,
 };
 use common::{
-    cal, coefs, encoded, encoded_cal, reseal, same_bits, ALIGN, DEFAULT_PATHS, HASH, OTHER_HASH,
+    calib, coefs, encoded, reseal, same_bits, v1_record, with_identity, DEFAULT_PATHS, HASH,
+    OTHER_HASH, V1_RECORD_BYTES,
 };
 use mras::{Coefficients, Config, Cplx, PathKind, MAX_PATHS};
 
 /// Byte offsets of header fields (see `layout`).
 const VERSION_AT: usize = 4;
 const COUNT_AT: usize = 6;
-const FLAGS_AT: usize = 7;
+const DIRECTION_AT: usize = 7;
 const OFFSET_AT: usize = 16;
 const PATH0_AT: usize = HEADER_BYTES;
 
+/// The next f32 above π (`f32::next_up` is newer than the crate's MSRV).
+const ABOVE_PI: f32 = f32::from_bits(PI.to_bits() + 1);
+
 const _: () = {
     assert!(RECORD_BYTES == 128);
+    assert!(HEADER_BYTES == 24);
     assert!(RECORD_BYTES % DOUBLE_WORD_BYTES == 0);
     assert!(COMMIT_OFFSET == RECORD_BYTES - DOUBLE_WORD_BYTES);
 };
 
 #[test]
 fn round_trip() {
-    let c = coefs(0.01);
+    let c = calib(0.01);
     let buf = encoded(&c, 7, HASH);
     let rec = decode(&buf, HASH).unwrap();
     assert_eq!(
         rec,
         Record {
-            calibration: cal(&c),
+            calibration: c,
             sequence: 7,
             config_hash: HASH
         }
     );
-    assert!(same_bits(&rec.calibration.coefficients, &c));
+    assert!(same_bits(&rec.calibration, &c));
 }
 
 #[test]
 fn round_trip_from_a_whole_page() {
     let mut page = [0xFFu8; PAGE_BYTES];
-    page[..RECORD_BYTES].copy_from_slice(&encoded(&coefs(0.5), 3, HASH));
+    page[..RECORD_BYTES].copy_from_slice(&encoded(&calib(0.5), 3, HASH));
     assert_eq!(decode(&page, HASH).unwrap().sequence, 3);
 }
 
 #[test]
 fn round_trip_no_paths_and_max_paths() {
-    let none = Coefficients::zeros(&[]);
+    let none = with_identity(Coefficients::zeros(&[]));
     assert_eq!(
-        decode(&encoded(&none, 1, HASH), HASH)
-            .unwrap()
-            .calibration
-            .coefficients,
+        decode(&encoded(&none, 1, HASH), HASH).unwrap().calibration,
         none
     );
 
@@ -77,23 +81,146 @@ fn round_trip_no_paths_and_max_paths() {
             Cplx::new(n as f32 * 0.01, -(n as f32) * f32::MIN_POSITIVE),
         );
     }
-    let back = decode(&encoded(&full, 1, HASH), HASH)
-        .unwrap()
-        .calibration
-        .coefficients;
+    let full = Calibration {
+        coefficients: full,
+        alignment: Alignment {
+            offset_e_rad: -PI,
+            reversed: true,
+        },
+    };
+    let back = decode(&encoded(&full, 1, HASH), HASH).unwrap().calibration;
     assert!(same_bits(&back, &full));
 }
 
-/// The format is persisted in the field: pin it byte for byte (format 2, the fixtures'
-/// alignment: offset -1.25 rad, reversed). The expected bytes, CRC included, were
-/// computed independently with Python's `struct` and `zlib.crc32`.
+/// Every valid alignment comes back bit for bit: both directions, the ends ±π of the
+/// range, ±0 and subnormals; the header holds exactly the documented bytes.
+#[test]
+fn alignment_round_trips_exactly() {
+    let offsets = [
+        PI,
+        -PI,
+        0.0,
+        -0.0,
+        f32::from_bits(1), // smallest subnormal
+        -f32::MIN_POSITIVE,
+        f32::from_bits(PI.to_bits() - 1), // just below π
+        -1.25,
+        2.5,
+    ];
+    for offset_e_rad in offsets {
+        for reversed in [false, true] {
+            let c = Calibration {
+                coefficients: coefs(0.07),
+                alignment: Alignment {
+                    offset_e_rad,
+                    reversed,
+                },
+            };
+            let buf = encoded(&c, 11, HASH);
+            assert_eq!(buf[DIRECTION_AT], u8::from(reversed));
+            assert_eq!(
+                buf[OFFSET_AT..OFFSET_AT + 4],
+                offset_e_rad.to_bits().to_le_bytes()
+            );
+            assert_eq!(buf[OFFSET_AT + 4..HEADER_BYTES], [0; 4]);
+            let back = decode(&buf, HASH).unwrap().calibration;
+            assert_eq!(back, c);
+            assert!(
+                same_bits(&back, &c),
+                "{offset_e_rad:e} reversed {reversed}: {back:?}"
+            );
+        }
+    }
+    let id = decode(&encoded(&with_identity(coefs(0.0)), 1, HASH), HASH).unwrap();
+    assert_eq!(id.calibration.alignment, Alignment::IDENTITY);
+}
+
+#[test]
+fn bad_alignment_offsets_are_rejected() {
+    let bad_offsets = [
+        f32::NAN,
+        -f32::NAN,
+        f32::from_bits(0x7F80_0001), // signalling NaN
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        ABOVE_PI,
+        -ABOVE_PI,
+        3.2,
+        -4.0,
+        2.0 * PI,
+        f32::MAX,
+        f32::MIN,
+    ];
+    for offset_e_rad in bad_offsets {
+        for reversed in [false, true] {
+            let c = Calibration {
+                coefficients: coefs(0.0),
+                alignment: Alignment {
+                    offset_e_rad,
+                    reversed,
+                },
+            };
+            // `encode` does not validate; `decode` refuses.
+            let err = decode(&encoded(&c, 1, HASH), HASH).unwrap_err();
+            assert_eq!(err, RecordError::BadAlignment, "{offset_e_rad:e}");
+            assert_eq!(err.name(), "BadAlignment");
+        }
+    }
+}
+
+/// The direction byte is 0 (same direction) or 1 (reversed); any other value,
+/// correctly sealed, is refused.
+#[test]
+fn direction_byte_only_0_or_1() {
+    for byte in 0..=u8::MAX {
+        let mut buf = encoded(&calib(0.3), 1, HASH);
+        buf[DIRECTION_AT] = byte;
+        reseal(&mut buf);
+        let r = decode(&buf, HASH).map(|rec| rec.calibration.alignment.reversed);
+        let expected = match byte {
+            0 => Ok(false),
+            1 => Ok(true),
+            _ => Err(RecordError::BadAlignment),
+        };
+        assert_eq!(r, expected, "direction byte {byte:#04x}");
+    }
+    // The case named in the format: direction byte 2.
+    let mut buf = encoded(&calib(0.3), 1, HASH);
+    buf[DIRECTION_AT] = 2;
+    reseal(&mut buf);
+    assert_eq!(decode(&buf, HASH), Err(RecordError::BadAlignment));
+}
+
+/// Alignment is checked after the coefficients and before the configuration hash.
+#[test]
+fn alignment_check_order() {
+    let mut c = calib(0.0);
+    c.alignment.offset_e_rad = f32::NAN;
+    c.coefficients
+        .set(PathKind::Offset, Cplx::new(f32::NAN, 0.0));
+    assert_eq!(
+        decode(&encoded(&c, 1, HASH), HASH),
+        Err(RecordError::NonFiniteValue)
+    );
+    let mut c = calib(0.0);
+    c.alignment.offset_e_rad = 4.0;
+    assert_eq!(
+        decode(&encoded(&c, 1, HASH), OTHER_HASH),
+        Err(RecordError::BadAlignment)
+    );
+}
+
+/// The format is persisted in the field: pin it byte for byte. The expected bytes,
+/// CRC included, were computed independently with Python's `struct` and `zlib.crc32`.
 #[test]
 fn golden_bytes() {
-    let mut c = Coefficients::zeros(&DEFAULT_PATHS);
-    c.set(PathKind::Offset, Cplx::new(0.1, -0.08));
-    c.set(PathKind::AmplitudeQuadrature, Cplx::new(0.25, -0.5));
-    c.set(PathKind::Harmonic(4), Cplx::new(1.5e-3, -2.0));
-    c.set(PathKind::Harmonic(5), Cplx::new(0.0, -0.0));
+    let c = Calibration {
+        coefficients: golden_coefficients(),
+        alignment: Alignment {
+            offset_e_rad: -1.25,
+            reversed: true,
+        },
+    };
     #[rustfmt::skip]
     let expected: [u8; RECORD_BYTES] = [
         0x53, 0x41, 0x52, 0x4D, 0x02, 0x00, 0x04, 0x01,
@@ -114,11 +241,78 @@ fn golden_bytes() {
         0xCA, 0x03, 0x3A, 0x71, 0xAC, 0xBE, 0xAD, 0xB2,
     ];
     assert_eq!(encoded(&c, 0x0102_0304, 0xA1B2_C3D4), expected);
+    assert_eq!(decode(&expected, 0xA1B2_C3D4).unwrap().calibration, c);
+}
+
+/// The coefficients of the golden records (both versions).
+fn golden_coefficients() -> Coefficients {
+    let mut c = Coefficients::zeros(&DEFAULT_PATHS);
+    c.set(PathKind::Offset, Cplx::new(0.1, -0.08));
+    c.set(PathKind::AmplitudeQuadrature, Cplx::new(0.25, -0.5));
+    c.set(PathKind::Harmonic(4), Cplx::new(1.5e-3, -2.0));
+    c.set(PathKind::Harmonic(5), Cplx::new(0.0, -0.0));
+    c
+}
+
+/// The version-1 golden record (the pinned bytes of format version 1, computed with
+/// Python's `struct` and `zlib.crc32`): what a drive updated from version-1 firmware
+/// finds in flash.
+#[rustfmt::skip]
+const V1_GOLDEN: [u8; V1_RECORD_BYTES] = [
+    0x53, 0x41, 0x52, 0x4D, 0x01, 0x00, 0x04, 0x00,
+    0x04, 0x03, 0x02, 0x01, 0xD4, 0xC3, 0xB2, 0xA1,
+    0x00, 0x00, 0x00, 0x00, 0xCD, 0xCC, 0xCC, 0x3D,
+    0x0A, 0xD7, 0xA3, 0xBD, 0x01, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x80, 0x3E, 0x00, 0x00, 0x00, 0xBF,
+    0x02, 0x04, 0x00, 0x00, 0xA6, 0x9B, 0xC4, 0x3A,
+    0x00, 0x00, 0x00, 0xC0, 0x02, 0x05, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x80,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0xDF, 0xE3, 0xED, 0x2F, 0xAC, 0xBE, 0xAD, 0xB2,
+];
+
+/// A correctly formed version-1 record (valid v1 CRC and commit mark) is refused by
+/// its version, whatever follows it in the page and whatever hash is expected.
+#[test]
+fn version_1_record_is_refused_as_unsupported_version() {
+    // The hand-built v1 record matches the pinned v1 bytes: it is a genuine v1 record.
+    let v1 = v1_record(&golden_coefficients(), 0x0102_0304, 0xA1B2_C3D4);
+    assert_eq!(v1, V1_GOLDEN);
+    let v1_crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&v1[..112]);
+    assert_eq!(v1[112..116], v1_crc.to_le_bytes());
+
+    let refused = Err(RecordError::UnsupportedVersion {
+        found: 1,
+        expected: 2,
+    });
+    assert_eq!(FORMAT_VERSION, 2);
+    // As the flash holds it: the v1 record, then the erased rest of the page.
+    let mut page = [0xFFu8; PAGE_BYTES];
+    page[..V1_RECORD_BYTES].copy_from_slice(&v1);
+    for hash in [0xA1B2_C3D4, HASH, OTHER_HASH] {
+        assert_eq!(decode(&page, hash), refused);
+    }
+    // Other v1 contents, and whatever the bytes after the v1 record hold.
+    for (n, tail) in [0x00u8, 0xFF, 0x5A].into_iter().enumerate() {
+        let c = coefs(n as f32);
+        let mut buf = [tail; RECORD_BYTES];
+        buf[..V1_RECORD_BYTES].copy_from_slice(&v1_record(&c, n as u32, HASH));
+        let err = decode(&buf, HASH).unwrap_err();
+        assert_eq!(Err(err), refused);
+        assert_eq!(err.name(), "UnsupportedVersion");
+    }
+    // Too short for a v2 record is still Truncated (the length is checked first).
+    assert_eq!(decode(&v1, HASH), Err(RecordError::Truncated));
 }
 
 #[test]
 fn every_single_bit_flip_is_detected() {
-    let good = encoded(&coefs(0.02), 42, HASH);
+    let good = encoded(&calib(0.02), 42, HASH);
     for bit in 0..RECORD_BYTES * 8 {
         let mut buf = good;
         buf[bit / 8] ^= 1 << (bit % 8);
@@ -134,7 +328,7 @@ fn every_single_bit_flip_is_detected() {
 
 #[test]
 fn every_double_bit_flip_is_detected() {
-    let good = encoded(&coefs(0.03), 43, HASH);
+    let good = encoded(&calib(0.03), 43, HASH);
     let bits = RECORD_BYTES * 8;
     for i in 0..bits {
         let mut once = good;
@@ -149,7 +343,7 @@ fn every_double_bit_flip_is_detected() {
 
 #[test]
 fn truncation_at_every_length() {
-    let good = encoded(&coefs(0.04), 44, HASH);
+    let good = encoded(&calib(0.04), 44, HASH);
     for len in 0..RECORD_BYTES {
         assert_eq!(
             decode(&good[..len], HASH),
@@ -173,14 +367,16 @@ fn erased_page() {
 /// on an erased page is refused until the last double word is in.
 #[test]
 fn interrupted_write_images_are_refused() {
-    let good = encoded(&coefs(0.05), 45, HASH);
-    for dws in 0..RECORD_BYTES / DOUBLE_WORD_BYTES {
+    let good = encoded(&calib(0.05), 45, HASH);
+    // Every prefix short of the whole record: the last double word is the commit.
+    let total = RECORD_BYTES / DOUBLE_WORD_BYTES;
+    assert_eq!(total, 16);
+    for dws in 0..total {
         let mut img = [0xFFu8; RECORD_BYTES];
         img[..dws * DOUBLE_WORD_BYTES].copy_from_slice(&good[..dws * DOUBLE_WORD_BYTES]);
         let err = decode(&img, HASH).expect_err("partial record accepted");
         let expected = match dws {
             0 => RecordError::Erased,
-            16 => unreachable!(),
             _ => RecordError::Incomplete,
         };
         assert_eq!(err, expected, "{dws} double words");
@@ -193,7 +389,7 @@ fn interrupted_write_images_are_refused() {
 
 #[test]
 fn commit_mark_and_crc_both_checked() {
-    let good = encoded(&coefs(0.06), 46, HASH);
+    let good = encoded(&calib(0.06), 46, HASH);
     let mut no_mark = good;
     no_mark[COMMIT_OFFSET + 4..].fill(0xFF);
     assert_eq!(decode(&no_mark, HASH), Err(RecordError::BadCrc));
@@ -204,7 +400,7 @@ fn commit_mark_and_crc_both_checked() {
 
 #[test]
 fn bad_magic() {
-    let mut buf = encoded(&coefs(0.0), 1, HASH);
+    let mut buf = encoded(&calib(0.0), 1, HASH);
     buf[..4].copy_from_slice(&0x4D52_4154u32.to_le_bytes());
     reseal(&mut buf);
     assert_eq!(decode(&buf, HASH), Err(RecordError::BadMagic));
@@ -217,7 +413,7 @@ fn bad_magic() {
 #[test]
 fn stale_and_future_versions() {
     for found in [0, FORMAT_VERSION - 1, FORMAT_VERSION + 1, u16::MAX] {
-        let mut buf = encoded(&coefs(0.0), 1, HASH);
+        let mut buf = encoded(&calib(0.0), 1, HASH);
         buf[VERSION_AT..VERSION_AT + 2].copy_from_slice(&found.to_le_bytes());
         reseal(&mut buf);
         assert_eq!(
@@ -230,93 +426,9 @@ fn stale_and_future_versions() {
     }
 }
 
-/// A well-formed record of format 1 (120 bytes, no alignment) as the previous firmware
-/// wrote it: refused by its version, by name, so the drive commissions again.
-#[test]
-fn a_format_1_record_is_refused_by_name() {
-    let mut v1 = [0u8; 120];
-    v1[..4].copy_from_slice(&0x4D52_4153u32.to_le_bytes());
-    v1[4..6].copy_from_slice(&1u16.to_le_bytes());
-    v1[6] = 1; // one path: offset (0.1, -0.08)
-    v1[8..12].copy_from_slice(&5u32.to_le_bytes());
-    v1[12..16].copy_from_slice(&HASH.to_le_bytes());
-    v1[16..20].copy_from_slice(&[0, 0, 0, 0]);
-    v1[20..24].copy_from_slice(&0.1f32.to_bits().to_le_bytes());
-    v1[24..28].copy_from_slice(&(-0.08f32).to_bits().to_le_bytes());
-    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&v1[..112]);
-    v1[112..116].copy_from_slice(&crc.to_le_bytes());
-    v1[116..120].copy_from_slice(&(!0x4D52_4153u32).to_le_bytes());
-    // As read from its page: the 120 bytes and the erased bytes after them.
-    let mut page = [0xFFu8; PAGE_BYTES];
-    page[..120].copy_from_slice(&v1);
-    let err = decode(&page, HASH).unwrap_err();
-    assert_eq!(
-        err,
-        RecordError::UnsupportedVersion {
-            found: 1,
-            expected: 2
-        }
-    );
-    assert_eq!(err.name(), "UnsupportedVersion");
-
-    let mut flash = RamFlash::new();
-    for slot in Slot::BOTH {
-        flash.erase(slot).unwrap();
-        let mut page = [0xFFu8; 128];
-        page[..120].copy_from_slice(&v1);
-        flash.program(slot, 0, &page).unwrap();
-    }
-    let e = load(&flash, HASH).unwrap_err();
-    assert_eq!(e.name(), "UnsupportedVersion");
-}
-
-#[test]
-fn the_alignment_round_trips_exactly_and_is_checked() {
-    let pi = core::f32::consts::PI;
-    for (offset_e_rad, reversed) in [(0.0, false), (pi, true), (-pi, false), (1e-7, true)] {
-        let c = Calibration {
-            coefficients: coefs(0.1),
-            alignment: Alignment {
-                offset_e_rad,
-                reversed,
-            },
-        };
-        let back = decode(&encoded_cal(&c, 3, HASH), HASH).unwrap().calibration;
-        assert_eq!(back.alignment.reversed, reversed);
-        assert_eq!(
-            back.alignment.offset_e_rad.to_bits(),
-            offset_e_rad.to_bits()
-        );
-    }
-    for bad in [f32::NAN, f32::INFINITY, 3.2, -3.2] {
-        let c = Calibration {
-            coefficients: coefs(0.1),
-            alignment: Alignment {
-                offset_e_rad: bad,
-                reversed: false,
-            },
-        };
-        assert_eq!(
-            decode(&encoded_cal(&c, 3, HASH), HASH),
-            Err(RecordError::BadAlignment),
-            "{bad}"
-        );
-    }
-    let mut buf = encoded(&coefs(0.0), 1, HASH);
-    buf[FLAGS_AT] = 2;
-    reseal(&mut buf);
-    assert_eq!(decode(&buf, HASH), Err(RecordError::BadAlignment));
-    let mut buf = encoded(&coefs(0.0), 1, HASH);
-    buf[OFFSET_AT..OFFSET_AT + 4].copy_from_slice(&f32::NAN.to_bits().to_le_bytes());
-    reseal(&mut buf);
-    assert_eq!(decode(&buf, HASH), Err(RecordError::BadAlignment));
-    assert_eq!(RecordError::BadAlignment.name(), "BadAlignment");
-    let _ = ALIGN;
-}
-
 #[test]
 fn config_mismatch() {
-    let buf = encoded(&coefs(0.0), 1, HASH);
+    let buf = encoded(&calib(0.0), 1, HASH);
     assert_eq!(
         decode(&buf, OTHER_HASH),
         Err(RecordError::ConfigMismatch {
@@ -331,14 +443,14 @@ fn non_finite_values_are_rejected() {
     for bad in [f32::NAN, -f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
         for (n, &kind) in DEFAULT_PATHS.iter().enumerate() {
             for part in 0..2 {
-                let mut c = coefs(0.0);
-                let v = c.get(kind).unwrap();
+                let mut c = calib(0.0);
+                let v = c.coefficients.get(kind).unwrap();
                 let v = if part == 0 {
                     Cplx::new(bad, v.im)
                 } else {
                     Cplx::new(v.re, bad)
                 };
-                c.set(kind, v);
+                c.coefficients.set(kind, v);
                 let buf = encoded(&c, 1, HASH);
                 assert_eq!(
                     decode(&buf, HASH),
@@ -352,7 +464,7 @@ fn non_finite_values_are_rejected() {
 
 /// Patch the (tag, h) of path entry `n` and re-seal.
 fn with_kind_bytes(n: usize, tag: u8, h: u8) -> [u8; RECORD_BYTES] {
-    let mut buf = encoded(&coefs(0.0), 1, HASH);
+    let mut buf = encoded(&calib(0.0), 1, HASH);
     let at = PATH0_AT + 12 * n;
     buf[at] = tag;
     buf[at + 1] = h;
@@ -393,7 +505,7 @@ fn bad_path_lists_are_rejected() {
     );
 
     for count in [MAX_PATHS as u8 + 1, 0x80, u8::MAX] {
-        let mut buf = encoded(&coefs(0.0), 1, HASH);
+        let mut buf = encoded(&calib(0.0), 1, HASH);
         buf[COUNT_AT] = count;
         reseal(&mut buf);
         assert_eq!(decode(&buf, HASH), Err(bad), "count {count}");
@@ -404,7 +516,7 @@ fn bad_path_lists_are_rejected() {
 /// record only if the CRC matches: here it is re-sealed, so the shorter list decodes.
 #[test]
 fn path_count_is_authoritative_once_sealed() {
-    let mut buf = encoded(&coefs(0.0), 1, HASH);
+    let mut buf = encoded(&calib(0.0), 1, HASH);
     buf[COUNT_AT] = 2;
     reseal(&mut buf);
     assert_eq!(
@@ -417,21 +529,11 @@ fn path_count_is_authoritative_once_sealed() {
 fn encode_returns_record_length_and_overwrites_buffer() {
     let mut buf = [0xA5u8; RECORD_BYTES];
     assert_eq!(
-        encode(
-            &Calibration {
-                coefficients: Coefficients::zeros(&[]),
-                alignment: Alignment::IDENTITY
-            },
-            9,
-            HASH,
-            &mut buf
-        ),
+        encode(&with_identity(Coefficients::zeros(&[])), 9, HASH, &mut buf),
         RECORD_BYTES
     );
-    assert!(buf[7..8]
-        .iter()
-        .chain(&buf[16..COMMIT_OFFSET])
-        .all(|&b| b == 0));
+    assert!(buf[DIRECTION_AT..DIRECTION_AT + 1].iter().all(|&b| b == 0));
+    assert!(buf[OFFSET_AT..COMMIT_OFFSET].iter().all(|&b| b == 0));
     assert_eq!(decode(&buf, HASH).unwrap().sequence, 9);
 }
 
@@ -439,10 +541,9 @@ fn encode_returns_record_length_and_overwrites_buffer() {
 fn config_hash_covers_the_meaning_of_the_coefficients_only() {
     let base = Config::default();
     let h = config_hash(&base, 4);
-    // Independently computed with zlib.crc32 over the documented serialisation.
+    // Independently computed with zlib.crc32 over the documented serialisation
+    // (sensor_periods, then pole_pairs, then the input scaling and the path list).
     assert_eq!(h, 0xFF94_483C);
-    // Another motor: another pole count, another hash.
-    assert_ne!(config_hash(&base, 6), h);
 
     let mut tuned = base;
     tuned.sample_period_s = 100.0e-6;
@@ -463,10 +564,19 @@ fn config_hash_covers_the_meaning_of_the_coefficients_only() {
     neg_zero.input.offset_x = -0.0;
     assert_eq!(config_hash(&neg_zero, 4), h);
 
+    // (configuration, pole pairs) pairs that must each hash differently.
     let mut variants = Vec::new();
     let mut c = base;
     c.sensor_periods = 3;
-    variants.push(c);
+    variants.push((c, 4));
+    // Another motor: the alignment means nothing for it.
+    for pole_pairs in [0, 1, 3, 5, 7, u16::MAX] {
+        variants.push((base, pole_pairs));
+    }
+    // N and p swapped (the same p/N ratio is not the same configuration).
+    let mut c = base;
+    c.sensor_periods = 4;
+    variants.push((c, 2));
     for field in 0..4 {
         let mut c = base;
         let f = match field {
@@ -476,7 +586,7 @@ fn config_hash_covers_the_meaning_of_the_coefficients_only() {
             _ => &mut c.input.gain_y,
         };
         *f += 1.0e-3;
-        variants.push(c);
+        variants.push((c, 4));
     }
     for paths in [
         &DEFAULT_PATHS[..3],
@@ -495,12 +605,63 @@ fn config_hash_covers_the_meaning_of_the_coefficients_only() {
     ] {
         let mut c = base;
         c.set_paths(paths).unwrap();
-        variants.push(c);
+        variants.push((c, 4));
     }
     let mut seen = vec![h];
-    for v in &variants {
-        let hv = config_hash(v, 4);
-        assert!(!seen.contains(&hv), "{v:?}");
+    for (v, pole_pairs) in &variants {
+        let hv = config_hash(v, *pole_pairs);
+        assert!(!seen.contains(&hv), "{v:?}, {pole_pairs} pole pairs");
         seen.push(hv);
     }
+}
+
+/// Every variant has a stable name, the one its `Debug` output starts with.
+#[test]
+fn record_error_names() {
+    let all = [
+        (RecordError::Truncated, "Truncated"),
+        (RecordError::Erased, "Erased"),
+        (RecordError::BadMagic, "BadMagic"),
+        (
+            RecordError::UnsupportedVersion {
+                found: 1,
+                expected: 2,
+            },
+            "UnsupportedVersion",
+        ),
+        (RecordError::Incomplete, "Incomplete"),
+        (RecordError::BadCrc, "BadCrc"),
+        (RecordError::BadPathList, "BadPathList"),
+        (RecordError::NonFiniteValue, "NonFiniteValue"),
+        (RecordError::BadAlignment, "BadAlignment"),
+        (
+            RecordError::ConfigMismatch {
+                stored: 1,
+                expected: 2,
+            },
+            "ConfigMismatch",
+        ),
+    ];
+    for (e, name) in all {
+        assert_eq!(e.name(), name);
+        let debug = format!("{e:?}");
+        assert!(debug == name || debug.starts_with(&format!("{name} {{")));
+        // Exhaustive: a new variant must be added to this list.
+        match e {
+            RecordError::Truncated
+            | RecordError::Erased
+            | RecordError::BadMagic
+            | RecordError::UnsupportedVersion { .. }
+            | RecordError::Incomplete
+            | RecordError::BadCrc
+            | RecordError::BadPathList
+            | RecordError::NonFiniteValue
+            | RecordError::BadAlignment
+            | RecordError::ConfigMismatch { .. } => {}
+        }
+    }
+    let mut names: Vec<_> = all.iter().map(|(_, n)| *n).collect();
+    names.sort_unstable();
+    names.dedup();
+    assert_eq!(names.len(), all.len());
 }

@@ -2,8 +2,12 @@
 
 mod common;
 
-use calib_record::{decode, load, store, RamFlash, Slot, RECORD_BYTES};
-use common::{cal, encoded, same_bits, HASH};
+use core::f32::consts::PI;
+
+use calib_record::{
+    decode, load, store, Alignment, Calibration, RamFlash, RecordError, Slot, RECORD_BYTES,
+};
+use common::{calib, encoded, reseal, same_bits, HASH};
 use mras::{Coefficients, Cplx, PathKind, MAX_PATHS};
 use proptest::prelude::*;
 
@@ -58,15 +62,40 @@ fn coefficients() -> impl Strategy<Value = Coefficients> {
     })
 }
 
+/// Any valid alignment offset: every f32 in [-π, π], ±0, subnormals and both ends
+/// included.
+fn offset() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        8 => any::<u32>()
+            .prop_map(f32::from_bits)
+            .prop_filter("within [-π, π]", |v| (-PI..=PI).contains(v)),
+        1 => prop_oneof![Just(PI), Just(-PI), Just(0.0), Just(-0.0)],
+    ]
+}
+
+fn alignment() -> impl Strategy<Value = Alignment> {
+    (offset(), any::<bool>()).prop_map(|(offset_e_rad, reversed)| Alignment {
+        offset_e_rad,
+        reversed,
+    })
+}
+
+fn calibration() -> impl Strategy<Value = Calibration> {
+    (coefficients(), alignment()).prop_map(|(coefficients, alignment)| Calibration {
+        coefficients,
+        alignment,
+    })
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(2000))]
 
     #[test]
-    fn random_coefficients_round_trip_bit_exact(
-        c in coefficients(), seq in any::<u32>(), hash in any::<u32>()
+    fn random_calibrations_round_trip_bit_exact(
+        c in calibration(), seq in any::<u32>(), hash in any::<u32>()
     ) {
         let rec = decode(&encoded(&c, seq, hash), hash).unwrap();
-        prop_assert!(same_bits(&rec.calibration.coefficients, &c));
+        prop_assert!(same_bits(&rec.calibration, &c));
         prop_assert_eq!(rec.sequence, seq);
         prop_assert_eq!(rec.config_hash, hash);
     }
@@ -76,10 +105,37 @@ proptest! {
         let _ = decode(&bytes, HASH);
     }
 
+    /// Whatever the (sealed) alignment bytes hold, the record decodes with exactly
+    /// that alignment if the offset is finite and within [-π, π] and the direction
+    /// byte is 0 or 1, and is refused as `BadAlignment` otherwise.
+    #[test]
+    fn any_alignment_bytes_decode_exactly_or_bad_alignment(
+        bits in any::<u32>(), direction in any::<u8>(), tag in 0.0f32..10.0,
+    ) {
+        let mut buf = encoded(&calib(tag), 1, HASH);
+        buf[7] = direction;
+        buf[16..20].copy_from_slice(&bits.to_le_bytes());
+        reseal(&mut buf);
+        let offset = f32::from_bits(bits);
+        let valid = offset.is_finite() && offset.abs() <= PI && direction <= 1;
+        match decode(&buf, HASH) {
+            Ok(rec) => {
+                prop_assert!(valid);
+                let a = rec.calibration.alignment;
+                prop_assert_eq!(a.offset_e_rad.to_bits(), bits);
+                prop_assert_eq!(a.reversed, direction == 1);
+            }
+            Err(e) => {
+                prop_assert!(!valid);
+                prop_assert_eq!(e, RecordError::BadAlignment);
+            }
+        }
+    }
+
     /// Random byte corruption of a valid record is either detected or no change.
     #[test]
     fn random_corruption_is_detected(
-        c in coefficients(),
+        c in calibration(),
         hits in proptest::collection::vec((0..RECORD_BYTES, 1u8..=255), 1..6),
     ) {
         let good = encoded(&c, 1, HASH);
@@ -96,15 +152,15 @@ proptest! {
     fn store_over_arbitrary_pages(
         a in proptest::collection::vec(any::<u8>(), RECORD_BYTES),
         b in proptest::collection::vec(any::<u8>(), RECORD_BYTES),
-        c in coefficients(),
+        c in calibration(),
     ) {
         let mut flash = RamFlash::new();
         flash.page_mut(Slot::A)[..RECORD_BYTES].copy_from_slice(&a);
         flash.page_mut(Slot::B)[..RECORD_BYTES].copy_from_slice(&b);
         let _ = load(&flash, HASH);
-        let slot = store(&mut flash, &cal(&c), HASH).unwrap();
+        let slot = store(&mut flash, &c, HASH).unwrap();
         let l = load(&flash, HASH).unwrap();
         prop_assert_eq!(l.slot, slot);
-        prop_assert!(same_bits(&l.record.calibration.coefficients, &c));
+        prop_assert!(same_bits(&l.record.calibration, &c));
     }
 }

@@ -2,17 +2,20 @@
 
 mod common;
 
+use core::f32::consts::PI;
+
 use calib_record::layout::DOUBLE_WORD_BYTES;
 use calib_record::{
-    is_newer, load, store, FlashSlots, LoadError, Loaded, OtherSlot, RamFlash, RamFlashError,
-    RecordError, Rejected, Slot, StoreError, FIRST_SEQUENCE, PAGE_BYTES, RECORD_BYTES,
+    is_newer, load, store, Calibration, FlashSlots, LoadError, Loaded, OtherSlot, RamFlash,
+    RamFlashError, RecordError, Rejected, Slot, StoreError, FIRST_SEQUENCE, PAGE_BYTES,
+    RECORD_BYTES,
 };
-use common::{cal, coefs, encoded, same_bits, HASH, OTHER_HASH};
+use common::{calib, encoded, same_bits, v1_record, with_identity, HASH, OTHER_HASH};
 use mras::{Coefficients, Cplx, PathKind};
 
 type Load = Result<Loaded<RamFlashError>, LoadError<RamFlashError>>;
 
-fn plant(flash: &mut RamFlash, slot: Slot, c: &Coefficients, seq: u32, hash: u32) {
+fn plant(flash: &mut RamFlash, slot: Slot, c: &Calibration, seq: u32, hash: u32) {
     flash.erase(slot).unwrap();
     flash.program(slot, 0, &encoded(c, seq, hash)).unwrap();
 }
@@ -40,11 +43,11 @@ fn blank_flash_has_no_record() {
 #[test]
 fn first_store_goes_to_slot_a() {
     let mut flash = RamFlash::new();
-    assert_eq!(store(&mut flash, &cal(&coefs(1.0)), HASH), Ok(Slot::A));
+    assert_eq!(store(&mut flash, &calib(1.0), HASH), Ok(Slot::A));
     let l = loaded(&flash);
     assert_eq!(l.slot, Slot::A);
     assert_eq!(l.record.sequence, FIRST_SEQUENCE);
-    assert_eq!(l.record.calibration.coefficients, coefs(1.0));
+    assert_eq!(l.record.calibration, calib(1.0));
     assert_eq!(l.other, OtherSlot::Rejected(rec(RecordError::Erased)));
     // One erase and RECORD_BYTES / 8 double words.
     assert_eq!(
@@ -59,7 +62,7 @@ fn stores_alternate_and_load_picks_the_newest() {
     let mut expect_slot = Slot::A;
     for n in 0..8u32 {
         let before = flash.clone();
-        let slot = store(&mut flash, &cal(&coefs(n as f32)), HASH).unwrap();
+        let slot = store(&mut flash, &calib(n as f32), HASH).unwrap();
         assert_eq!(slot, expect_slot);
         // The slot with the previous record was neither erased nor changed.
         let kept = slot.other();
@@ -68,7 +71,7 @@ fn stores_alternate_and_load_picks_the_newest() {
         let l = loaded(&flash);
         assert_eq!(l.slot, slot);
         assert_eq!(l.record.sequence, FIRST_SEQUENCE + n);
-        assert_eq!(l.record.calibration.coefficients, coefs(n as f32));
+        assert_eq!(l.record.calibration, calib(n as f32));
         if n > 0 {
             assert_eq!(
                 l.other,
@@ -85,15 +88,12 @@ fn stores_alternate_and_load_picks_the_newest() {
 fn newest_wins_in_either_slot() {
     for (seq_a, seq_b, newer) in [(5, 6, Slot::B), (6, 5, Slot::A), (u32::MAX, 0, Slot::B)] {
         let mut flash = RamFlash::new();
-        plant(&mut flash, Slot::A, &coefs(1.0), seq_a, HASH);
-        plant(&mut flash, Slot::B, &coefs(2.0), seq_b, HASH);
+        plant(&mut flash, Slot::A, &calib(1.0), seq_a, HASH);
+        plant(&mut flash, Slot::B, &calib(2.0), seq_b, HASH);
         let l = loaded(&flash);
         assert_eq!(l.slot, newer, "{seq_a} vs {seq_b}");
         // The next store overwrites the older slot.
-        assert_eq!(
-            store(&mut flash, &cal(&coefs(3.0)), HASH),
-            Ok(newer.other())
-        );
+        assert_eq!(store(&mut flash, &calib(3.0), HASH), Ok(newer.other()));
     }
 }
 
@@ -113,31 +113,31 @@ fn serial_number_arithmetic() {
 #[test]
 fn sequence_wraps() {
     let mut flash = RamFlash::new();
-    plant(&mut flash, Slot::A, &coefs(1.0), u32::MAX - 1, HASH);
-    plant(&mut flash, Slot::B, &coefs(2.0), u32::MAX, HASH);
-    assert_eq!(store(&mut flash, &cal(&coefs(3.0)), HASH), Ok(Slot::A));
+    plant(&mut flash, Slot::A, &calib(1.0), u32::MAX - 1, HASH);
+    plant(&mut flash, Slot::B, &calib(2.0), u32::MAX, HASH);
+    assert_eq!(store(&mut flash, &calib(3.0), HASH), Ok(Slot::A));
     let l = loaded(&flash);
     assert_eq!((l.slot, l.record.sequence), (Slot::A, 0));
     assert_eq!(l.other, OtherSlot::Superseded { sequence: u32::MAX });
-    assert_eq!(store(&mut flash, &cal(&coefs(4.0)), HASH), Ok(Slot::B));
+    assert_eq!(store(&mut flash, &calib(4.0), HASH), Ok(Slot::B));
     let l = loaded(&flash);
     assert_eq!((l.slot, l.record.sequence), (Slot::B, 1));
-    assert_eq!(l.record.calibration.coefficients, coefs(4.0));
+    assert_eq!(l.record.calibration, calib(4.0));
 }
 
 #[test]
 fn corrupted_newest_falls_back_to_previous() {
     let mut flash = RamFlash::new();
-    store(&mut flash, &cal(&coefs(1.0)), HASH).unwrap();
-    store(&mut flash, &cal(&coefs(2.0)), HASH).unwrap(); // slot B, newest
+    store(&mut flash, &calib(1.0), HASH).unwrap();
+    store(&mut flash, &calib(2.0), HASH).unwrap(); // slot B, newest
     flash.page_mut(Slot::B)[40] ^= 0x10;
     let l = loaded(&flash);
     assert_eq!(l.slot, Slot::A);
-    assert_eq!(l.record.calibration.coefficients, coefs(1.0));
+    assert_eq!(l.record.calibration, calib(1.0));
     assert_eq!(l.other, OtherSlot::Rejected(rec(RecordError::BadCrc)));
     // The next store repairs the corrupted slot and keeps the good one.
     let a = *flash.page(Slot::A);
-    assert_eq!(store(&mut flash, &cal(&coefs(3.0)), HASH), Ok(Slot::B));
+    assert_eq!(store(&mut flash, &calib(3.0), HASH), Ok(Slot::B));
     assert_eq!(flash.page(Slot::A), &a);
     let l = loaded(&flash);
     assert_eq!((l.slot, l.record.sequence), (Slot::B, FIRST_SEQUENCE + 1));
@@ -146,7 +146,7 @@ fn corrupted_newest_falls_back_to_previous() {
 #[test]
 fn configuration_change() {
     let mut flash = RamFlash::new();
-    plant(&mut flash, Slot::A, &coefs(1.0), 10, OTHER_HASH);
+    plant(&mut flash, Slot::A, &calib(1.0), 10, OTHER_HASH);
     assert_eq!(
         load(&flash, HASH),
         Err(LoadError::NoValidRecord {
@@ -158,7 +158,7 @@ fn configuration_change() {
         })
     );
     // The new configuration's record goes next to the old one, with a newer sequence.
-    assert_eq!(store(&mut flash, &cal(&coefs(2.0)), HASH), Ok(Slot::B));
+    assert_eq!(store(&mut flash, &calib(2.0), HASH), Ok(Slot::B));
     let l = loaded(&flash);
     assert_eq!((l.slot, l.record.sequence), (Slot::B, 11));
     assert!(matches!(
@@ -168,7 +168,7 @@ fn configuration_change() {
     // Switching back finds the old configuration's calibration.
     assert_eq!(load(&flash, OTHER_HASH).unwrap().slot, Slot::A);
     // A further store for HASH protects HASH's record and replaces the other one.
-    assert_eq!(store(&mut flash, &cal(&coefs(3.0)), HASH), Ok(Slot::A));
+    assert_eq!(store(&mut flash, &calib(3.0), HASH), Ok(Slot::A));
     assert_eq!(loaded(&flash).record.sequence, 12);
 }
 
@@ -177,33 +177,196 @@ fn configuration_change() {
 #[test]
 fn matching_record_is_protected_over_a_newer_foreign_one() {
     let mut flash = RamFlash::new();
-    plant(&mut flash, Slot::A, &coefs(1.0), 5, HASH);
-    plant(&mut flash, Slot::B, &coefs(2.0), 9, OTHER_HASH);
+    plant(&mut flash, Slot::A, &calib(1.0), 5, HASH);
+    plant(&mut flash, Slot::B, &calib(2.0), 9, OTHER_HASH);
     let a = *flash.page(Slot::A);
-    assert_eq!(store(&mut flash, &cal(&coefs(3.0)), HASH), Ok(Slot::B));
+    assert_eq!(store(&mut flash, &calib(3.0), HASH), Ok(Slot::B));
     assert_eq!(flash.page(Slot::A), &a);
     assert_eq!(loaded(&flash).record.sequence, 10);
 }
 
 #[test]
-fn invalid_coefficients_are_refused_before_touching_flash() {
+fn invalid_calibration_is_refused_before_touching_flash() {
     let mut flash = RamFlash::new();
-    store(&mut flash, &cal(&coefs(1.0)), HASH).unwrap();
+    store(&mut flash, &calib(1.0), HASH).unwrap();
     let before = flash.clone();
 
-    let mut nan = coefs(2.0);
-    nan.set(PathKind::Harmonic(4), Cplx::new(f32::NAN, 0.0));
+    let mut nan = calib(2.0);
+    nan.coefficients
+        .set(PathKind::Harmonic(4), Cplx::new(f32::NAN, 0.0));
     assert_eq!(
-        store(&mut flash, &cal(&nan), HASH),
+        store(&mut flash, &nan, HASH),
         Err(StoreError::InvalidCalibration(RecordError::NonFiniteValue))
     );
-    let dup = Coefficients::zeros(&[PathKind::Harmonic(4), PathKind::Harmonic(-2)]);
+    let dup = with_identity(Coefficients::zeros(&[
+        PathKind::Harmonic(4),
+        PathKind::Harmonic(-2),
+    ]));
     assert_eq!(
-        store(&mut flash, &cal(&dup), HASH),
+        store(&mut flash, &dup, HASH),
         Err(StoreError::InvalidCalibration(RecordError::BadPathList))
     );
+    for offset in [
+        f32::NAN,
+        f32::INFINITY,
+        -4.0,
+        f32::from_bits(PI.to_bits() + 1),
+    ] {
+        let mut bad = calib(2.0);
+        bad.alignment.offset_e_rad = offset;
+        let err = store(&mut flash, &bad, HASH).unwrap_err();
+        assert_eq!(
+            err,
+            StoreError::InvalidCalibration(RecordError::BadAlignment),
+            "{offset}"
+        );
+        assert_eq!(err.name(), "InvalidCalibration");
+    }
     assert_eq!(flash.operations(), before.operations());
+    assert_eq!(flash.page(Slot::A), before.page(Slot::A));
     assert_eq!(flash.page(Slot::B), before.page(Slot::B));
+}
+
+#[test]
+fn store_error_names() {
+    assert_eq!(
+        StoreError::<RamFlashError>::InvalidCalibration(RecordError::BadCrc).name(),
+        "InvalidCalibration"
+    );
+    assert_eq!(StoreError::Flash(RamFlashError::PowerLost).name(), "Flash");
+    assert_eq!(
+        StoreError::<RamFlashError>::VerifyFailed.name(),
+        "VerifyFailed"
+    );
+}
+
+/// A drive updated from version-1 firmware: records of the old format, however
+/// intact, are refused by name, and the first store replaces one of them.
+#[test]
+fn version_1_records_are_refused_by_name() {
+    let v1_refused = rec(RecordError::UnsupportedVersion {
+        found: 1,
+        expected: 2,
+    });
+    let plant_v1 = |flash: &mut RamFlash, slot: Slot, tag: f32, seq: u32| {
+        flash.erase(slot).unwrap();
+        flash
+            .program(slot, 0, &v1_record(&calib(tag).coefficients, seq, HASH))
+            .unwrap();
+    };
+
+    // Both slots hold v1 records (two stores of the old firmware).
+    let mut flash = RamFlash::new();
+    plant_v1(&mut flash, Slot::A, 1.0, 1);
+    plant_v1(&mut flash, Slot::B, 2.0, 2);
+    let err = load(&flash, HASH).unwrap_err();
+    assert_eq!(
+        err,
+        LoadError::NoValidRecord {
+            a: v1_refused,
+            b: v1_refused
+        }
+    );
+    assert_eq!(err.name(), "UnsupportedVersion");
+    assert_eq!(err.reason(), &v1_refused);
+    // Whatever the hash: the version is checked first.
+    assert_eq!(
+        load(&flash, OTHER_HASH).unwrap_err().name(),
+        "UnsupportedVersion"
+    );
+
+    // One v1 record and an erased slot, either way round.
+    for v1_slot in Slot::BOTH {
+        let mut flash = RamFlash::new();
+        plant_v1(&mut flash, v1_slot, 1.0, 1);
+        let err = load(&flash, HASH).unwrap_err();
+        assert_eq!(err.name(), "UnsupportedVersion", "v1 in {v1_slot:?}");
+        assert_eq!(err.reason(), &v1_refused);
+    }
+
+    // Commissioning stores a v2 record; it loads, the remaining v1 record is reported.
+    let c = calib(3.0);
+    assert_eq!(store(&mut flash, &c, HASH), Ok(Slot::A));
+    let l = loaded(&flash);
+    assert_eq!(l.slot, Slot::A);
+    assert_eq!(l.record.sequence, FIRST_SEQUENCE);
+    assert!(same_bits(&l.record.calibration, &c));
+    assert_eq!(l.other, OtherSlot::Rejected(v1_refused));
+}
+
+/// `LoadError::reason`: "Erased" only if both slots are erased, otherwise the
+/// rejection that says more about the content (a record of another configuration or
+/// version over a damaged or interrupted write); slot A on a tie.
+#[test]
+fn load_error_reports_the_most_informative_rejection() {
+    let erased = rec(RecordError::Erased);
+    let v1 = rec(RecordError::UnsupportedVersion {
+        found: 1,
+        expected: 2,
+    });
+    let mismatch = rec(RecordError::ConfigMismatch {
+        stored: OTHER_HASH,
+        expected: HASH,
+    });
+    let flash_err = Rejected::Flash(RamFlashError::OutOfBounds);
+    let cases = [
+        (erased, erased, "Erased"),
+        (erased, rec(RecordError::BadCrc), "BadCrc"),
+        (rec(RecordError::BadMagic), erased, "BadMagic"),
+        (flash_err, erased, "Flash"),
+        (erased, flash_err, "Flash"),
+        (flash_err, rec(RecordError::Incomplete), "Incomplete"),
+        (rec(RecordError::Incomplete), v1, "UnsupportedVersion"),
+        (v1, rec(RecordError::BadMagic), "UnsupportedVersion"),
+        (
+            rec(RecordError::BadCrc),
+            rec(RecordError::Incomplete),
+            "BadCrc",
+        ),
+        (rec(RecordError::BadCrc), v1, "UnsupportedVersion"),
+        (v1, rec(RecordError::BadAlignment), "BadAlignment"),
+        (rec(RecordError::BadCrc), mismatch, "ConfigMismatch"),
+        (mismatch, rec(RecordError::BadAlignment), "ConfigMismatch"),
+        (
+            rec(RecordError::BadPathList),
+            rec(RecordError::BadAlignment),
+            "BadAlignment",
+        ),
+    ];
+    for (a, b, name) in cases {
+        let e = LoadError::NoValidRecord { a, b };
+        assert_eq!(e.name(), name, "{a:?} / {b:?}");
+        assert_eq!(e.reason().name(), name);
+        // Symmetric: the same reason whichever slot holds it.
+        let swapped = LoadError::NoValidRecord { a: b, b: a };
+        assert_eq!(swapped.name(), name, "{b:?} / {a:?}");
+    }
+    // A tie: slot A's rejection, payload included.
+    let other_v = rec(RecordError::UnsupportedVersion {
+        found: 7,
+        expected: 2,
+    });
+    let tie = LoadError::NoValidRecord { a: other_v, b: v1 };
+    assert_eq!(tie.reason(), &other_v);
+
+    // On the flash: slot A interrupted by a power cut, slot B a version-1 record.
+    let mut flash = RamFlash::new();
+    flash.erase(Slot::B).unwrap();
+    flash
+        .program(Slot::B, 0, &v1_record(&calib(1.0).coefficients, 1, HASH))
+        .unwrap();
+    flash.cut_power_after(3, false);
+    assert!(store(&mut flash, &calib(2.0), HASH).is_err());
+    flash.power_on();
+    let err = load(&flash, HASH).unwrap_err();
+    assert_eq!(
+        err,
+        LoadError::NoValidRecord {
+            a: rec(RecordError::Incomplete),
+            b: v1
+        }
+    );
+    assert_eq!(err.name(), "UnsupportedVersion");
 }
 
 /// Flash whose programming flips a bit, or whose slot A cannot be read.
@@ -242,17 +405,14 @@ fn read_back_mismatch_is_reported_and_old_record_kept() {
         flip_on_program: false,
         fail_read_a: false,
     };
-    store(&mut flash, &cal(&coefs(1.0)), HASH).unwrap();
+    store(&mut flash, &calib(1.0), HASH).unwrap();
     flash.flip_on_program = true;
     assert_eq!(
-        store(&mut flash, &cal(&coefs(2.0)), HASH),
+        store(&mut flash, &calib(2.0), HASH),
         Err(StoreError::VerifyFailed)
     );
     let l = load(&flash, HASH).unwrap();
-    assert_eq!(
-        (l.slot, l.record.calibration.coefficients),
-        (Slot::A, coefs(1.0))
-    );
+    assert_eq!((l.slot, l.record.calibration), (Slot::A, calib(1.0)));
 }
 
 #[test]
@@ -262,15 +422,12 @@ fn unreadable_slot_is_reported_and_the_other_used() {
         flip_on_program: false,
         fail_read_a: false,
     };
-    store(&mut flash, &cal(&coefs(1.0)), HASH).unwrap(); // A
-    store(&mut flash, &cal(&coefs(2.0)), HASH).unwrap(); // B
-    store(&mut flash, &cal(&coefs(3.0)), HASH).unwrap(); // A, newest
+    store(&mut flash, &calib(1.0), HASH).unwrap(); // A
+    store(&mut flash, &calib(2.0), HASH).unwrap(); // B
+    store(&mut flash, &calib(3.0), HASH).unwrap(); // A, newest
     flash.fail_read_a = true;
     let l = load(&flash, HASH).unwrap();
-    assert_eq!(
-        (l.slot, l.record.calibration.coefficients),
-        (Slot::B, coefs(2.0))
-    );
+    assert_eq!((l.slot, l.record.calibration), (Slot::B, calib(2.0)));
     assert_eq!(
         l.other,
         OtherSlot::Rejected(Rejected::Flash(RamFlashError::OutOfBounds))
@@ -309,7 +466,7 @@ fn store_order_commit_double_word_last() {
     let commit = RECORD_BYTES - DOUBLE_WORD_BYTES;
     for (n, slot) in [Slot::A, Slot::B, Slot::A].into_iter().enumerate() {
         flash.log.clear();
-        assert_eq!(store(&mut flash, &cal(&coefs(n as f32)), HASH), Ok(slot));
+        assert_eq!(store(&mut flash, &calib(n as f32), HASH), Ok(slot));
         assert_eq!(
             flash.log,
             [
@@ -327,7 +484,7 @@ struct Scenario {
     name: &'static str,
     flash: RamFlash,
     /// What load returns before the store (the record that must survive).
-    old: Option<(Slot, Coefficients)>,
+    old: Option<(Slot, Calibration)>,
 }
 
 fn scenarios() -> Vec<Scenario> {
@@ -339,54 +496,54 @@ fn scenarios() -> Vec<Scenario> {
     });
 
     let mut f = RamFlash::new();
-    store(&mut f, &cal(&coefs(1.0)), HASH).unwrap();
+    store(&mut f, &calib(1.0), HASH).unwrap();
     v.push(Scenario {
         name: "one record",
         flash: f.clone(),
-        old: Some((Slot::A, coefs(1.0))),
+        old: Some((Slot::A, calib(1.0))),
     });
 
-    store(&mut f, &cal(&coefs(2.0)), HASH).unwrap();
+    store(&mut f, &calib(2.0), HASH).unwrap();
     v.push(Scenario {
         name: "two records, B newest",
         flash: f.clone(),
-        old: Some((Slot::B, coefs(2.0))),
+        old: Some((Slot::B, calib(2.0))),
     });
 
-    store(&mut f, &cal(&coefs(3.0)), HASH).unwrap();
+    store(&mut f, &calib(3.0), HASH).unwrap();
     v.push(Scenario {
         name: "two records, A newest",
         flash: f.clone(),
-        old: Some((Slot::A, coefs(3.0))),
+        old: Some((Slot::A, calib(3.0))),
     });
 
     // An earlier store into B was interrupted half-way, torn.
     let mut g = f.clone();
     g.cut_power_after(6, true);
-    assert!(store(&mut g, &cal(&coefs(9.0)), HASH).is_err());
+    assert!(store(&mut g, &calib(9.0), HASH).is_err());
     g.power_on();
     v.push(Scenario {
         name: "A newest, B half-written",
         flash: g,
-        old: Some((Slot::A, coefs(3.0))),
+        old: Some((Slot::A, calib(3.0))),
     });
 
     let mut g = RamFlash::new();
-    plant(&mut g, Slot::A, &coefs(4.0), u32::MAX, HASH);
-    plant(&mut g, Slot::B, &coefs(5.0), u32::MAX - 1, HASH);
+    plant(&mut g, Slot::A, &calib(4.0), u32::MAX, HASH);
+    plant(&mut g, Slot::B, &calib(5.0), u32::MAX - 1, HASH);
     v.push(Scenario {
         name: "A newest at the wrap",
         flash: g,
-        old: Some((Slot::A, coefs(4.0))),
+        old: Some((Slot::A, calib(4.0))),
     });
 
     let mut g = RamFlash::new();
-    plant(&mut g, Slot::A, &coefs(6.0), 3, HASH);
-    plant(&mut g, Slot::B, &coefs(7.0), 8, OTHER_HASH);
+    plant(&mut g, Slot::A, &calib(6.0), 3, HASH);
+    plant(&mut g, Slot::B, &calib(7.0), 8, OTHER_HASH);
     v.push(Scenario {
         name: "A valid, B newer foreign configuration",
         flash: g,
-        old: Some((Slot::A, coefs(6.0))),
+        old: Some((Slot::A, calib(6.0))),
     });
 
     let mut g = f.clone();
@@ -394,17 +551,34 @@ fn scenarios() -> Vec<Scenario> {
     v.push(Scenario {
         name: "A corrupted, B valid",
         flash: g,
-        old: Some((Slot::B, coefs(2.0))),
+        old: Some((Slot::B, calib(2.0))),
+    });
+
+    // Firmware updated from format version 1: nothing loadable to protect.
+    let mut g = RamFlash::new();
+    for (slot, seq) in [(Slot::A, 7), (Slot::B, 8)] {
+        g.erase(slot).unwrap();
+        g.program(
+            slot,
+            0,
+            &v1_record(&calib(seq as f32).coefficients, seq, HASH),
+        )
+        .unwrap();
+    }
+    v.push(Scenario {
+        name: "version-1 records in both slots",
+        flash: g,
+        old: None,
     });
     v
 }
 
-fn check_after_power_loss(s: &Scenario, flash: &RamFlash, new: &Coefficients, what: &str) {
+fn check_after_power_loss(s: &Scenario, flash: &RamFlash, new: &Calibration, what: &str) {
     let got: Load = load(flash, HASH);
     match (&s.old, got) {
         (Some((slot, old)), Ok(l)) => {
-            let is_old = l.slot == *slot && same_bits(&l.record.calibration.coefficients, old);
-            let is_new = l.slot != *slot && same_bits(&l.record.calibration.coefficients, new);
+            let is_old = l.slot == *slot && same_bits(&l.record.calibration, old);
+            let is_new = l.slot != *slot && same_bits(&l.record.calibration, new);
             assert!(is_old || is_new, "{what}: loaded {l:?}");
             // The slot with the old record was not touched at all.
             assert_eq!(flash.page(*slot), s.flash.page(*slot), "{what}");
@@ -415,23 +589,20 @@ fn check_after_power_loss(s: &Scenario, flash: &RamFlash, new: &Coefficients, wh
             );
         }
         (Some(_), Err(e)) => panic!("{what}: old calibration lost: {e:?}"),
-        (None, Ok(l)) => assert!(
-            same_bits(&l.record.calibration.coefficients, new),
-            "{what}: {l:?}"
-        ),
+        (None, Ok(l)) => assert!(same_bits(&l.record.calibration, new), "{what}: {l:?}"),
         (None, Err(_)) => {}
     }
 }
 
 #[test]
 fn power_loss_at_every_step_of_a_store_keeps_old_or_new() {
-    let new = coefs(0.5);
-    let newer = coefs(0.25);
+    let new = calib(0.5);
+    let newer = calib(0.25);
     for s in scenarios() {
         // Operations of an uninterrupted store.
         let mut probe = s.flash.clone();
         let start = probe.operations();
-        store(&mut probe, &cal(&new), HASH).unwrap();
+        store(&mut probe, &new, HASH).unwrap();
         let total = probe.operations() - start;
         assert_eq!(total as usize, 1 + RECORD_BYTES / DOUBLE_WORD_BYTES);
 
@@ -440,7 +611,7 @@ fn power_loss_at_every_step_of_a_store_keeps_old_or_new() {
                 let what = format!("{}: cut after {k} of {total} ops, torn {torn}", s.name);
                 let mut f = s.flash.clone();
                 f.cut_power_after(k, torn);
-                let r = store(&mut f, &cal(&new), HASH);
+                let r = store(&mut f, &new, HASH);
                 if k < total {
                     assert_eq!(
                         r,
@@ -454,19 +625,13 @@ fn power_loss_at_every_step_of_a_store_keeps_old_or_new() {
                 f.power_on();
                 check_after_power_loss(&s, &f, &new, &what);
                 if k == total {
-                    assert!(
-                        same_bits(&loaded(&f).record.calibration.coefficients, &new),
-                        "{what}"
-                    );
+                    assert!(same_bits(&loaded(&f).record.calibration, &new), "{what}");
                 }
                 // After the reboot the next store completes and wins.
-                let slot = store(&mut f, &cal(&newer), HASH).unwrap();
+                let slot = store(&mut f, &newer, HASH).unwrap();
                 let l = loaded(&f);
                 assert_eq!(l.slot, slot, "{what}");
-                assert!(
-                    same_bits(&l.record.calibration.coefficients, &newer),
-                    "{what}"
-                );
+                assert!(same_bits(&l.record.calibration, &newer), "{what}");
             }
         }
     }
@@ -483,32 +648,26 @@ fn random_walk_of_interrupted_stores() {
     };
     let ops = 1 + (RECORD_BYTES / DOUBLE_WORD_BYTES) as u32;
     let mut flash = RamFlash::new();
-    let mut good: Option<Coefficients> = None;
+    let mut good: Option<Calibration> = None;
     for step in 0..3000 {
-        let c = coefs(step as f32);
+        let c = calib(step as f32);
         let cut = next(ops + 4);
         if cut < ops {
             flash.cut_power_after(cut, next(2) == 1);
         }
-        let r = store(&mut flash, &cal(&c), HASH);
+        let r = store(&mut flash, &c, HASH);
         flash.power_on();
         assert_eq!(r.is_ok(), cut >= ops, "step {step}");
         match (load(&flash, HASH), good) {
             (Ok(l), Some(g)) => {
-                let c_new = same_bits(&l.record.calibration.coefficients, &c);
-                assert!(
-                    c_new || same_bits(&l.record.calibration.coefficients, &g),
-                    "step {step}"
-                );
+                let c_new = same_bits(&l.record.calibration, &c);
+                assert!(c_new || same_bits(&l.record.calibration, &g), "step {step}");
                 assert!(r.is_err() || c_new, "step {step}");
-                good = Some(l.record.calibration.coefficients);
+                good = Some(l.record.calibration);
             }
             (Ok(l), None) => {
-                assert!(
-                    same_bits(&l.record.calibration.coefficients, &c),
-                    "step {step}"
-                );
-                good = Some(l.record.calibration.coefficients);
+                assert!(same_bits(&l.record.calibration, &c), "step {step}");
+                good = Some(l.record.calibration);
             }
             (Err(e), Some(_)) => panic!("step {step}: lost the calibration: {e:?}"),
             (Err(_), None) => assert!(r.is_err()),

@@ -1,9 +1,11 @@
 //! Shared test fixtures.
 #![allow(dead_code)]
 
-use calib_record::layout::CRC_OFFSET;
+use core::f32::consts::{PI, TAU};
+
+use calib_record::layout::{CRC_OFFSET, DOUBLE_WORD_BYTES};
 use calib_record::{encode, Alignment, Calibration, RECORD_BYTES};
-use mras::{Coefficients, Cplx, PathKind};
+use mras::{Coefficients, Cplx, PathKind, MAX_PATHS};
 
 pub const HASH: u32 = 0xA1B2_C3D4;
 pub const OTHER_HASH: u32 = 0x0BAD_C0DE;
@@ -25,25 +27,32 @@ pub fn coefs(tag: f32) -> Coefficients {
     c
 }
 
-/// The alignment stored with the fixtures' coefficients.
-pub const ALIGN: Alignment = Alignment {
-    offset_e_rad: -1.25,
-    reversed: true,
-};
-
-/// A calibration of `c` with [`ALIGN`].
-pub fn cal(c: &Coefficients) -> Calibration {
-    Calibration {
-        coefficients: *c,
-        alignment: ALIGN,
+/// A valid alignment derived from the tag: the offset walks around [-π, π) (tag 0 is
+/// exactly -π), the direction is the parity of the tag's bits.
+pub fn alignment(tag: f32) -> Alignment {
+    Alignment {
+        offset_e_rad: (tag * 0.731).rem_euclid(TAU) - PI,
+        reversed: tag.to_bits().count_ones() % 2 == 1,
     }
 }
 
-pub fn encoded(c: &Coefficients, seq: u32, hash: u32) -> [u8; RECORD_BYTES] {
-    encoded_cal(&cal(c), seq, hash)
+/// A calibration with a distinguishing tag in every coefficient and in the alignment.
+pub fn calib(tag: f32) -> Calibration {
+    Calibration {
+        coefficients: coefs(tag),
+        alignment: alignment(tag),
+    }
 }
 
-pub fn encoded_cal(c: &Calibration, seq: u32, hash: u32) -> [u8; RECORD_BYTES] {
+/// `c` with the identity alignment.
+pub fn with_identity(c: Coefficients) -> Calibration {
+    Calibration {
+        coefficients: c,
+        alignment: Alignment::IDENTITY,
+    }
+}
+
+pub fn encoded(c: &Calibration, seq: u32, hash: u32) -> [u8; RECORD_BYTES] {
     let mut buf = [0u8; RECORD_BYTES];
     assert_eq!(encode(c, seq, hash, &mut buf), RECORD_BYTES);
     buf
@@ -56,9 +65,50 @@ pub fn reseal(buf: &mut [u8; RECORD_BYTES]) {
 }
 
 /// Bit-exact comparison (f32 `==` equates 0.0 and -0.0 and never matches NaN).
-pub fn same_bits(a: &Coefficients, b: &Coefficients) -> bool {
+pub fn same_coef_bits(a: &Coefficients, b: &Coefficients) -> bool {
     a.len() == b.len()
         && a.iter().zip(b.iter()).all(|((ka, va), (kb, vb))| {
             ka == kb && va.re.to_bits() == vb.re.to_bits() && va.im.to_bits() == vb.im.to_bits()
         })
+}
+
+/// Bit-exact comparison of whole calibrations.
+pub fn same_bits(a: &Calibration, b: &Calibration) -> bool {
+    same_coef_bits(&a.coefficients, &b.coefficients)
+        && a.alignment.offset_e_rad.to_bits() == b.alignment.offset_e_rad.to_bits()
+        && a.alignment.reversed == b.alignment.reversed
+}
+
+/// Size of a format-version-1 record.
+pub const V1_RECORD_BYTES: usize = 120;
+
+/// A correctly formed format-version-1 record, built by hand from the version-1
+/// layout (independently of the crate's encoder): magic, version 1, path count,
+/// reserved 0, sequence, hash, eight 12-byte path entries, CRC-32/ISO-HDLC over bytes
+/// 0..112, commit mark.
+pub fn v1_record(c: &Coefficients, seq: u32, hash: u32) -> [u8; V1_RECORD_BYTES] {
+    let mut b = [0u8; V1_RECORD_BYTES];
+    b[0..4].copy_from_slice(&0x4D52_4153u32.to_le_bytes()); // "MRAS"
+    b[4..6].copy_from_slice(&1u16.to_le_bytes());
+    b[6] = c.len() as u8;
+    b[8..12].copy_from_slice(&seq.to_le_bytes());
+    b[12..16].copy_from_slice(&hash.to_le_bytes());
+    for (n, (kind, v)) in c.iter().enumerate() {
+        let at = 16 + 12 * n;
+        let (tag, h) = match kind {
+            PathKind::Offset => (0, 0),
+            PathKind::AmplitudeQuadrature => (1, 0),
+            PathKind::Harmonic(h) => (2, h as u8),
+        };
+        b[at] = tag;
+        b[at + 1] = h;
+        b[at + 4..at + 8].copy_from_slice(&v.re.to_bits().to_le_bytes());
+        b[at + 8..at + 12].copy_from_slice(&v.im.to_bits().to_le_bytes());
+    }
+    let crc_at = 16 + 12 * MAX_PATHS;
+    assert_eq!(crc_at + DOUBLE_WORD_BYTES, V1_RECORD_BYTES);
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&b[..crc_at]);
+    b[crc_at..crc_at + 4].copy_from_slice(&crc.to_le_bytes());
+    b[crc_at + 4..].copy_from_slice(&0xB2AD_BEACu32.to_le_bytes()); // !magic
+    b
 }
