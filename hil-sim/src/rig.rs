@@ -54,9 +54,9 @@ impl Reference {
         self.trajectory().state(t_s)
     }
 
-    /// The reference as the control period takes it (whole turns kept apart in f64).
-    pub fn motion_ref(&self, t_s: f64) -> MotionRef {
-        let (th, w, a) = self.state(t_s);
+    /// A state `(θ*, ω*, α*)` as the control period takes it (whole turns kept apart in
+    /// f64).
+    pub fn motion_ref((th, w, a): (f64, f64, f64)) -> MotionRef {
         let turns = (th / TAU).floor();
         MotionRef {
             theta: Angle {
@@ -323,8 +323,9 @@ impl<T: Trig> Rig<T> {
         self.finish_flash_operation(t);
         let theta_ref_rad = match &self.reference {
             Some(r) => {
-                self.period.set_reference(r.motion_ref(t));
-                r.state(t).0
+                let state = r.state(t);
+                self.period.set_reference(Reference::motion_ref(state));
+                state.0
             }
             None => 0.0,
         };

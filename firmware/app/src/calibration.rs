@@ -22,6 +22,10 @@ extern "C" {
 /// Bank 2 in dual-bank mode (RM0440 §3.3.1, 512 KiB devices, DBANK = 1).
 const BANK2_START: usize = 0x0804_0000;
 const BANK2_END: usize = 0x0808_0000;
+/// The flash size data register (KiB; RM0440, "Device electronic signature"): a 128 or
+/// 256 KiB part has its
+/// bank 2 elsewhere, or none.
+const FLASH_SIZE_KIB: *const u16 = 0x1FFF_75E0 as *const u16;
 const KEY1: u32 = 0x4567_0123;
 const KEY2: u32 = 0xCDEF_89AB;
 /// Longest wait for BSY: a page erase is 40 ms at most (DS12288, as recalled); beyond
@@ -82,6 +86,8 @@ pub enum FlashError {
     SingleBank,
     /// `_calib_start` is not in bank 2: an erase would stall the code's bank.
     NotInBank2,
+    /// The device has less than the 512 KiB memory.x describes (FLASH_SIZE register).
+    FlashSize,
 }
 
 impl FlashError {
@@ -122,6 +128,7 @@ impl drive::supervisor::NamedError for FlashError {
             FlashError::Timeout => "Timeout",
             FlashError::SingleBank => "SingleBank",
             FlashError::NotInBank2 => "NotInBank2",
+            FlashError::FlashSize => "FlashSize",
         }
     }
 }
@@ -160,11 +167,15 @@ impl Drop for Unlocked<'_> {
 }
 
 impl Flash {
-    /// Take the flash; check that it is in dual-bank mode and that memory.x put the
-    /// pages in bank 2.
+    /// Take the flash; check the device's flash size, that it is in dual-bank mode and
+    /// that memory.x put the pages in bank 2.
     pub fn new(regs: FLASH) -> Self {
         let start = slot_addr(Slot::A);
-        let usable = if regs.optr().read().dbank().bit_is_clear() {
+        // SAFETY: a read-only system-memory register present on every STM32G4.
+        let size_kib = unsafe { FLASH_SIZE_KIB.read_volatile() };
+        let usable = if size_kib < 512 {
+            Err(FlashError::FlashSize)
+        } else if regs.optr().read().dbank().bit_is_clear() {
             Err(FlashError::SingleBank)
         } else if !(BANK2_START..BANK2_END).contains(&start)
             || !(BANK2_START..=BANK2_END).contains(&(slot_addr(Slot::B) + PAGE_BYTES))

@@ -21,10 +21,12 @@ mod pwm;
 
 use defmt_rtt as _;
 
-/// A panic: bridge off first, the cause for the next boot, reset. No logging: with
-/// defmt-rtt's drop-on-contention a frame may be half written by the interrupted task.
+/// A panic: bridge off first, the cause for the next boot, reset. Interrupts are masked
+/// before the MOE clear so that `control` cannot re-arm the bridge in between. No
+/// logging: a frame may be half written by the interrupted task.
 #[panic_handler]
 fn panic(_: &core::panic::PanicInfo) -> ! {
+    cortex_m::interrupt::disable();
     pwm::disarm_from_anywhere();
     fault_record::store_panic();
     cortex_m::peripheral::SCB::sys_reset();
