@@ -23,8 +23,7 @@ extern "C" {
 const BANK2_START: usize = 0x0804_0000;
 const BANK2_END: usize = 0x0808_0000;
 /// The flash size data register (KiB; RM0440, "Device electronic signature"): a 128 or
-/// 256 KiB part has its
-/// bank 2 elsewhere, or none.
+/// 256 KiB part has its bank 2 elsewhere, or none.
 const FLASH_SIZE_KIB: *const u16 = 0x1FFF_75E0 as *const u16;
 const KEY1: u32 = 0x4567_0123;
 const KEY2: u32 = 0xCDEF_89AB;
