@@ -1,7 +1,5 @@
-//! `hil-sim`: the portable core, step for step, against simulated sensors and drives.
-//!
-//! This first version drives the core kinematically (a rigid rotor that follows its
-//! trajectory exactly, perfect torque feedforward); the SPMSM drive model follows.
+//! `hil-sim`: the firmware's control period and supervisor, step for step, against a
+//! simulated SPMSM drive; the core alone against kinematic rotors and recorded data.
 
 use clap::{Parser, Subcommand};
 use hil_sim::{accuracy, cli as cmd, commission, replay, rtt_log, study, vector};
@@ -26,12 +24,14 @@ enum Command {
     GainSweep(study::SweepArgs),
     /// Run the core over recorded sensor data (CSV) and write its estimates.
     Replay(replay::Args),
-    /// Run a scenario (simulated SPMSM drive) by name; paper scenarios run the paper's
-    /// law and ours side by side and write CSV, JSON and plots.
+    /// Run a scenario by name: the firmware's control period (and, for `commissioning`,
+    /// its supervisor) on the simulated SPMSM drive; paper scenarios run the paper's law
+    /// and ours side by side and write CSV, JSON and plots.
     Scenario(cmd::ScenarioArgs),
     /// Simulated seconds per wall second of the full drive model.
     Bench(cmd::BenchArgs),
-    /// Turn the firmware's captured RTT stream into CSV and the same plots.
+    /// The firmware's RTT stream (raw defmt bytes) decoded against its ELF into CSV, an
+    /// event table and plots.
     RttLog(rtt_log::Args),
     /// Accuracy benchmark: the MRAS against offline calibrations on random simulated
     /// sensors (writes docs/results.md, its plots and a per-sensor CSV).
@@ -43,8 +43,9 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        // The README's main job: the firmware's power-up self-commissioning on the
-        // simulated drive (two power-ups: erased flash, then stored calibration).
+        // The README's main job: the firmware's control period and supervisor
+        // commissioning the simulated drive (two power-ups: erased flash, then stored
+        // calibration).
         None => cmd::scenario(&cmd::ScenarioArgs::named("commissioning")),
         Some(Command::Commission(a)) => commission::run(&a),
         Some(Command::CompareLaws(a)) => study::compare_laws(&a),

@@ -44,13 +44,14 @@ fn any_mounting_either_direction_commissions_with_full_torque_per_amp() {
         .par_iter()
         .map(|&(deg, rev)| (deg, rev, first_boot(&scenario(deg, rev), 3.5)))
         .collect();
-    let mut worst: f64 = 1.0;
+    let (mut worst, mut worst_angle): (f64, f64) = (1.0, 0.0);
     for (deg, rev, b) in &results {
         let what = format!("mount {deg:.1}° reversed {rev}: {:?}", b.transitions);
         assert_eq!(b.final_state, State::Run, "{what} cause {:?}", b.cause);
         assert_eq!(b.alignment.reversed, *rev, "{what}");
         let err = b.run_angle_error_e_rad.unwrap();
-        assert!(err.abs() < 0.1, "{what}: electrical angle error {err} rad");
+        worst_angle = worst_angle.max(err.abs());
+        assert!(err.abs() < 0.02, "{what}: electrical angle error {err} rad");
         let speed = b.run_speed_rad_s.unwrap() / TAU;
         assert!((speed - 20.0).abs() < 0.2, "{what}: {speed} rev/s");
         let k = b.run_torque_per_amp.unwrap() / reference;
@@ -59,8 +60,9 @@ fn any_mounting_either_direction_commissions_with_full_torque_per_amp() {
         assert_eq!(b.faulted_samples, 0, "{what}");
     }
     eprintln!(
-        "{} mountings: worst torque per amp {worst:.4} of the aligned run",
-        results.len()
+        "{} mountings: worst torque per amp {worst:.4} of the aligned run, worst electrical angle error {:.1} mrad",
+        results.len(),
+        worst_angle * 1e3
     );
 }
 
