@@ -20,7 +20,7 @@ use crate::pending::Pending;
 use crate::plots::{self, Series};
 use crate::stream::{self, Item, Line};
 use anyhow::{anyhow, bail, Context, Result};
-use drive::telemetry::Record;
+use drive::telemetry::{FieldValue, Record, RECORD_KEYS};
 use std::fmt::Write as _;
 use std::fs;
 use std::io::BufWriter;
@@ -53,21 +53,6 @@ const BAD_LIMIT_PERCENT: u64 = 1;
 const MAX_REPORTED: usize = 20;
 /// Events printed in the summary (all go to the events CSV).
 const MAX_EVENTS_PRINTED: usize = 20;
-
-/// CSV columns before the coefficients.
-const FIXED_COLUMNS: [&str; 11] = [
-    "t_s",
-    "state",
-    "faults",
-    "omega_rad_s",
-    "amplitude",
-    "converged",
-    "revs",
-    "residual_max_rad",
-    "cycles_max",
-    "cycles_mean",
-    "cycles_min",
-];
 
 /// Why a segment begins, for the summary.
 enum SegmentStart {
@@ -349,28 +334,36 @@ fn write_csv(
 }
 
 fn write_segment(seg: &Segment, dest: &Path) -> Result<Pending> {
-    let mut header: Vec<String> = FIXED_COLUMNS.iter().map(|c| c.to_string()).collect();
+    // The record's fields in stream order, time in seconds, then the coefficients.
+    let mut header: Vec<String> = std::iter::once("t_s")
+        .chain(
+            RECORD_KEYS
+                .iter()
+                .copied()
+                .filter(|k| !matches!(*k, "t_ms" | "coef")),
+        )
+        .map(String::from)
+        .collect();
     for p in &seg.paths {
         header.push(format!("{p}_re"));
         header.push(format!("{p}_im"));
     }
     let width = 2 * seg.paths.len();
     let rows = seg.records.iter().map(move |r| {
-        let mut v = vec![
-            t_s(r.t_ms).to_string(),
-            r.state.name().to_string(),
-            r.faults.to_string(),
-            r.omega_rad_s.to_string(),
-            r.amplitude.to_string(),
-            r.converged.to_string(),
-            r.revs.to_string(),
-            r.residual_max_rad.to_string(),
-            r.cycles_max.to_string(),
-            r.cycles_mean.to_string(),
-            r.cycles_min.to_string(),
-        ];
-        v.extend(r.coef.iter().take(width).map(|c| c.to_string()));
-        v
+        let mut row: Vec<String> = r
+            .fields()
+            .filter(|(k, _)| *k != "coef")
+            .map(|(k, v)| match (k, v) {
+                ("t_ms", FieldValue::U32(t)) => t_s(t).to_string(),
+                (_, FieldValue::U32(x)) => x.to_string(),
+                (_, FieldValue::U8(x)) => x.to_string(),
+                (_, FieldValue::F32(x)) => x.to_string(),
+                (_, FieldValue::Bool(x)) => x.to_string(),
+                (_, FieldValue::Str(x)) => x.to_string(),
+            })
+            .collect();
+        row.extend(r.coef.iter().take(width).map(|c| c.to_string()));
+        row
     });
     write_csv(dest, &header, rows)
 }

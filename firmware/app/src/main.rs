@@ -219,9 +219,13 @@ mod app {
         sample.overcurrent = l.pwm.break_active();
         sample.cycles = *l.last_cycles;
         let command = cx.shared.command.lock(|c| *c);
-        if let Some(i) = cx.shared.mailbox.lock(Option::take) {
-            l.period.install(&i);
-        }
+        // Installed in place: no copy of the (rarely present) coefficients per period.
+        cx.shared.mailbox.lock(|m| {
+            if let Some(i) = m {
+                l.period.install(i);
+                *m = None;
+            }
+        });
         let out = l.period.step(&sample, &command);
         l.pwm.apply(&out);
         if out.supervisor_due {

@@ -123,6 +123,26 @@ fn sweep_result() -> SweepResult {
     }
 }
 
+/// A control period that sweeps and converges at once, until `until`.
+fn commission(
+    s: &mut Supervisor,
+    flash: &mut Flash,
+    ticks: &mut u32,
+    until: State,
+) -> (Vec<Event>, Command) {
+    run(
+        s,
+        flash,
+        ticks,
+        20_000,
+        |s, tm| {
+            tm.sweep = (s.state() == State::Sweep).then(sweep_result);
+            tm.converged = s.state() == State::Adapt;
+        },
+        |s| s.state() == until,
+    )
+}
+
 /// The whole first power-up on a blank flash: named events in order, the alignment
 /// measured by the sweep goes into the command and into the record.
 #[test]
@@ -130,17 +150,7 @@ fn first_power_up_commissions_and_stores_the_alignment() {
     let mut s = supervisor();
     let mut flash = Flash::default();
     let mut ticks = 0;
-    let (events, cmd) = run(
-        &mut s,
-        &mut flash,
-        &mut ticks,
-        20_000,
-        |s, tm| {
-            tm.sweep = (s.state() == State::Sweep).then(sweep_result);
-            tm.converged = s.state() == State::Adapt;
-        },
-        |s| s.state() == State::Run,
-    );
+    let (events, cmd) = commission(&mut s, &mut flash, &mut ticks, State::Run);
     assert_eq!(s.state(), State::Run, "{events:?}");
     assert!(
         events.iter().any(|e| matches!(
@@ -258,17 +268,7 @@ fn a_failed_store_is_the_safe_state_with_the_flash_error_named() {
         ..Flash::default()
     };
     let mut ticks = 0;
-    let (events, cmd) = run(
-        &mut s,
-        &mut flash,
-        &mut ticks,
-        20_000,
-        |s, tm| {
-            tm.sweep = (s.state() == State::Sweep).then(sweep_result);
-            tm.converged = s.state() == State::Adapt;
-        },
-        |s| s.state() == State::Safe,
-    );
+    let (events, cmd) = commission(&mut s, &mut flash, &mut ticks, State::Safe);
     assert_eq!(s.cause(), Some(Cause::StoreFailed));
     assert!(events.iter().any(|e| matches!(
         e,
@@ -285,17 +285,7 @@ fn a_store_in_run_keeps_running_and_a_failed_one_too() {
     let mut s = supervisor();
     let mut flash = Flash::default();
     let mut ticks = 0;
-    run(
-        &mut s,
-        &mut flash,
-        &mut ticks,
-        20_000,
-        |s, tm| {
-            tm.sweep = (s.state() == State::Sweep).then(sweep_result);
-            tm.converged = s.state() == State::Adapt;
-        },
-        |s| s.state() == State::Run,
-    );
+    commission(&mut s, &mut flash, &mut ticks, State::Run);
     let mut drifted = coefficients();
     drifted.set(PathKind::Offset, Cplx::new(0.11, -0.07));
     s.request_store();
