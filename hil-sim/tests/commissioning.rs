@@ -3,7 +3,7 @@
 
 use calib_record::RamFlash;
 use drive::commissioning::{Cause, State};
-use drive::telemetry::{Event, Fault};
+use drive::telemetry::Event;
 use hil_sim::power_up::{self, Boot};
 use hil_sim::rig::{SimFlash, Streamed};
 use hil_sim::scenario::Scenario;
@@ -154,7 +154,6 @@ fn a_wire_break_in_run_latches_the_bridge_off_until_cleared() {
     );
     assert_eq!(b.final_state, State::Run);
     assert!(b.loaded_from_flash);
-    let _ = Fault::OverCurrent;
 }
 
 /// The operator stores the tracked calibration in Run at 20 rev/s: the erase takes its
@@ -211,4 +210,29 @@ fn a_store_in_run_at_speed_keeps_lock_unless_the_flash_stalls_the_cpu() {
             assert!((speed - 20.0).abs() < 0.2, "{speed}");
         }
     }
+}
+
+/// A flash error during the commissioning's store: the safe state with its cause, the
+/// flash error named in the stream, and the next power-up commissions again.
+#[test]
+fn a_store_that_hits_a_flash_error_ends_safe_with_its_cause() {
+    let sc = scenario(10.0, false);
+    let mut flash = SimFlash::new(RamFlash::default());
+    flash.fail_next_program = true;
+    let (b, flash) = power_up::boot(&sc, flash, 1, 3.0, None).unwrap();
+    assert_eq!(b.final_state, State::Safe, "{:?}", b.transitions);
+    assert_eq!(b.cause, Some(Cause::StoreFailed));
+    assert!(b.streamed.iter().any(|(_, s)| matches!(
+        s,
+        Streamed::Event(Event::StoreFailed {
+            reason: "ProgErr",
+            ..
+        })
+    )));
+    let (again, _) = power_up::boot(&sc, flash, 2, 0.5, None).unwrap();
+    assert!(
+        again.entered(State::Align).is_some(),
+        "{:?}",
+        again.transitions
+    );
 }
