@@ -3,6 +3,7 @@
 //! followed by the phase currents (JSQ2). RM0440 §21 "Analog-to-digital converters".
 
 use crate::board::pins;
+use cortex_m::peripheral::DWT;
 use drive::control::Sample;
 use stm32g4xx_hal::stm32::{ADC1, ADC12_COMMON, ADC2, RCC};
 
@@ -11,32 +12,74 @@ pub struct Adcs {
     adc2: ADC2,
 }
 
-fn power_up_and_calibrate(adc: &stm32g4xx_hal::stm32::adc1::RegisterBlock) {
-    // §21.4.6: leave deep power-down, enable the regulator, wait t_ADCVREG_STUP (20 µs).
+/// Longest wait for an ADC step: 1 ms of core cycles (a step takes tens of µs at most).
+const STEP_TIMEOUT_CYCLES: u32 = crate::board::SYSCLK_HZ / 1_000;
+/// t_ADCVREG_STUP, the regulator's start-up time: 20 µs (ST's
+/// `LL_ADC_DELAY_INTERNAL_REGUL_STAB_US`).
+const REGULATOR_STARTUP_CYCLES: u32 = crate::board::SYSCLK_HZ / 50_000;
+
+/// Core cycles since `t0` (DWT CYCCNT, enabled in init before the ADCs).
+fn cycles_since(t0: u32) -> u32 {
+    DWT::cycle_count().wrapping_sub(t0)
+}
+
+/// `adc` is ADC`n` (for the message): a step that does not finish in
+/// `STEP_TIMEOUT_CYCLES` ends in a panic naming the ADC and the step (the panic handler
+/// disarms and leaves the cause for the next boot) instead of a silent hang until the
+/// watchdog.
+fn power_up_and_calibrate(adc: &stm32g4xx_hal::stm32::adc1::RegisterBlock, n: u8) {
+    // §21.4.6: leave deep power-down, enable the regulator, wait t_ADCVREG_STUP (20 µs;
+    // the regulator has no ready flag, so this wait is timed, not polled).
     adc.cr().modify(|_, w| w.deeppwd().clear_bit());
     adc.cr().modify(|_, w| w.advregen().set_bit());
-    cortex_m::asm::delay(crate::board::SYSCLK_HZ / 50_000);
+    let t0 = DWT::cycle_count();
+    while cycles_since(t0) < REGULATOR_STARTUP_CYCLES {}
+    if !adc.cr().read().advregen().bit_is_set() {
+        defmt::panic!(
+            "ADC{=u8}: voltage regulator not enabled (ADVREGEN reads 0)",
+            n
+        );
+    }
     // §21.4.8: single-ended calibration.
     adc.cr()
         .modify(|_, w| w.adcaldif().clear_bit().adcal().set_bit());
-    while adc.cr().read().adcal().bit_is_set() {}
-    // §21.4.9: enable and wait for ADRDY.
+    let t0 = DWT::cycle_count();
+    while adc.cr().read().adcal().bit_is_set() {
+        if cycles_since(t0) > STEP_TIMEOUT_CYCLES {
+            defmt::panic!("ADC{=u8}: calibration (ADCAL) did not end within 1 ms", n);
+        }
+    }
+    // §21.4.9: enable and wait for ADRDY. ADEN set less than 4 ADC clocks after ADCAL
+    // cleared is reset by the calibration logic (ST HAL ADC_Enable, MCSDK R3_2_ADCxInit),
+    // and one write comes that soon: keep setting ADEN until ADRDY = 1.
     adc.isr().write(|w| w.adrdy().clear_bit_by_one());
-    adc.cr().modify(|_, w| w.aden().set_bit());
-    while adc.isr().read().adrdy().bit_is_clear() {}
+    let t0 = DWT::cycle_count();
+    while adc.isr().read().adrdy().bit_is_clear() {
+        if adc.cr().read().aden().bit_is_clear() {
+            adc.cr().modify(|_, w| w.aden().set_bit());
+        }
+        if cycles_since(t0) > STEP_TIMEOUT_CYCLES {
+            defmt::panic!("ADC{=u8}: enable (ADRDY) not reached within 1 ms", n);
+        }
+    }
 }
 
 impl Adcs {
     pub fn new(adc1: ADC1, adc2: ADC2, common: ADC12_COMMON) -> Self {
         // SAFETY: init-time enable of the ADC12 clock.
-        unsafe { (*RCC::ptr()).ahb2enr().modify(|_, w| w.adc12en().set_bit()) };
+        let rcc = unsafe { &*RCC::ptr() };
+        rcc.ahb2enr().modify(|_, w| w.adc12en().set_bit());
+        // §7.4 (RCC_AHB2ENR): read the enable back before the first ADC access, ST's
+        // "delay after an RCC peripheral clock enabling"; a lost CCR write would leave
+        // the ADCs without a clock.
+        let _ = rcc.ahb2enr().read();
         // §21.7.2: synchronous clock HCLK/4 = 42.5 MHz; dual mode, injected simultaneous
         // only (DUAL = 00101).
         common
             .ccr()
             .write(|w| w.ckmode().sync_div4().dual().dual_j());
-        for adc in [&*adc1, &*adc2] {
-            power_up_and_calibrate(adc);
+        for (adc, n) in [(&*adc1, 1), (&*adc2, 2)] {
+            power_up_and_calibrate(adc, n);
             // 24.5 ADC cycles (0.58 µs): the sensor amplifier's source impedance.
             adc.smpr1().modify(|_, w| {
                 w.smp1().cycles24_5().smp2().cycles24_5();

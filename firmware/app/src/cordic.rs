@@ -20,11 +20,11 @@ impl Cordic {
     /// two 32-bit results (§17.4.1 CORDIC_CSR).
     pub fn new(cordic: CORDIC) -> Trig {
         // SAFETY: single write of the CORDIC enable bit during init.
-        unsafe {
-            (*RCC::ptr())
-                .ahb1enr()
-                .modify(|_, w| w.cordicen().set_bit())
-        };
+        let rcc = unsafe { &*RCC::ptr() };
+        rcc.ahb1enr().modify(|_, w| w.cordicen().set_bit());
+        // §7.4 (RCC_AHB1ENR): read the enable back before the CSR write, ST's "delay after
+        // an RCC peripheral clock enabling".
+        let _ = rcc.ahb1enr().read();
         cordic.csr().write(|w| {
             w.func().cosine();
             w.precision().iters24();

@@ -85,6 +85,43 @@ mod app {
         let dp = cx.device;
         let mut cp = cx.core;
 
+        // The cycle counter first: the ADC bring-up's timeouts (adc.rs) count its cycles.
+        cp.DCB.enable_trace();
+        cp.DWT.enable_cycle_counter();
+
+        // A debugger halt stops TIM1 (RM0440 DBGMCU_APB2FZR.DBG_TIM1_STOP); with the
+        // counter stopped the timer disables its outputs as if MOE were reset (TIM1
+        // "debug mode", OSSI = 1: off level), so a halted current loop never leaves the
+        // bridge switching on its last duties.
+        dp.DBGMCU
+            .apb2_fz()
+            .modify(|_, w| w.dbg_tim1_stop().set_bit());
+        // Debug builds only (DBGMCU_APB1FZR1.DBG_IWDG_STOP): the watchdog pauses while
+        // halted, so breakpoints do not reset the board. Release builds keep it counting.
+        #[cfg(debug_assertions)]
+        dp.DBGMCU
+            .apb1l_fz()
+            .modify(|_, w| w.dbg_iwdg_stop().set_bit());
+
+        {
+            // SAFETY: init-time clock enables through the PAC, before `dp.RCC` is
+            // constrained; nothing else runs.
+            let rcc = unsafe { &*stm32g4xx_hal::stm32::RCC::ptr() };
+            // §7.4 (RCC_APB1ENR1): the PWR clock, which the HAL's `freeze` does not enable
+            // although it reads PWR_CR1.VOS and writes PWR_CR5.R1MODE (boost). Read back
+            // before the first PWR access (ST's "delay after an RCC peripheral clock
+            // enabling").
+            rcc.apb1enr1().modify(|_, w| w.pwren().set_bit());
+            let _ = rcc.apb1enr1().read();
+            // §7.4 (RCC_APB2ENR): the SYSCFG clock, read back before the CFGR2 write.
+            rcc.apb2enr().modify(|_, w| w.syscfgen().set_bit());
+            let _ = rcc.apb2enr().read();
+        }
+        // §10.2.8 SYSCFG_CFGR2.CLL: a core lockup (a fault in the HardFault handler, a
+        // bad stack) reaches TIM1's break input and clears MOE in hardware, where no
+        // software runs any more. Set once; only a reset clears it.
+        dp.SYSCFG.cfgr2().modify(|_, w| w.cll().set_bit());
+
         // Clock tree (board::SYSCLK_HZ): HSI16 / 4 × 85 / 2, range 1 boost.
         let pwr = dp
             .PWR
@@ -104,10 +141,15 @@ mod app {
             .constrain()
             .freeze(RccConfig::pll().pll_cfg(pll).boost(true), pwr);
 
+        // TIM1 before its pins: outputs driven to their off level (OSSI = 1, MOE = 0)
+        // from the moment the pins become AF6, never floating (pwm.rs).
+        let pwm = Pwm::new(dp.TIM1);
+
         // Pin map (board::pins): TIM1 outputs and break on AF6, sensor and currents analog.
         let gpioa = dp.GPIOA.split(&mut rcc);
         let gpiob = dp.GPIOB.split(&mut rcc);
         let gpioc = dp.GPIOC.split(&mut rcc);
+        let break_pin = gpioa.pa6.into_alternate::<6>();
         let _pwm_pins = (
             gpioa.pa8.into_alternate::<6>(),
             gpioa.pa9.into_alternate::<6>(),
@@ -115,7 +157,6 @@ mod app {
             gpioa.pa7.into_alternate::<6>(),
             gpiob.pb0.into_alternate::<6>(),
             gpiob.pb1.into_alternate::<6>(),
-            gpioa.pa6.into_alternate::<6>(),
         );
         let _analog = (
             gpioa.pa0.into_analog(),
@@ -123,9 +164,11 @@ mod app {
             gpioc.pc0.into_analog(),
             gpioc.pc1.into_analog(),
         );
-
-        cp.DCB.enable_trace();
-        cp.DWT.enable_cycle_counter();
+        // A break may have latched while BKIN's pin was not yet on AF6 (a low input is
+        // active). 1 µs covers the break filter (8 timer clocks) after the pin switch;
+        // then clear it, unless the comparator holds the input active.
+        cortex_m::asm::delay(board::SYSCLK_HZ / 1_000_000);
+        pwm.clear_boot_break(break_pin.is_low());
 
         #[cfg(feature = "cordic")]
         let trig = crate::cordic::Cordic::new(dp.CORDIC);
@@ -179,7 +222,6 @@ mod app {
             board::WATCHDOG_TIMEOUT_US,
         ));
 
-        let pwm = Pwm::new(dp.TIM1);
         let adcs = Adcs::new(dp.ADC1, dp.ADC2, dp.ADC12_COMMON);
         let flash = calibration::Flash::new(dp.FLASH);
 

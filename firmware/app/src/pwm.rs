@@ -9,18 +9,27 @@ pub struct Pwm {
 }
 
 impl Pwm {
-    /// Configure and start the counter with the outputs off (MOE = 0).
+    /// Configure and start the counter with the outputs off (MOE = 0, OSSI = 1: driven
+    /// to their off level). Call before the pins are switched to AF6, so that the
+    /// outputs are never left floating (MOE = 0 with OSSI = 0 is Hi-Z, §28.6.20 BDTR).
+    /// The break flag may latch while BKIN is not on its pin yet: see `clear_boot_break`.
     pub fn new(tim: TIM1) -> Self {
         // SAFETY: single write of the TIM1 enable bit during init, before interrupts run.
-        unsafe { (*RCC::ptr()).apb2enr().modify(|_, w| w.tim1en().set_bit()) };
+        let rcc = unsafe { &*RCC::ptr() };
+        rcc.apb2enr().modify(|_, w| w.tim1en().set_bit());
+        // §7.4 (RCC_APB2ENR): read the enable back before the first TIM1 access, ST's
+        // "delay after an RCC peripheral clock enabling"; a lost CR1 write would give
+        // edge-aligned PWM.
+        let _ = rcc.apb2enr().read();
         tim.cr1().write(|w| {
             // §28.4.1: CMS = 01, centre-aligned mode 1; ARR preloaded.
             w.cms().center_aligned1().arpe().set_bit()
         });
         tim.psc().write(|w| w.psc().set(0));
         tim.arr().write(|w| w.arr().set(PWM_ARR as u32));
-        // §28.6.7-8: channels 1-3 PWM mode 1 with preload, so that a period never mixes
-        // old and new duties (CCRx is loaded at the update event).
+        // §28.6.7-8: channels 1-3 PWM mode 1 with preload: CCRx is loaded at the update
+        // event, which RCR = 1 (below) makes once per period, at the counter peak. Each
+        // high-side pulse (centred on the valley) therefore has one duty.
         tim.ccmr1_output().write(|w| {
             w.oc1m().pwm_mode1().oc1pe().enabled();
             w.oc2m().pwm_mode1().oc2pe().enabled()
@@ -44,14 +53,31 @@ impl Pwm {
             w.cc3e().set_bit().cc3ne().set_bit();
             w.cc4e().set_bit()
         });
+        // §28.6.27 TIM1_AF1: the BKIN pin feeds the break (BKINE = 1), not inverted
+        // (BKINP = 0). Written explicitly: the reset value differs between the SVD (0,
+        // pin not connected) and the reference manual, and the over-current protection
+        // rests on this bit. No comparator inputs (BKCMPxE = 0).
+        tim.af1().write(|w| w.bkine().set_bit().bkinp().clear_bit());
         // §28.6.20: dead time, break input enabled active low (shunt comparator), OSSR/
-        // OSSI so that outputs go to their idle (off) level, MOE off until armed.
+        // OSSI so that outputs go to their idle (off) level, MOE off until armed. BKF =
+        // 0011 (f_CK_INT, N = 8, ~50 ns): a shorter glitch does not latch a break (BKF = 0
+        // is asynchronous). One write: the LOCK bits can write-protect all of these
+        // fields, so they are all set in the first BDTR write.
         tim.bdtr().write(|w| {
             w.dtg().set(DEAD_TIME_TICKS);
             w.bke().set_bit().bkp().clear_bit();
+            // SAFETY: 0b0011 is a defined BKF encoding.
+            unsafe { w.bkf().bits(0b0011) };
             w.ossr().set_bit().ossi().set_bit();
             w.moe().clear_bit()
         });
+        // §28.3.3 repetition counter: in centre-aligned mode it counts overflows and
+        // underflows, so RCR = 1 gives one update event (CCR shadow load) per PWM period;
+        // written before the first UG and CEN, that event falls on the overflow (counter
+        // peak), where the ADCs sample. RCR = 0 would also load at the valley, in the
+        // middle of the high-side pulse.
+        tim.rcr().write(|w| w.rep().set(1));
+        // §28.6.6: UG loads ARR, PSC, RCR and the CCRs into their shadow registers.
         tim.egr().write(|w| w.ug().set_bit());
         tim.cr1().modify(|_, w| w.cen().set_bit());
         Self { tim }
@@ -106,6 +132,18 @@ impl Pwm {
 
     pub fn clear_break(&self) {
         self.tim.sr().modify(|_, w| w.bif().clear_bit());
+    }
+
+    /// Once, after the pins are on AF6: clear a break latched during configuration
+    /// (BKIN read low while its pin was still analog), unless the break input is active
+    /// now (`bkin_low`, the pin's level: active low). An active break stays latched, and
+    /// `break_active()` reports it as an over-current.
+    pub fn clear_boot_break(&self, bkin_low: bool) {
+        // §28.6.5 TIM1_SR.BIF (rc_w0): cleared only with the input inactive, so a
+        // real over-current at boot is not hidden.
+        if !bkin_low {
+            self.clear_break();
+        }
     }
 }
 
