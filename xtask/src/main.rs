@@ -5,6 +5,7 @@
 
 mod isr;
 mod qemu;
+mod regs;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
@@ -38,6 +39,9 @@ cargo xtask <command>
   bench-accuracy  the accuracy benchmark against offline calibrations (500 sensors,
                 release): regenerates docs/results.md and docs/results/; further
                 arguments go to `hil-sim bench-accuracy` (--sensors, --seed, --reduced)
+  regs          regenerate the emulator's STM32G474 register table (hil-sim/emu/src/
+                regs_g474.rs) from the stm32g4 PAC's sources
+  regs --check  fail if the committed register table differs from what the PAC generates
 ";
 
 fn main() -> ExitCode {
@@ -55,6 +59,7 @@ fn main() -> ExitCode {
         Some("bench-accuracy") => bench_accuracy(&args[1..]),
         Some("qemu") => setup().and_then(|_| qemu::bit_exact()),
         Some("cycles") => setup().and_then(|_| qemu::cycles()),
+        Some("regs") => regs::main(&args[1..]),
         Some("-h" | "--help" | "help") | None => {
             print!("{HELP}");
             Ok(())
