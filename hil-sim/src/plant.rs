@@ -203,6 +203,9 @@ pub struct Plant {
     /// tripped: the break input clears MOE in hardware and stays latched (BIF).
     pub break_level_a: f64,
     tripped: bool,
+    /// The comparator's break acts on the bridge here (hil-sim's drive). Off when a
+    /// modelled timer owns the break path (the emulator: BKIN → TIM1 → MOE).
+    pub break_opens_bridge: bool,
     last_torque_nm: f64,
     consts: PlantConsts,
 }
@@ -271,6 +274,7 @@ impl Plant {
             enabled: false,
             break_level_a: 2.0 * motor.i_max_a,
             tripped: false,
+            break_opens_bridge: true,
             last_torque_nm: 0.0,
         })
     }
@@ -358,11 +362,41 @@ impl Plant {
     /// One period: the voltage of the previous period's duties (or open windings), then
     /// the controller's new output takes over for the next period.
     pub fn advance(&mut self, out: &drive::control::Output) {
+        // MOE clears at once; a new enable acts with the next period's duties.
+        let open = !out.enable || !self.enabled;
+        self.integrate_period(open);
+        self.enabled = out.enable;
+        self.v_ab_applied = if out.enable {
+            duties_to_ab(&out.duties, self.motor.vdc_v)
+        } else {
+            [0.0; 2]
+        };
+        self.k += 1;
+    }
+
+    /// One period with the bridge output that is applied during it (duties and
+    /// enable as the timer really drove them): for a modelled timer that owns the delay.
+    pub fn advance_applied(&mut self, applied: &drive::control::Output) {
+        self.enabled = applied.enable;
+        self.v_ab_applied = if applied.enable {
+            duties_to_ab(&applied.duties, self.motor.vdc_v)
+        } else {
+            [0.0; 2]
+        };
+        self.integrate_period(!applied.enable);
+        self.k += 1;
+    }
+
+    /// The over-current comparator's output (latched once tripped).
+    pub fn comparator_tripped(&self) -> bool {
+        self.tripped
+    }
+
+    fn integrate_period(&mut self, open: bool) {
         let t = self.time_s();
         let m = &self.motor;
         let p = m.pole_pairs as f64;
-        // MOE clears at once; a new enable acts with the next period's duties.
-        let mut open = !out.enable || !self.enabled || self.tripped;
+        let mut open = open || (self.tripped && self.break_opens_bridge);
         let c = &self.consts;
         let h = c.h_s;
         let load = self.load_torque_nm(t);
@@ -396,7 +430,7 @@ impl Plant {
                 .max((0.5 * ia + 0.5 * SQRT3 * ib).abs());
             if peak > self.break_level_a {
                 self.tripped = true;
-                open = true;
+                open |= self.break_opens_bridge;
             }
             // T = 1.5·p·λ·(iβ cos θe - iα sin θe).
             let te = c.kt * (self.i_ab[1] * ce - self.i_ab[0] * se);
@@ -416,13 +450,6 @@ impl Plant {
             torque += te;
         }
         self.last_torque_nm = torque / self.consts.substeps as f64;
-        self.enabled = out.enable;
-        self.v_ab_applied = if out.enable {
-            duties_to_ab(&out.duties, m.vdc_v)
-        } else {
-            [0.0; 2]
-        };
-        self.k += 1;
     }
 }
 

@@ -1,0 +1,150 @@
+//! The board around the MCU: the NUCLEO-G474RE with a three-phase inverter shield and
+//! an analog sin/cos sensor, wired as the firmware's `board.rs` says (PA0 = ADC1_IN1
+//! sensor X, PA1 = ADC2_IN2 sensor Y, PC0 = ADC1_IN6 current a, PC1 = ADC2_IN7 current
+//! b, PA6 = the over-current comparator on TIM1_BKIN), driving hil-sim's plant. The
+//! scaling constants are the board's hardware (amplifier gains), which the firmware's
+//! board constants describe: they are repeated here as the physical side.
+
+use crate::periph::{flash, TICK_HZ};
+use crate::regfile::RegFile;
+use drive::control::{Output, Sample};
+use hil_sim::plant::{CurrentAdc, Plant, Truth};
+use hil_sim::scenario::Scenario;
+
+/// The shield's current amplifier: A per count, zero at mid-scale, low-side shunts read
+/// inverted (ST's three-shunt boards).
+pub const CURRENT_A_PER_COUNT: f64 = -0.0161;
+
+pub struct Board {
+    pub plant: Plant,
+    /// The PWM period the plant integrates per step (ticks).
+    period_ticks: u64,
+    /// The time the plant's state belongs to.
+    plant_at: u64,
+    last: (Sample, Truth),
+    /// Bank-2 pages write-protected in the option bytes (FLASH_WRP2AR), if any.
+    pub wrp2a_pages: Option<(u32, u32)>,
+    /// A log of the truth at each sampling instant, decimated (t_s, θ, ω).
+    pub truth_log: Vec<Truth>,
+    pub log_every: u64,
+    samples: u64,
+}
+
+impl Board {
+    /// The `commissioning` scenario's motor and distorted, arbitrarily mounted sensor on
+    /// this board's amplifiers.
+    pub fn commissioning(seed: u64) -> anyhow::Result<Self> {
+        let sc = Scenario::load("commissioning").map_err(anyhow::Error::msg)?;
+        let motor = sc.file.motor.to_params().map_err(anyhow::Error::msg)?;
+        // The sensor amplifier: the scenario's converter (12 bits over ±1.5 units), so
+        // that its worst sensor (amplitude 1.2, offsets 0.1, harmonics) stays in range.
+        let sp = sc.file.sensor.to_params().map_err(anyhow::Error::msg)?;
+        let sensor = hil_sim::sensor::SensorSim::new(sp, seed).map_err(anyhow::Error::msg)?;
+        let pwm_hz = 20_000.0;
+        let mut plant = Plant::new(motor, sensor, 1.0 / pwm_hz, 0.3).map_err(anyhow::Error::msg)?;
+        plant.current_adc = CurrentAdc {
+            amps_per_count: CURRENT_A_PER_COUNT,
+            zero_counts: 2048,
+            max_counts: 4095,
+        };
+        // The comparator drives BKIN; the timer model owns what the break does.
+        plant.break_opens_bridge = false;
+        Ok(Self::new(plant, pwm_hz))
+    }
+
+    pub fn new(plant: Plant, pwm_hz: f64) -> Self {
+        let period_ticks = (TICK_HZ / pwm_hz).round() as u64;
+        let mut p = plant;
+        let last = p.sample();
+        Self {
+            plant: p,
+            period_ticks,
+            plant_at: 0,
+            last,
+            wrp2a_pages: None,
+            truth_log: Vec::new(),
+            log_every: 20,
+            samples: 0,
+        }
+    }
+
+    /// Option bytes loaded at reset (§3.4): write protection of bank 2.
+    pub fn reset_option_bytes(&self, regs: &mut RegFile) {
+        let v = match self.wrp2a_pages {
+            Some((a, b)) => (b & 0x7F) << 16 | (a & 0x7F),
+            None => 0x0000_00FF,
+        };
+        regs.set(flash::WRP2AR, v);
+    }
+
+    fn idle() -> Output {
+        Output {
+            duties: [0.0; 3],
+            enable: false,
+            supervisor_due: false,
+        }
+    }
+
+    /// The plant up to the sampling instant `t`, the last period driven with `duties`
+    /// (bridge on if `on`), any periods before it coasting.
+    pub fn advance_to(&mut self, t: u64, duties: [f32; 3], on: bool) {
+        let n =
+            ((t.saturating_sub(self.plant_at)) as f64 / self.period_ticks as f64).round() as u64;
+        if n == 0 {
+            return;
+        }
+        for _ in 1..n {
+            self.plant.advance_applied(&Self::idle());
+        }
+        self.plant.advance_applied(&Output {
+            duties,
+            enable: on,
+            supervisor_due: false,
+        });
+        self.plant_at += n * self.period_ticks;
+        self.last = self.plant.sample();
+        self.samples += 1;
+        if self.samples % self.log_every == 0 {
+            self.truth_log.push(self.last.1);
+        }
+    }
+
+    pub fn next_coast(&self, _now: u64) -> u64 {
+        self.plant_at + 2 * self.period_ticks
+    }
+
+    /// No sampling for two periods: the motor coasts with the bridge off. Returns
+    /// whether the plant moved.
+    pub fn coast(&mut self, now: u64) -> bool {
+        let mut moved = false;
+        while now >= self.plant_at + 2 * self.period_ticks {
+            self.plant.advance_applied(&Self::idle());
+            self.plant_at += self.period_ticks;
+            moved = true;
+        }
+        if moved {
+            self.last = self.plant.sample();
+        }
+        moved
+    }
+
+    pub fn sample(&self) -> Sample {
+        self.last.0
+    }
+
+    pub fn truth(&self) -> Truth {
+        self.last.1
+    }
+
+    /// The analog front end: what ADC `adc` (0 = ADC1) converts on `channel`.
+    pub fn channel(s: &Sample, adc: usize, channel: u32) -> u16 {
+        match (adc, channel) {
+            (0, 1) => s.x,
+            (0, 6) => s.ia,
+            (1, 2) => s.y,
+            (1, 7) => s.ib,
+            // Unwired inputs read near zero.
+            _ => 0,
+        }
+    }
+}

@@ -1,0 +1,621 @@
+//! The CPU: Unicorn as a Cortex-M4F running the image, and the core's behaviour Unicorn
+//! lacks, done here between translated blocks: exception entry and return with the
+//! 8- or 26-word frame (ARMv7-M ARM B1.5.6-8), tail-chaining and nesting by priority,
+//! faults, lockup and resets.
+
+use crate::board::Board;
+use crate::elf::{self, Image, FLASH_BASE};
+use crate::machine::{Fault, Machine, ADC1_2_IRQ, SRAM, SRAM_BYTES};
+use crate::nvic;
+use crate::periph::rcc::ResetKind;
+use crate::periph::ticks;
+use crate::rtt::{Rtt, UP0};
+use anyhow::{anyhow, bail, Result};
+use unicorn_engine::{Arch, ArmCpuModel, HookType, MemType, Mode, Prot, RegisterARM, Unicorn};
+
+const BANK2: u64 = 0x0804_0000;
+const BANK_BYTES: u64 = 256 * 1024;
+const SYSMEM: u64 = 0x1FFF_0000;
+/// FLASH_SIZE data register (RM0440 §48.2): KiB of flash.
+const FLASH_SIZE_REG: u64 = 0x1FFF_75E0;
+
+/// Exception return values (B1.5.8).
+const EXC_RETURN_FP: u32 = 0xFFFF_FFE1;
+const EXC_RETURN_BASIC: u32 = 0xFFFF_FFF1;
+const EXC_RETURN_THREAD: u32 = 0x8;
+
+/// The emulated board running a firmware image.
+pub struct Emu {
+    pub uc: Unicorn<'static, Machine>,
+    pub elf: Vec<u8>,
+}
+
+fn uc_err(e: unicorn_engine::uc_error) -> anyhow::Error {
+    anyhow!("unicorn: {e:?}")
+}
+
+impl Emu {
+    /// Power the board on with `elf` in flash; `flash` is the flash array of an earlier
+    /// run (the calibration pages kept), or None for a freshly programmed part (the
+    /// calibration pages erased).
+    pub fn new(elf: &[u8], board: Board, flash: Option<Vec<u8>>) -> Result<Self> {
+        let Image {
+            flash: image,
+            rtt_block,
+            ..
+        } = elf::load(elf)?;
+        let flash = match flash {
+            // Reflash the code, keep bank 2 (where the calibration lives).
+            Some(mut kept) => {
+                kept[..BANK_BYTES as usize].copy_from_slice(&image[..BANK_BYTES as usize]);
+                kept
+            }
+            None => image,
+        };
+        let m = Machine::new(flash, board, Rtt::new(rtt_block));
+        let mut uc = Unicorn::new_with_data(Arch::ARM, Mode::THUMB, m).map_err(uc_err)?;
+        // Not UC_MODE_MCLASS, which makes a Cortex-M33: a Cortex-M4 with our own
+        // exception model.
+        uc.ctl_set_cpu_model(ArmCpuModel::CORTEX_M4 as i32)
+            .map_err(uc_err)?;
+        Self::map(&mut uc)?;
+        let mut emu = Self {
+            uc,
+            elf: elf.to_vec(),
+        };
+        // Power-on RAM content is not zero: a fixed pattern, so `.uninit` records are
+        // garbage at the first boot.
+        let pattern: Vec<u8> = (0..SRAM_BYTES)
+            .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
+            .collect();
+        emu.uc.mem_write(SRAM as u64, &pattern).map_err(uc_err)?;
+        emu.cpu_reset()?;
+        Ok(emu)
+    }
+
+    fn map(uc: &mut Unicorn<'static, Machine>) -> Result<()> {
+        // Bank 1 (code) as memory; bank 2 through callbacks (programming, ECC).
+        uc.mem_map(FLASH_BASE as u64, BANK_BYTES, Prot::READ | Prot::EXEC)
+            .map_err(uc_err)?;
+        let code = uc.get_data().flash[..BANK_BYTES as usize].to_vec();
+        uc.mem_write(FLASH_BASE as u64, &code).map_err(uc_err)?;
+        uc.mmio_map(
+            BANK2,
+            BANK_BYTES,
+            Some(|uc: &mut Unicorn<'_, Machine>, off: u64, size: usize| {
+                uc.get_data_mut()
+                    .flash_read((BANK_BYTES + off) as u32, size) as u64
+            }),
+            Some(
+                |uc: &mut Unicorn<'_, Machine>, off: u64, size: usize, v: u64| {
+                    uc.get_data_mut()
+                        .flash_write((BANK_BYTES + off) as u32, size, v as u32)
+                },
+            ),
+        )
+        .map_err(uc_err)?;
+        uc.mem_map(SYSMEM, 0x8000, Prot::READ).map_err(uc_err)?;
+        uc.mem_write(FLASH_SIZE_REG, &512u16.to_le_bytes())
+            .map_err(uc_err)?;
+        uc.mem_map(SRAM as u64, SRAM_BYTES as u64, Prot::ALL)
+            .map_err(uc_err)?;
+        for (base, size) in [
+            (0x4000_0000u64, 0x4_0000u64),
+            (0x4800_0000, 0x2000),
+            (0x5000_0000, 0x1000),
+        ] {
+            uc.mmio_map(
+                base,
+                size,
+                Some(move |uc: &mut Unicorn<'_, Machine>, off: u64, sz: usize| {
+                    uc.get_data_mut().mmio_read((base + off) as u32, sz) as u64
+                }),
+                Some(
+                    move |uc: &mut Unicorn<'_, Machine>, off: u64, sz: usize, v: u64| {
+                        uc.get_data_mut()
+                            .mmio_write((base + off) as u32, sz, v as u32)
+                    },
+                ),
+            )
+            .map_err(uc_err)?;
+        }
+        // The peripheral bit-band alias (PM0214 §2.2.5): one word per bit of
+        // 0x4000_0000..0x400F_FFFF.
+        uc.mmio_map(
+            0x4200_0000,
+            0x0200_0000,
+            Some(|uc: &mut Unicorn<'_, Machine>, off: u64, _sz: usize| {
+                let (addr, bit) = bitband(off);
+                (uc.get_data_mut().mmio_read(addr, 4) >> bit & 1) as u64
+            }),
+            Some(
+                |uc: &mut Unicorn<'_, Machine>, off: u64, _sz: usize, v: u64| {
+                    let (addr, bit) = bitband(off);
+                    let m = uc.get_data_mut();
+                    let old = m.regs.get(addr);
+                    let new = if v & 1 != 0 {
+                        old | 1 << bit
+                    } else {
+                        old & !(1 << bit)
+                    };
+                    m.mmio_write(addr, 4, new);
+                },
+            ),
+        )
+        .map_err(uc_err)?;
+        uc.mmio_map(
+            0xE000_0000,
+            0x0010_0000,
+            Some(|uc: &mut Unicorn<'_, Machine>, off: u64, sz: usize| {
+                let a = 0xE000_0000 + off as u32;
+                let v = uc.get_data_mut().ppb_read(a & !3);
+                (v >> ((a & 3) * 8)
+                    & if sz == 4 {
+                        u32::MAX
+                    } else {
+                        (1 << (8 * sz)) - 1
+                    }) as u64
+            }),
+            Some(
+                |uc: &mut Unicorn<'_, Machine>, off: u64, sz: usize, v: u64| {
+                    let a = 0xE000_0000 + off as u32;
+                    uc.get_data_mut().ppb_write(a, sz, v as u32)
+                },
+            ),
+        )
+        .map_err(uc_err)?;
+
+        uc.add_block_hook(
+            1,
+            0,
+            |uc: &mut Unicorn<'_, Machine>, addr: u64, size: u32| on_block(uc, addr as u32, size),
+        )
+        .map_err(uc_err)?;
+        uc.add_intr_hook(|uc: &mut Unicorn<'_, Machine>, intno: u32| {
+            let pc = uc.reg_read(RegisterARM::PC).unwrap_or(0) as u32;
+            let m = uc.get_data_mut();
+            match intno {
+                // EXCP_EXCEPTION_EXIT: a branch to an EXC_RETURN value.
+                8 => m.exc_return = Some(pc),
+                // EXCP_NOCP: Unicorn's own coprocessor check.
+                17 => m.fault = Some(Fault::NoCoprocessor(pc)),
+                _ => m.fault = Some(Fault::Undefined(pc)),
+            }
+            let _ = uc.emu_stop();
+        })
+        .map_err(uc_err)?;
+        uc.add_mem_hook(
+            HookType::MEM_UNMAPPED | HookType::MEM_PROT,
+            1,
+            0,
+            |uc: &mut Unicorn<'_, Machine>, _t: MemType, addr: u64, _s: usize, _v: i64| {
+                uc.get_data_mut().fault = Some(Fault::Bus(addr as u32));
+                false
+            },
+        )
+        .map_err(uc_err)?;
+        Ok(())
+    }
+
+    pub fn m(&self) -> &Machine {
+        self.uc.get_data()
+    }
+
+    pub fn m_mut(&mut self) -> &mut Machine {
+        self.uc.get_data_mut()
+    }
+
+    fn reg(&self, r: RegisterARM) -> u32 {
+        self.uc.reg_read(r).unwrap_or(0) as u32
+    }
+
+    fn set_reg(&mut self, r: RegisterARM, v: u32) -> Result<()> {
+        self.uc.reg_write(r, v as u64).map_err(uc_err)
+    }
+
+    fn read_u32(&self, a: u32) -> Result<u32> {
+        let mut b = [0u8; 4];
+        self.uc.mem_read(a as u64, &mut b).map_err(uc_err)?;
+        Ok(u32::from_le_bytes(b))
+    }
+
+    fn write_u32(&mut self, a: u32, v: u32) -> Result<()> {
+        self.uc
+            .mem_write(a as u64, &v.to_le_bytes())
+            .map_err(uc_err)
+    }
+
+    /// The core out of reset: SP and PC from the vector table (B1.5.5).
+    fn cpu_reset(&mut self) -> Result<()> {
+        let sp = self.m().vector(0);
+        let pc = self.m().vector(1);
+        for r in [
+            RegisterARM::R0,
+            RegisterARM::R1,
+            RegisterARM::R2,
+            RegisterARM::R3,
+            RegisterARM::R12,
+        ] {
+            self.set_reg(r, 0)?;
+        }
+        self.set_reg(RegisterARM::PRIMASK, 0)?;
+        self.set_reg(RegisterARM::BASEPRI, 0)?;
+        self.set_reg(RegisterARM::CONTROL, 0)?;
+        self.set_reg(RegisterARM::XPSR, 1 << 24)?;
+        self.set_reg(RegisterARM::MSP, sp)?;
+        self.set_reg(RegisterARM::SP, sp)?;
+        self.set_reg(RegisterARM::LR, 0xFFFF_FFFF)?;
+        self.set_reg(RegisterARM::PC, pc & !1)?;
+        self.flush_mode()?;
+        Ok(())
+    }
+
+    /// A system reset: peripherals, core registers; RAM and flash kept.
+    fn system_reset(&mut self, kind: ResetKind) -> Result<()> {
+        self.m_mut().reset_peripherals(kind);
+        self.cpu_reset()
+    }
+
+    /// QEMU caches thread/handler mode in its translation flags: rewriting the flags
+    /// register makes it re-read IPSR.
+    fn flush_mode(&mut self) -> Result<()> {
+        let nzcv = self.reg(RegisterARM::APSR_NZCV);
+        self.set_reg(RegisterARM::APSR_NZCV, nzcv)
+    }
+
+    /// Exception entry (B1.5.6): push the frame on the main stack, EXC_RETURN in LR,
+    /// IPSR, the handler.
+    fn enter(&mut self, n: u16) -> Result<()> {
+        let fp = self.m().fpu_enabled();
+        let sp = self.reg(RegisterARM::SP);
+        let size = if fp { 0x68 } else { 0x20 };
+        let align = sp & 4 != 0;
+        let frame = (sp - size) & !7;
+        let xpsr = self.reg(RegisterARM::XPSR);
+        let regs = [
+            RegisterARM::R0,
+            RegisterARM::R1,
+            RegisterARM::R2,
+            RegisterARM::R3,
+            RegisterARM::R12,
+            RegisterARM::LR,
+        ];
+        for (i, r) in regs.iter().enumerate() {
+            let v = self.reg(*r);
+            self.write_u32(frame + 4 * i as u32, v)?;
+        }
+        let pc = self.reg(RegisterARM::PC);
+        self.write_u32(frame + 24, pc)?;
+        self.write_u32(frame + 28, (xpsr & !(1 << 9)) | (align as u32) << 9)?;
+        if fp {
+            for k in 0..16 {
+                let s = self.uc.reg_read(RegisterARM::S0 as i32 + k).unwrap_or(0) as u32;
+                self.write_u32(frame + 32 + 4 * k as u32, s)?;
+            }
+            let fpscr = self.reg(RegisterARM::FPSCR);
+            self.write_u32(frame + 96, fpscr)?;
+        }
+        let thread = self.m().nvic.active.is_empty();
+        let exc_return = if fp { EXC_RETURN_FP } else { EXC_RETURN_BASIC }
+            | if thread { EXC_RETURN_THREAD } else { 0 };
+        let handler = self.m().vector(n);
+        let m = self.m_mut();
+        m.nvic.take(n);
+        if n == nvic::irq(ADC1_2_IRQ) {
+            let instrs = m.instrs;
+            if let Some(since) = m.stats.pending_since.take() {
+                m.stats.latency_max = m.stats.latency_max.max(instrs - since);
+            }
+            m.stats.isr_entered_at = Some(instrs);
+        }
+        self.set_reg(RegisterARM::SP, frame)?;
+        self.set_reg(RegisterARM::LR, exc_return)?;
+        // IPSR = n, T = 1, IT/ICI cleared.
+        self.set_reg(RegisterARM::XPSR, (xpsr & 0xF800_0000) | 1 << 24 | n as u32)?;
+        self.set_reg(RegisterARM::PC, handler & !1)?;
+        self.flush_mode()
+    }
+
+    /// Exception return (B1.5.8): pop the frame the EXC_RETURN value describes.
+    fn exit(&mut self, exc_return: u32) -> Result<()> {
+        let fp = exc_return & 0x10 == 0;
+        let frame = self.reg(RegisterARM::SP);
+        let regs = [
+            RegisterARM::R0,
+            RegisterARM::R1,
+            RegisterARM::R2,
+            RegisterARM::R3,
+            RegisterARM::R12,
+            RegisterARM::LR,
+        ];
+        for (i, r) in regs.iter().enumerate() {
+            let v = self.read_u32(frame + 4 * i as u32)?;
+            self.set_reg(*r, v)?;
+        }
+        let pc = self.read_u32(frame + 24)?;
+        let xpsr = self.read_u32(frame + 28)?;
+        if fp {
+            for k in 0..16 {
+                let v = self.read_u32(frame + 32 + 4 * k as u32)?;
+                self.uc
+                    .reg_write(RegisterARM::S0 as i32 + k, v as u64)
+                    .map_err(uc_err)?;
+            }
+            let fpscr = self.read_u32(frame + 96)?;
+            self.set_reg(RegisterARM::FPSCR, fpscr)?;
+        }
+        let size = if fp { 0x68 } else { 0x20 };
+        let sp = frame + size + if xpsr & (1 << 9) != 0 { 4 } else { 0 };
+        let m = self.m_mut();
+        let done = m.nvic.active.pop();
+        if done == Some(nvic::irq(ADC1_2_IRQ)) {
+            if let Some(t0) = m.stats.isr_entered_at.take() {
+                let n = m.instrs - t0;
+                m.stats.isr_count += 1;
+                m.stats.isr_instrs_sum += n;
+                m.stats.isr_instrs_max = m.stats.isr_instrs_max.max(n);
+            }
+        }
+        // A level-sensitive line still high pends again (B3.4.1).
+        if m.adc_irq_high && done == Some(nvic::irq(ADC1_2_IRQ)) {
+            m.nvic.pend_irq(ADC1_2_IRQ);
+        }
+        self.set_reg(RegisterARM::SP, sp)?;
+        self.set_reg(RegisterARM::XPSR, xpsr & !(1 << 9))?;
+        self.set_reg(RegisterARM::PC, pc & !1)?;
+        self.flush_mode()
+    }
+
+    /// A fault: HardFault (the configurable faults are not enabled by the firmware, so
+    /// they escalate), or lockup when it happens in HardFault or NMI (B1.5.15).
+    fn fault(&mut self, f: Fault) -> Result<()> {
+        if std::env::var_os("DRIVE_EMU_TRACE").is_some() {
+            eprintln!(
+                "fault {f:x?} pc={:#x} sp={:#x} lr={:#x} t={:.6}",
+                self.reg(RegisterARM::PC),
+                self.reg(RegisterARM::SP),
+                self.reg(RegisterARM::LR),
+                self.m().time_s()
+            );
+        }
+        let in_fault_handler = self
+            .m()
+            .nvic
+            .active
+            .iter()
+            .any(|&n| n == nvic::HARD_FAULT || n == nvic::NMI);
+        let m = self.m_mut();
+        match f {
+            Fault::NoCoprocessor(_) => m.cfsr |= 1 << 19,
+            Fault::Undefined(_) => m.cfsr |= 1 << 16,
+            Fault::Bus(_) => m.cfsr |= 1 << 10,
+        }
+        m.hfsr |= 1 << 30;
+        if in_fault_handler {
+            m.lockup = true;
+            m.stats.lockups += 1;
+            m.check_break();
+            return Ok(());
+        }
+        let pc = match f {
+            Fault::NoCoprocessor(pc) | Fault::Undefined(pc) => pc,
+            Fault::Bus(_) => self.reg(RegisterARM::PC),
+        };
+        let now = self.m().now;
+        self.m_mut().stats.hard_faults.push((now, pc));
+        self.set_reg(RegisterARM::PC, pc)?;
+        self.enter(nvic::HARD_FAULT)
+    }
+
+    /// Take the most urgent pending exception if it preempts what runs (with
+    /// tail-chaining, this is called again after each return).
+    fn take_pending(&mut self) -> Result<bool> {
+        let Some((n, prio)) = self.m().nvic.most_urgent_pending() else {
+            return Ok(false);
+        };
+        let primask = self.reg(RegisterARM::PRIMASK) & 1 != 0;
+        let basepri = self.reg(RegisterARM::BASEPRI) as u8;
+        if prio < self.m().nvic.execution_priority(primask, basepri) {
+            self.enter(n)?;
+            Ok(true)
+        } else {
+            Ok(false)
+        }
+    }
+
+    /// RTT: read what the firmware wrote since the last poll (the host side).
+    fn poll_rtt(&mut self) -> Result<()> {
+        let now = self.m().now;
+        self.m_mut().rtt.schedule(now);
+        let (Some(cb), true) = (self.m().rtt.block, self.m().rtt.reading) else {
+            return Ok(());
+        };
+        // Until the firmware's start-up code has written the control block, RAM holds
+        // anything: a host finds the block by its ID, as probe-rs does.
+        let mut id = [0u8; 10];
+        self.uc.mem_read(cb as u64, &mut id).map_err(uc_err)?;
+        if &id != b"SEGGER RTT" {
+            return Ok(());
+        }
+        let up = cb + UP0;
+        let buf = self.read_u32(up + 4)?;
+        let size = self.read_u32(up + 8)?;
+        let wr = self.read_u32(up + 12)?;
+        let rd = self.read_u32(up + 16)?;
+        let in_ram = |a: u32| (SRAM..SRAM + SRAM_BYTES).contains(&a);
+        if size == 0
+            || wr >= size
+            || rd >= size
+            || wr == rd
+            || !in_ram(buf)
+            || !in_ram(buf + size - 1)
+        {
+            return Ok(());
+        }
+        let mut out = Vec::new();
+        let copy = |from: u32, to: u32, out: &mut Vec<u8>| -> Result<()> {
+            let mut b = vec![0u8; (to - from) as usize];
+            self.uc
+                .mem_read((buf + from) as u64, &mut b)
+                .map_err(uc_err)?;
+            out.extend(b);
+            Ok(())
+        };
+        if wr > rd {
+            copy(rd, wr, &mut out)?;
+        } else {
+            copy(rd, size, &mut out)?;
+            copy(0, wr, &mut out)?;
+        }
+        self.write_u32(up + 16, wr)?;
+        let m = self.m_mut();
+        m.rtt.bytes.extend(out);
+        m.rtt.reads += 1;
+        Ok(())
+    }
+
+    /// Run until `t_end_s` of emulated time.
+    pub fn run_until(&mut self, t_end_s: f64) -> Result<()> {
+        let t_end = ticks(t_end_s);
+        while self.m().now < t_end {
+            self.step(t_end)?;
+        }
+        Ok(())
+    }
+
+    pub fn run_for(&mut self, dt_s: f64) -> Result<()> {
+        let t = self.m().time_s() + dt_s;
+        self.run_until(t)
+    }
+
+    /// One slice: events, exceptions, then the CPU up to the next event.
+    fn step(&mut self, t_end: u64) -> Result<()> {
+        self.m_mut().service_events();
+        if self.m().rtt.next_poll <= self.m().now {
+            self.poll_rtt()?;
+        }
+        if let Some(kind) = self.m_mut().reset_request.take() {
+            return self.system_reset(kind);
+        }
+        let deadline = self.m().next_event().min(t_end);
+        // A stalled or locked-up core executes nothing: time passes to the next event.
+        let (stall, lockup) = (self.m().stall_until, self.m().lockup);
+        if lockup || stall > self.m().now {
+            let until = if lockup {
+                deadline
+            } else {
+                stall.min(deadline)
+            };
+            let m = self.m_mut();
+            m.now = until.max(m.now + 1);
+            return Ok(());
+        }
+        while self.take_pending()? {}
+        let m = self.m_mut();
+        m.deadline = deadline;
+        m.stop = false;
+        m.idle = false;
+        let pc = self.reg(RegisterARM::PC);
+        let r = self.uc.emu_start((pc | 1) as u64, 0, 0, 0);
+        let m = self.m_mut();
+        if let Some(e) = m.exc_return.take() {
+            if e >> 28 == 0xF {
+                return self.exit(e);
+            }
+        }
+        if let Some(f) = m.fault.take() {
+            return self.fault(f);
+        }
+        if let Err(e) = r {
+            bail!(
+                "the CPU stopped at pc={:#010x}: {e:?}",
+                self.reg(RegisterARM::PC)
+            );
+        }
+        let m = self.m_mut();
+        if m.idle && !m.nvic.any_pending() {
+            // The idle loop: nothing runs until the next event.
+            m.now = m.now.max(m.deadline);
+        }
+        Ok(())
+    }
+
+    /// The flash array (to power the board up again with it).
+    pub fn flash(&self) -> Vec<u8> {
+        self.m().flash.clone()
+    }
+
+    /// The CPU is in the idle loop and no exception is active.
+    pub fn pc(&self) -> u32 {
+        self.reg(RegisterARM::PC)
+    }
+}
+
+/// Bit-band alias offset → (peripheral word address, bit).
+fn bitband(off: u64) -> (u32, u32) {
+    let byte = (off / 32) as u32;
+    let bit = ((off % 32) / 4) as u32 + (byte & 3) * 8;
+    (0x4000_0000 + (byte & !3), bit)
+}
+
+/// The block hook: time, the FPU check, idle detection, and whether to leave Unicorn
+/// for an event or an exception.
+fn on_block(uc: &mut Unicorn<'_, Machine>, addr: u32, size: u32) {
+    let m = uc.get_data_mut();
+    let (n, vfp) = m.count_instrs(addr, size);
+    m.instrs += n;
+    m.now += n * m.rcc.ticks_per_instr;
+    if vfp && !m.fpu_enabled() {
+        // The block's FP instruction would raise NOCP on silicon (CPACR CP10/11 off).
+        m.fault = Some(Fault::NoCoprocessor(addr));
+        let _ = uc.emu_stop();
+        return;
+    }
+    if m.is_idle_branch(addr, size) {
+        m.idle = true;
+    }
+    let mut stop = m.idle || m.stop || m.now >= m.deadline;
+    let pending = m.nvic.any_pending();
+    let track = m.stats.isr_entered_at.is_none();
+    if pending || track {
+        let primask = uc.reg_read(RegisterARM::PRIMASK).unwrap_or(0) & 1 != 0;
+        let basepri = uc.reg_read(RegisterARM::BASEPRI).unwrap_or(0) as u8;
+        let m = uc.get_data_mut();
+        let exec = m.nvic.execution_priority(primask, basepri);
+        if pending {
+            if let Some((_, prio)) = m.nvic.most_urgent_pending() {
+                stop |= prio < exec;
+            }
+        }
+        // The control interrupt masked by PRIMASK/BASEPRI (not by running itself).
+        let masked = primask || (basepri != 0 && (basepri as i16 & 0xF0) <= m.control_priority());
+        match (masked, m.stats.masked_since) {
+            (true, None) => m.stats.masked_since = Some(m.instrs - n),
+            (false, Some(t0)) => {
+                let len = m.instrs - n - t0;
+                if len > m.stats.masked_max {
+                    m.stats.masked_max = len;
+                    m.stats.masked_max_at = m.now;
+                }
+                m.stats.masked_since = None;
+            }
+            _ => {}
+        }
+    }
+    if stop {
+        let _ = uc.emu_stop();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bitband_alias_maps_to_word_and_bit() {
+        // RCC_AHB2ENR (0x4002_104C) bit 0: 0x4200_0000 + 0x2104C·32 + 0·4.
+        assert_eq!(bitband(0x2104C * 32), (0x4002_104C, 0));
+        assert_eq!(bitband(0x2104C * 32 + 2 * 4), (0x4002_104C, 2));
+        assert_eq!(bitband(0x2104D * 32 + 4), (0x4002_104C, 9));
+    }
+}

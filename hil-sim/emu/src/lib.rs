@@ -1,0 +1,17 @@
+//! The release `drive-fw` ELF on an emulated STM32G474 driving hil-sim's simulated
+//! motor: the binary users flash, executed. See docs/emulator.md.
+//!
+//! GPL-2.0-only: this crate links the Unicorn engine. No MIT crate depends on it.
+
+pub mod board;
+pub mod cpu;
+pub mod elf;
+pub mod machine;
+pub mod nvic;
+pub mod periph;
+pub mod regfile;
+pub mod regs_g474;
+pub mod rtt;
+pub mod stats;
+
+pub use cpu::Emu;

@@ -1,0 +1,667 @@
+//! The emulated STM32G474: Unicorn executes the Thumb-2 code; everything else is here:
+//! the memory map, the Cortex-M4 exception model (ARMv7-M ARM B1.5), resets, the
+//! private peripheral bus, the peripheral models and the plant they drive.
+//!
+//! Time is counted in 170 MHz ticks: each executed instruction costs one cycle of the
+//! current system clock (no wait states, no multi-cycle instructions: instruction
+//! counts, not cycle estimates). Peripheral events (timer edges, ADC conversions, flash
+//! operations, the watchdog) stop the CPU at the next block boundary.
+
+use crate::board::Board;
+use crate::nvic::{self, Nvic};
+use crate::periph::adc::{self, Adcs};
+use crate::periph::flash::{self, FlashCtl};
+use crate::periph::misc::{self, Cordic, Iwdg};
+use crate::periph::rcc::{self, Rcc, ResetKind};
+use crate::periph::tim1::{self, Edge, Tim1};
+use crate::periph::{ticks, TICK_HZ};
+use crate::regfile::RegFile;
+use crate::rtt::Rtt;
+use crate::stats::Stats;
+use std::collections::BTreeMap;
+
+pub const SRAM: u32 = 0x2000_0000;
+pub const SRAM_BYTES: u32 = 128 * 1024;
+/// The control interrupt: ADC1_2 is IRQ 18 (RM0440 §16.3 table 97).
+pub const ADC1_2_IRQ: u16 = 18;
+
+/// Why the CPU must leave Unicorn at the next block boundary.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Fault {
+    /// Read, write or fetch outside the memory map (BusFault → HardFault).
+    Bus(u32),
+    /// An undefined instruction (UsageFault → HardFault).
+    Undefined(u32),
+    /// A floating-point instruction with CP10/CP11 off in CPACR (UsageFault NOCP).
+    NoCoprocessor(u32),
+}
+
+/// A bus access to something the models do not know or a clock that is off.
+#[derive(Clone, Debug, Default)]
+pub struct Unmodelled {
+    /// Accesses to a peripheral whose RCC enable bit was off: ignored, as on silicon.
+    pub gated: BTreeMap<&'static str, u64>,
+    /// Registers the PAC does not describe, by address.
+    pub unknown: BTreeMap<u32, u64>,
+}
+
+pub struct Machine {
+    pub regs: RegFile,
+    pub nvic: Nvic,
+    pub rcc: Rcc,
+    pub adcs: Adcs,
+    pub tim1: Tim1,
+    pub flash_ctl: FlashCtl,
+    pub cordic: Cordic,
+    pub iwdg: Iwdg,
+    /// The flash array (kept over resets and between boots).
+    pub flash: Vec<u8>,
+    /// Time (170 MHz ticks) and executed instructions.
+    pub now: u64,
+    pub instrs: u64,
+    /// Leave Unicorn when `now` reaches this.
+    pub deadline: u64,
+    pub stop: bool,
+    pub idle: bool,
+    pub idle_pc: Option<u32>,
+    pub fault: Option<Fault>,
+    pub exc_return: Option<u32>,
+    pub reset_request: Option<ResetKind>,
+    /// The CPU does not execute until then (a flash erase of the code's bank).
+    pub stall_until: u64,
+    /// Core lockup: a fault in the HardFault or NMI handler (B1.5.15).
+    pub lockup: bool,
+    // Private peripheral bus.
+    pub cpacr: u32,
+    pub vtor: u32,
+    pub shcsr: u32,
+    pub cfsr: u32,
+    pub hfsr: u32,
+    pub scr: u32,
+    pub ccr: u32,
+    pub fpccr: u32,
+    pub demcr: u32,
+    pub dwt_ctrl: u32,
+    /// CYCCNT = instrs - base while enabled.
+    pub cyccnt_base: u64,
+    pub cyccnt_frozen: u32,
+    pub ppb_plain: BTreeMap<u32, u32>,
+    // The drive.
+    pub board: Board,
+    pub rtt: Rtt,
+    pub stats: Stats,
+    pub unmodelled: Unmodelled,
+    /// Thumb instruction lengths of the flash image: is the halfword at 2·k the first of
+    /// a 32-bit instruction.
+    pub code_start: u32,
+    /// The FLASH_SR error flags' stale state a test wants at power-up.
+    pub adc_irq_high: bool,
+}
+
+/// Is this halfword the first of a 32-bit Thumb-2 instruction (A6.1)?
+pub fn is_wide(hw: u16) -> bool {
+    matches!(hw >> 11, 0b11101..=0b11111)
+}
+
+/// A VFP/Advanced SIMD instruction for coprocessors 10/11 (A6.3.18, A7.8).
+pub fn is_vfp(hw1: u16, hw2: u16) -> bool {
+    let top = hw1 & 0xEF00;
+    let cp = (hw2 >> 8) & 0xF;
+    (matches!(top, 0xEC00 | 0xED00 | 0xEE00)) && (cp == 10 || cp == 11)
+}
+
+impl Machine {
+    pub fn new(flash_image: Vec<u8>, board: Board, rtt: Rtt) -> Self {
+        let mut m = Self {
+            regs: RegFile::new(crate::regs_g474::REGS),
+            nvic: Nvic::default(),
+            rcc: Rcc::default(),
+            adcs: Adcs::default(),
+            tim1: Tim1::default(),
+            flash_ctl: FlashCtl::default(),
+            cordic: Cordic::default(),
+            iwdg: Iwdg::default(),
+            flash: flash_image,
+            now: 0,
+            instrs: 0,
+            deadline: 0,
+            stop: false,
+            idle: false,
+            idle_pc: None,
+            fault: None,
+            exc_return: None,
+            reset_request: None,
+            stall_until: 0,
+            lockup: false,
+            cpacr: 0,
+            vtor: 0,
+            shcsr: 0,
+            cfsr: 0,
+            hfsr: 0,
+            scr: 0,
+            ccr: 0x200,
+            fpccr: 0xC000_0000,
+            demcr: 0,
+            dwt_ctrl: 0x4000_0000,
+            cyccnt_base: 0,
+            cyccnt_frozen: 0,
+            ppb_plain: BTreeMap::new(),
+            board,
+            rtt,
+            stats: Stats::default(),
+            unmodelled: Unmodelled::default(),
+            code_start: crate::elf::FLASH_BASE,
+            adc_irq_high: false,
+        };
+        m.reset_peripherals(ResetKind::PowerOn);
+        m
+    }
+
+    /// Peripherals and core registers of the private bus to their reset state; flash,
+    /// RAM, the plant and the reset flags survive (RM0440 §7.1.2 system reset).
+    pub fn reset_peripherals(&mut self, kind: ResetKind) {
+        let csr = self.regs.get(rcc::CSR);
+        self.regs.reset();
+        self.rcc.reset(&mut self.regs);
+        self.rcc.record_reset(&mut self.regs, kind, csr);
+        self.adcs.reset();
+        self.tim1.reset();
+        self.flash_ctl.reset(&mut self.regs);
+        self.cordic = Cordic::default();
+        self.iwdg.reset();
+        self.nvic = Nvic::default();
+        self.board.reset_option_bytes(&mut self.regs);
+        self.stall_until = 0;
+        self.lockup = false;
+        self.cpacr = 0;
+        self.vtor = 0;
+        self.shcsr = 0;
+        self.cfsr = 0;
+        self.hfsr = 0;
+        self.scr = 0;
+        self.ccr = 0x200;
+        self.fpccr = 0xC000_0000;
+        self.demcr = 0;
+        self.dwt_ctrl = 0x4000_0000;
+        self.ppb_plain.clear();
+        self.adc_irq_high = false;
+        self.idle_pc = None;
+        self.stats.boots.push((self.now, kind));
+    }
+
+    pub fn time_s(&self) -> f64 {
+        self.now as f64 / TICK_HZ
+    }
+
+    /// FPU enabled for unprivileged and privileged code (CPACR CP10, CP11 = 0b11).
+    pub fn fpu_enabled(&self) -> bool {
+        self.cpacr & (0xF << 20) == 0xF << 20
+    }
+
+    /// Instructions in a translated block at `addr` of `size` bytes, from the image.
+    pub fn count_instrs(&self, addr: u32, size: u32) -> (u64, bool) {
+        let Some(off) = addr.checked_sub(self.code_start) else {
+            return ((size as u64 / 2).max(1), false);
+        };
+        let code = &self.flash;
+        let (mut i, end) = (off as usize, (off + size) as usize);
+        let (mut n, mut vfp) = (0, false);
+        while i + 1 < end.min(code.len()) {
+            let hw = u16::from_le_bytes([code[i], code[i + 1]]);
+            if is_wide(hw) && i + 3 < code.len() {
+                let hw2 = u16::from_le_bytes([code[i + 2], code[i + 3]]);
+                vfp |= is_vfp(hw, hw2);
+                i += 4;
+            } else {
+                i += 2;
+            }
+            n += 1;
+        }
+        (n.max(1), vfp)
+    }
+
+    /// Is the block at `addr` the idle loop `b .` (0xE7FE)?
+    pub fn is_idle_branch(&self, addr: u32, size: u32) -> bool {
+        size == 2
+            && addr
+                .checked_sub(self.code_start)
+                .and_then(|o| self.flash.get(o as usize..o as usize + 2))
+                .is_some_and(|b| b == [0xFE, 0xE7])
+    }
+
+    // ---- events ----
+
+    /// The next time a model needs the CPU stopped.
+    pub fn next_event(&self) -> u64 {
+        let mut t = u64::MAX;
+        if let Some((e, _)) = self.tim1.next_event() {
+            t = t.min(e);
+        }
+        for e in [
+            self.adcs.next_event(),
+            self.flash_ctl.next_event(),
+            self.iwdg.expiry(&self.regs),
+            Some(self.rtt.next_poll),
+            Some(self.board.next_coast(self.now)),
+        ]
+        .into_iter()
+        .flatten()
+        {
+            t = t.min(e);
+        }
+        t
+    }
+
+    /// Process every event due by `now`.
+    pub fn service_events(&mut self) {
+        loop {
+            let mut progressed = false;
+            if let Some((t, e)) = self.tim1.next_event() {
+                if t <= self.now {
+                    self.tim1.fire(&mut self.regs, t, e);
+                    if e == Edge::Trgo2 {
+                        self.adc_trigger(t);
+                    }
+                    progressed = true;
+                }
+            }
+            if self.adcs.next_event().is_some_and(|t| t <= self.now) {
+                self.adcs.complete(&mut self.regs, self.now);
+                progressed = true;
+            }
+            if self.flash_ctl.next_event().is_some_and(|t| t <= self.now) {
+                self.flash_ctl.complete(&mut self.regs, self.now);
+                progressed = true;
+            }
+            if !progressed {
+                break;
+            }
+        }
+        self.update_irq_lines();
+        if self.iwdg.expiry(&self.regs).is_some_and(|t| t <= self.now) {
+            self.iwdg.expiries += 1;
+            self.reset_request = Some(ResetKind::Watchdog);
+        }
+        // No trigger for a while (reset, boot, timer stopped): the motor coasts.
+        if self.board.coast(self.now) {
+            self.check_break();
+        }
+    }
+
+    /// TRGO2 at `t`: the plant catches up to the sampling instant and the ADCs convert.
+    fn adc_trigger(&mut self, t: u64) {
+        let (duties, on) = self.tim1.take_applied(&self.regs, t);
+        self.board.advance_to(t, duties, on);
+        self.check_break();
+        let sample = self.board.sample();
+        let read = |adc: usize, ch: u32| crate::board::Board::channel(&sample, adc, ch);
+        self.adcs.trgo2(&mut self.regs, t, &read);
+    }
+
+    /// The over-current comparator on PA6 → TIM1 break.
+    pub fn check_break(&mut self) {
+        let pin_low = self.board.plant.comparator_tripped() && misc::pa6_is_bkin(&self.regs);
+        let lock = self.lockup && misc::lockup_to_break(&self.regs);
+        let active = tim1::Tim1::break_input(&self.regs, pin_low, lock);
+        self.tim1.apply_break(&mut self.regs, self.now, active);
+    }
+
+    /// Level-sensitive interrupt lines into the NVIC.
+    pub fn update_irq_lines(&mut self) {
+        let high = Adcs::irq_line(&self.regs);
+        if high && !self.adc_irq_high {
+            self.nvic.pend_irq(ADC1_2_IRQ);
+            self.stats.control_requests += 1;
+            self.stats.pending_since = Some(self.instrs);
+        }
+        self.adc_irq_high = high;
+    }
+
+    // ---- bus ----
+
+    /// The peripheral a register address belongs to.
+    fn periph_of(addr: u32) -> Option<&'static str> {
+        crate::regs_g474::PERIPHS
+            .iter()
+            .find(|p| (p.base..p.base + p.size).contains(&addr))
+            .map(|p| p.name)
+    }
+
+    pub fn mmio_read(&mut self, addr: u32, size: usize) -> u32 {
+        let word = addr & !3;
+        let v = self.read_word(word);
+        let shift = (addr & 3) * 8;
+        match size {
+            1 => (v >> shift) & 0xFF,
+            2 => (v >> shift) & 0xFFFF,
+            _ => v,
+        }
+    }
+
+    fn read_word(&mut self, addr: u32) -> u32 {
+        if let Some(p) = Self::periph_of(addr) {
+            if !Rcc::clocked(&self.regs, p) {
+                *self.unmodelled.gated.entry(p).or_default() += 1;
+                return 0;
+            }
+        }
+        match addr {
+            a if (adc::ADC1..adc::ADC1 + 0x400).contains(&a) => {
+                self.adcs.update(&mut self.regs, self.now);
+            }
+            tim1::CNT => {
+                let c = self.tim1.cnt(self.now);
+                self.regs.set(tim1::CNT, c);
+            }
+            misc::CORDIC_RDATA => return self.cordic.read_result(&mut self.regs),
+            misc::IWDG_SR => self.iwdg.update(&mut self.regs, self.now),
+            _ => {}
+        }
+        match self.regs.def(addr) {
+            Some(d) if d.readable => self.regs.get(addr),
+            Some(_) => 0,
+            None => {
+                *self.unmodelled.unknown.entry(addr).or_default() += 1;
+                0
+            }
+        }
+    }
+
+    pub fn mmio_write(&mut self, addr: u32, size: usize, v: u32) {
+        let word = addr & !3;
+        let v = if size < 4 {
+            // Narrow writes: the other bytes keep their value.
+            let shift = (addr & 3) * 8;
+            let mask = if size == 1 { 0xFF } else { 0xFFFF } << shift;
+            (self.regs.get(word) & !mask) | ((v << shift) & mask)
+        } else {
+            v
+        };
+        if let Some(p) = Self::periph_of(word) {
+            if !Rcc::clocked(&self.regs, p) {
+                *self.unmodelled.gated.entry(p).or_default() += 1;
+                return;
+            }
+        }
+        let Some((old, _new)) = self.regs.bus_write(word, v) else {
+            *self.unmodelled.unknown.entry(word).or_default() += 1;
+            return;
+        };
+        self.after_write(word, old, v);
+    }
+
+    fn after_write(&mut self, addr: u32, old: u32, v: u32) {
+        let now = self.now;
+        match addr {
+            a if (rcc::RCC..rcc::RCC + 0x400).contains(&a)
+                || (rcc::PWR..rcc::PWR + 0x400).contains(&a) =>
+            {
+                let latency = self.regs.get(flash::ACR) & 0xF;
+                self.rcc.on_write(&mut self.regs, addr, latency);
+            }
+            a if a == adc::ADC1 + adc::CR => self.adcs.on_cr_write(&mut self.regs, 0, old, v, now),
+            a if a == adc::ADC2 + adc::CR => self.adcs.on_cr_write(&mut self.regs, 1, old, v, now),
+            a if (tim1::TIM1..tim1::TIM1 + 0x400).contains(&a) => {
+                let pin_low =
+                    self.board.plant.comparator_tripped() && misc::pa6_is_bkin(&self.regs);
+                let brk = tim1::Tim1::break_input(&self.regs, pin_low, false);
+                self.tim1.on_write(&mut self.regs, addr, old, now, brk);
+            }
+            a if (flash::FLASH..flash::FLASH + 0x400).contains(&a) => {
+                let code_bank2 = false;
+                let eff = self
+                    .flash_ctl
+                    .on_write(&mut self.regs, addr, old, now, code_bank2);
+                self.apply_flash(eff);
+            }
+            misc::CORDIC_WDATA => self.cordic.write_arg(&mut self.regs, v),
+            a if (misc::IWDG..misc::IWDG + 0x400).contains(&a) => {
+                self.iwdg.on_write(&mut self.regs, addr, old, now)
+            }
+            _ => {}
+        }
+        // A write may raise or drop an interrupt line (flags cleared by the ISR).
+        self.update_irq_lines();
+        if self.nvic.any_pending() {
+            self.stop = true;
+        }
+    }
+
+    pub fn apply_flash(&mut self, eff: flash::Effect) {
+        if std::env::var_os("DRIVE_EMU_TRACE").is_some() {
+            match &eff {
+                flash::Effect::Erase { offset, stall_cpu } => {
+                    eprintln!("erase {offset:#x} stall={stall_cpu} t={:.4}", self.time_s())
+                }
+                flash::Effect::Program { offset, lo, hi } => {
+                    eprintln!("program {offset:#x} {lo:#x} {hi:#x}")
+                }
+                flash::Effect::None => eprintln!(
+                    "flash op: none, SR={:#x} CR={:#x}",
+                    self.regs.get(flash::SR),
+                    self.regs.get(flash::CR)
+                ),
+            }
+        }
+        match eff {
+            flash::Effect::None => {}
+            flash::Effect::Erase { offset, stall_cpu } => {
+                let page = flash::PAGE_BYTES;
+                let end = ((offset + page) as usize).min(self.flash.len());
+                self.flash[offset as usize..end].fill(0xFF);
+                self.flash_ctl
+                    .torn
+                    .retain(|&t| !(offset..offset + page).contains(&t));
+                if stall_cpu {
+                    self.stall_until = self.now + ticks(flash::ERASE_S);
+                    self.stop = true;
+                }
+            }
+            flash::Effect::Program { offset, lo, hi } => {
+                let o = offset as usize;
+                self.flash[o..o + 4].copy_from_slice(&lo.to_le_bytes());
+                self.flash[o + 4..o + 8].copy_from_slice(&hi.to_le_bytes());
+            }
+        }
+    }
+
+    /// A read of the bank-2 array (the calibration pages).
+    pub fn flash_read(&mut self, offset: u32, size: usize) -> u32 {
+        if self.flash_ctl.on_array_read(&mut self.regs, offset) {
+            self.nvic.nmi_pending = true;
+            self.stop = true;
+        }
+        let o = offset as usize;
+        let mut b = [0u8; 4];
+        b[..size].copy_from_slice(&self.flash[o..o + size]);
+        u32::from_le_bytes(b)
+    }
+
+    pub fn flash_write(&mut self, offset: u32, size: usize, v: u32) {
+        let addr = crate::elf::FLASH_BASE + offset;
+        let flash = &self.flash;
+        let erased = |o: u32| flash[o as usize..o as usize + 8].iter().all(|&b| b == 0xFF);
+        let eff = self
+            .flash_ctl
+            .on_array_write(&mut self.regs, addr, size, v, self.now, &erased);
+        self.apply_flash(eff);
+    }
+
+    // ---- private peripheral bus (ARMv7-M B3) ----
+
+    pub fn cyccnt(&self) -> u32 {
+        if self.demcr & (1 << 24) != 0 && self.dwt_ctrl & 1 != 0 {
+            (self.instrs - self.cyccnt_base) as u32
+        } else {
+            self.cyccnt_frozen
+        }
+    }
+
+    pub fn ppb_read(&mut self, addr: u32) -> u32 {
+        match addr {
+            0xE000_1000 => self.dwt_ctrl,
+            0xE000_1004 => self.cyccnt(),
+            0xE000_E004 => 7, // ICTR: 256 interrupt lines
+            a @ 0xE000_E100..=0xE000_E11F => self.nvic.enabled[((a - 0xE000_E100) / 4) as usize],
+            a @ 0xE000_E180..=0xE000_E19F => self.nvic.enabled[((a - 0xE000_E180) / 4) as usize],
+            a @ 0xE000_E200..=0xE000_E21F => {
+                self.nvic.pending_word(((a - 0xE000_E200) / 4) as usize)
+            }
+            a @ 0xE000_E280..=0xE000_E29F => {
+                self.nvic.pending_word(((a - 0xE000_E280) / 4) as usize)
+            }
+            a @ 0xE000_E300..=0xE000_E31F => {
+                let w = (a - 0xE000_E300) / 4;
+                self.nvic
+                    .active
+                    .iter()
+                    .filter(|&&n| n >= 16 && (n - 16) / 32 == w as u16)
+                    .fold(0, |acc, &n| acc | 1 << ((n - 16) % 32))
+            }
+            a @ 0xE000_E400..=0xE000_E4EF => {
+                let i = (a - 0xE000_E400) as usize;
+                u32::from_le_bytes([
+                    self.nvic.ipr[i],
+                    self.nvic.ipr[i + 1],
+                    self.nvic.ipr[i + 2],
+                    self.nvic.ipr[i + 3],
+                ])
+            }
+            0xE000_ED00 => 0x410F_C241, // CPUID: Cortex-M4 r0p1
+            0xE000_ED04 => {
+                let active = self.nvic.active.last().copied().unwrap_or(0) as u32;
+                let pending = self.nvic.most_urgent_pending().map_or(0, |(n, _)| n as u32);
+                active | pending << 12 | (self.nvic.pendsv_pending as u32) << 28
+            }
+            0xE000_ED08 => self.vtor,
+            0xE000_ED0C => 0xFA05_0000 | (self.nvic.prigroup as u32) << 8,
+            0xE000_ED10 => self.scr,
+            0xE000_ED14 => self.ccr,
+            a @ 0xE000_ED18..=0xE000_ED23 => {
+                let i = (a - 0xE000_ED18) as usize;
+                u32::from_le_bytes([
+                    self.nvic.shpr[i],
+                    self.nvic.shpr[i + 1],
+                    self.nvic.shpr[i + 2],
+                    self.nvic.shpr[i + 3],
+                ])
+            }
+            0xE000_ED24 => self.shcsr,
+            0xE000_ED28 => self.cfsr,
+            0xE000_ED2C => self.hfsr,
+            0xE000_ED88 => self.cpacr,
+            0xE000_EDFC => self.demcr,
+            0xE000_EF34 => self.fpccr,
+            a if (0xE004_2000..0xE004_2400).contains(&a) => self.read_word(a),
+            a => *self.ppb_plain.get(&a).unwrap_or(&0),
+        }
+    }
+
+    pub fn ppb_write(&mut self, addr: u32, size: usize, v: u32) {
+        match (addr, size) {
+            (a @ 0xE000_E400..=0xE000_E4EF, s) | (a @ 0xE000_ED18..=0xE000_ED23, s) => {
+                let bytes = v.to_le_bytes();
+                let (arr, i): (&mut [u8], usize) = if a >= 0xE000_ED18 {
+                    (&mut self.nvic.shpr, (a - 0xE000_ED18) as usize)
+                } else {
+                    (&mut self.nvic.ipr, (a - 0xE000_E400) as usize)
+                };
+                for k in 0..s.min(arr.len() - i) {
+                    // 4 priority bits implemented on the STM32G4 (PM0214 §4.3.7).
+                    arr[i + k] = bytes[k] & 0xF0;
+                }
+            }
+            _ => self.ppb_write_word(addr, v),
+        }
+        if self.nvic.any_pending() {
+            self.stop = true;
+        }
+    }
+
+    fn ppb_write_word(&mut self, addr: u32, v: u32) {
+        match addr {
+            0xE000_1000 => {
+                let was = self.dwt_ctrl & 1 != 0;
+                if v & 1 != 0 && !was {
+                    self.cyccnt_base = self.instrs - self.cyccnt_frozen as u64;
+                } else if v & 1 == 0 && was {
+                    self.cyccnt_frozen = self.cyccnt();
+                }
+                self.dwt_ctrl = (self.dwt_ctrl & !1) | (v & 1);
+            }
+            0xE000_1004 => {
+                self.cyccnt_base = self.instrs - v as u64;
+                self.cyccnt_frozen = v;
+            }
+            a @ 0xE000_E100..=0xE000_E11F => {
+                self.nvic.enabled[((a - 0xE000_E100) / 4) as usize] |= v
+            }
+            a @ 0xE000_E180..=0xE000_E19F => {
+                self.nvic.enabled[((a - 0xE000_E180) / 4) as usize] &= !v
+            }
+            a @ 0xE000_E200..=0xE000_E21F => {
+                self.nvic
+                    .set_pending_word(((a - 0xE000_E200) / 4) as usize, v, 0)
+            }
+            a @ 0xE000_E280..=0xE000_E29F => {
+                self.nvic
+                    .set_pending_word(((a - 0xE000_E280) / 4) as usize, 0, v)
+            }
+            0xE000_EF00 => self.nvic.pend_irq((v & 0x1FF) as u16),
+            0xE000_ED04 => {
+                if v & (1 << 31) != 0 {
+                    self.nvic.nmi_pending = true;
+                }
+                if v & (1 << 28) != 0 {
+                    self.nvic.pendsv_pending = true;
+                }
+                if v & (1 << 27) != 0 {
+                    self.nvic.pendsv_pending = false;
+                }
+                if v & (1 << 26) != 0 {
+                    self.nvic.systick_pending = true;
+                }
+            }
+            0xE000_ED08 => self.vtor = v & 0xFFFF_FF80,
+            0xE000_ED0C => {
+                if v >> 16 == 0x05FA {
+                    self.nvic.prigroup = ((v >> 8) & 7) as u8;
+                    if v & (1 << 2) != 0 {
+                        self.reset_request = Some(ResetKind::Software);
+                        self.stop = true;
+                    }
+                }
+            }
+            0xE000_ED10 => self.scr = v,
+            0xE000_ED14 => self.ccr = v,
+            0xE000_ED24 => self.shcsr = v,
+            0xE000_ED28 => self.cfsr &= !v,
+            0xE000_ED2C => self.hfsr &= !v,
+            0xE000_ED88 => self.cpacr = v & (0xF << 20),
+            0xE000_EDFC => self.demcr = v,
+            0xE000_EF34 => self.fpccr = v,
+            a if (0xE004_2000..0xE004_2400).contains(&a) => self.mmio_write(a, 4, v),
+            a => {
+                self.ppb_plain.insert(a, v);
+            }
+        }
+    }
+
+    /// The vector of exception `n`.
+    pub fn vector(&self, n: u16) -> u32 {
+        let mut a = self.vtor.wrapping_add(4 * n as u32);
+        // Boot from main flash: address 0 aliases it (RM0440 §2.6, SYSCFG_MEMRMP = 0).
+        if a < crate::elf::FLASH_BASE {
+            a += crate::elf::FLASH_BASE;
+        }
+        let o = a.wrapping_sub(crate::elf::FLASH_BASE) as usize;
+        self.flash
+            .get(o..o + 4)
+            .map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    }
+
+    /// Priority of the control interrupt.
+    pub fn control_priority(&self) -> i16 {
+        self.nvic.priority(nvic::irq(ADC1_2_IRQ))
+    }
+}

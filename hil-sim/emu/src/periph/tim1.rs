@@ -1,0 +1,314 @@
+//! TIM1 (RM0440 §28): the centre-aligned counter, preload and the update event with the
+//! repetition counter, OC4REF on TRGO2 for the ADCs, dead time, the break input and MOE.
+//! The counter is computed from time, not ticked: events are the valleys (underflow),
+//! the peaks (overflow) and the TRGO2 edge.
+
+use crate::regfile::RegFile;
+
+pub const TIM1: u32 = 0x4001_2C00;
+pub const CR1: u32 = TIM1;
+pub const CR2: u32 = TIM1 + 0x04;
+pub const SR: u32 = TIM1 + 0x10;
+pub const EGR: u32 = TIM1 + 0x14;
+pub const CCMR1: u32 = TIM1 + 0x18;
+pub const CCMR2: u32 = TIM1 + 0x1C;
+pub const CNT: u32 = TIM1 + 0x24;
+pub const PSC: u32 = TIM1 + 0x28;
+pub const ARR: u32 = TIM1 + 0x2C;
+pub const RCR: u32 = TIM1 + 0x30;
+pub const CCR1: u32 = TIM1 + 0x34;
+pub const BDTR: u32 = TIM1 + 0x44;
+pub const AF1: u32 = TIM1 + 0x60;
+
+const CR1_CEN: u32 = 1 << 0;
+const CR1_UDIS: u32 = 1 << 1;
+const CR1_ARPE: u32 = 1 << 7;
+const SR_UIF: u32 = 1 << 0;
+pub const SR_BIF: u32 = 1 << 7;
+pub const BDTR_MOE: u32 = 1 << 15;
+const BDTR_BKE: u32 = 1 << 12;
+const BDTR_BKP: u32 = 1 << 13;
+const AF1_BKINE: u32 = 1 << 0;
+const AF1_BKINP: u32 = 1 << 9;
+
+/// Timer events, in time order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Edge {
+    Valley,
+    Peak,
+    Trgo2,
+}
+
+#[derive(Debug, Default, Clone)]
+pub struct Tim1 {
+    running: bool,
+    /// Ticks per counter step ((PSC + 1) timer clocks).
+    step: u64,
+    /// Next over/underflow: time and whether it is the peak.
+    next_flow: Option<(u64, bool)>,
+    /// The TRGO2 rising edge in the half period under way.
+    trgo2_at: Option<u64>,
+    /// Active (shadow) registers, loaded at the update event.
+    arr: u32,
+    ccr: [u32; 4],
+    /// The repetition down-counter (§28.3.3).
+    rep: u32,
+    rcr_active: u32,
+    /// Duty bookkeeping of the bridge since the last mark: Σ duty·dt per phase, Σ dt,
+    /// and whether MOE was off at any time.
+    acc: [f64; 3],
+    acc_ticks: u64,
+    mark: u64,
+    moe_dropped: bool,
+    /// Update events and over/underflows, for the one-update-per-period rule.
+    pub updates: u64,
+    pub peaks: u64,
+    /// MOE written 1 while the break was active (refused by hardware).
+    pub moe_refused: u64,
+    /// Breaks that cleared MOE.
+    pub breaks: u64,
+}
+
+impl Tim1 {
+    pub fn reset(&mut self) {
+        *self = Self {
+            updates: self.updates,
+            peaks: self.peaks,
+            moe_refused: self.moe_refused,
+            breaks: self.breaks,
+            ..Self::default()
+        };
+    }
+
+    pub fn moe(regs: &RegFile) -> bool {
+        regs.bit(BDTR, BDTR_MOE)
+    }
+
+    /// The duties currently driven (centre-aligned PWM mode 1: high side on while
+    /// CNT < CCR, a fraction CCR/ARR of each half period).
+    fn duties(&self) -> [f64; 3] {
+        let arr = self.arr.max(1) as f64;
+        [0, 1, 2].map(|k| (self.ccr[k] as f64 / arr).clamp(0.0, 1.0))
+    }
+
+    /// Close the duty segment up to `now`.
+    pub fn mark(&mut self, regs: &RegFile, now: u64) {
+        let dt = now.saturating_sub(self.mark);
+        if dt > 0 {
+            let d = self.duties();
+            for (a, d) in self.acc.iter_mut().zip(d) {
+                *a += d * dt as f64;
+            }
+            self.acc_ticks += dt;
+        }
+        if !Self::moe(regs) {
+            self.moe_dropped = true;
+        }
+        self.mark = now;
+    }
+
+    /// What the bridge drove since the last call: mean duties and whether it was on all
+    /// the time. Starts a new interval.
+    pub fn take_applied(&mut self, regs: &RegFile, now: u64) -> ([f32; 3], bool) {
+        self.mark(regs, now);
+        let n = self.acc_ticks.max(1) as f64;
+        let d = self.acc.map(|a| (a / n) as f32);
+        let on = !self.moe_dropped && self.acc_ticks > 0 && self.running;
+        self.acc = [0.0; 3];
+        self.acc_ticks = 0;
+        self.moe_dropped = !Self::moe(regs);
+        (d, on)
+    }
+
+    /// A bus write to a TIM1 register (already applied with its semantics).
+    pub fn on_write(&mut self, regs: &mut RegFile, addr: u32, old: u32, now: u64, break_in: bool) {
+        self.mark(regs, now);
+        match addr {
+            CR1 => {
+                let cr1 = regs.get(CR1);
+                if cr1 & CR1_CEN != 0 && old & CR1_CEN == 0 {
+                    self.start(regs, now);
+                } else if cr1 & CR1_CEN == 0 {
+                    self.running = false;
+                    self.next_flow = None;
+                    self.trgo2_at = None;
+                }
+            }
+            EGR if regs.get(EGR) & 1 != 0 => {
+                // UG: counter to 0, update event, repetition counter reloaded (§28.6.6).
+                regs.set(EGR, 0);
+                regs.set(CNT, 0);
+                self.rep = 0;
+                self.update_event(regs, true);
+                if self.running {
+                    self.start(regs, now);
+                }
+            }
+            ARR if regs.get(CR1) & CR1_ARPE == 0 => self.arr = regs.get(ARR),
+            a if (CCR1..CCR1 + 16).contains(&a) => {
+                let k = ((a - CCR1) / 4) as usize;
+                if !self.preloaded(regs, k) {
+                    self.ccr[k] = regs.get(a);
+                }
+            }
+            BDTR => {
+                if regs.get(BDTR) & BDTR_MOE != 0 && break_in && regs.bit(BDTR, BDTR_BKE) {
+                    // §28.3.21: MOE cannot be set while the break input is active.
+                    regs.set_bits(BDTR, BDTR_MOE, false);
+                    self.moe_refused += 1;
+                }
+            }
+            _ => {}
+        }
+        if !Self::moe(regs) {
+            self.moe_dropped = true;
+        }
+        regs.set(EGR, 0);
+    }
+
+    fn preloaded(&self, regs: &RegFile, k: usize) -> bool {
+        let ccmr = if k < 2 {
+            regs.get(CCMR1)
+        } else {
+            regs.get(CCMR2)
+        };
+        ccmr & (1 << (3 + 8 * (k as u32 % 2))) != 0
+    }
+
+    fn start(&mut self, regs: &RegFile, now: u64) {
+        self.running = true;
+        self.step = (regs.get(PSC) as u64 & 0xFFFF) + 1;
+        if self.arr == 0 {
+            self.arr = regs.get(ARR);
+        }
+        self.mark = now;
+        // Counting up from CNT.
+        let cnt = regs.get(CNT) as u64;
+        let to_peak = (self.arr as u64).saturating_sub(cnt) * self.step;
+        self.next_flow = Some((now + to_peak, true));
+        self.schedule_trgo2(regs, now, now - cnt * self.step, true);
+    }
+
+    /// The update event: shadow registers loaded (§28.3.3, §28.3.10).
+    fn update_event(&mut self, regs: &mut RegFile, forced: bool) {
+        if regs.bit(CR1, CR1_UDIS) && !forced {
+            return;
+        }
+        self.updates += 1;
+        self.arr = regs.get(ARR);
+        for k in 0..4 {
+            self.ccr[k] = regs.get(CCR1 + 4 * k as u32);
+        }
+        self.rcr_active = regs.get(RCR) & 0xFFFF;
+        regs.set_bits(SR, SR_UIF, true);
+    }
+
+    /// The OC4REF rising edge in the half period that starts at `t_from` (counting up
+    /// from the valley if `up`): PWM mode 2 rises on the up-count at CNT = CCR4, mode 1
+    /// on the down-count (§28.3.16).
+    fn schedule_trgo2(&mut self, regs: &RegFile, now: u64, t_valley_or_peak: u64, up: bool) {
+        self.trgo2_at = None;
+        if (regs.get(CR2) >> 20) & 0xF != 0b0111 {
+            return;
+        }
+        let ccmr2 = regs.get(CCMR2);
+        let oc4m = ((ccmr2 >> 12) & 0b111) | ((ccmr2 >> 24) & 1) << 3;
+        let c4 = self.ccr[3].min(self.arr) as u64;
+        let arr = self.arr as u64;
+        let t = match (oc4m, up) {
+            (0b0111, true) => t_valley_or_peak + c4 * self.step,
+            (0b0110, false) => t_valley_or_peak + (arr - c4) * self.step,
+            _ => return,
+        };
+        if t >= now {
+            self.trgo2_at = Some(t);
+        }
+    }
+
+    pub fn next_event(&self) -> Option<(u64, Edge)> {
+        let flow = self
+            .next_flow
+            .map(|(t, peak)| (t, if peak { Edge::Peak } else { Edge::Valley }));
+        match (flow, self.trgo2_at) {
+            (Some(f), Some(t)) if t <= f.0 => Some((t, Edge::Trgo2)),
+            (f, None) => f,
+            (Some(f), Some(_)) => Some(f),
+            (None, Some(t)) => Some((t, Edge::Trgo2)),
+        }
+    }
+
+    /// Process the event at its time `t`; the caller acts on TRGO2.
+    pub fn fire(&mut self, regs: &mut RegFile, t: u64, e: Edge) {
+        match e {
+            Edge::Trgo2 => self.trgo2_at = None,
+            Edge::Peak | Edge::Valley => {
+                self.mark(regs, t);
+                let peak = e == Edge::Peak;
+                if peak {
+                    self.peaks += 1;
+                }
+                // §28.3.3: the repetition counter counts over- and underflows; the
+                // update event comes when it is zero, and reloads it from RCR. After
+                // UG it starts at zero, so an odd RCR updates at the overflows.
+                if self.rep == 0 {
+                    self.update_event(regs, false);
+                    self.rep = self.rcr_active;
+                } else {
+                    self.rep -= 1;
+                }
+                let half = self.arr as u64 * self.step;
+                self.next_flow = Some((t + half, !peak));
+                self.schedule_trgo2(regs, t, t, !peak);
+            }
+        }
+    }
+
+    /// The counter value at `now` (centre-aligned).
+    pub fn cnt(&self, now: u64) -> u32 {
+        match self.next_flow {
+            Some((t, peak)) if self.running => {
+                let left = (t.saturating_sub(now) / self.step.max(1)) as u32;
+                if peak {
+                    self.arr.saturating_sub(left)
+                } else {
+                    left.min(self.arr)
+                }
+            }
+            _ => 0,
+        }
+    }
+
+    /// The break input as TIM1 sees it: the BKIN pin (active low unless BKINP) routed by
+    /// AF1.BKINE (§28.6.27), and the core lockup when SYSCFG_CFGR2.CLL routes it.
+    pub fn break_input(regs: &RegFile, pin_low: bool, lockup: bool) -> bool {
+        let af1 = regs.get(AF1);
+        // BKP gives the active level (0: low); BKINP inverts the pin before it.
+        let active_low = !regs.bit(BDTR, BDTR_BKP);
+        let pin_active = (pin_low == active_low) != (af1 & AF1_BKINP != 0);
+        (af1 & AF1_BKINE != 0 && pin_active) || lockup
+    }
+
+    /// Apply the break (§28.3.21): MOE cleared asynchronously, BIF set.
+    pub fn apply_break(&mut self, regs: &mut RegFile, now: u64, active: bool) {
+        if active && regs.bit(BDTR, BDTR_BKE) {
+            self.mark(regs, now);
+            if regs.bit(BDTR, BDTR_MOE) {
+                self.breaks += 1;
+            }
+            regs.set_bits(BDTR, BDTR_MOE, false);
+            regs.set_bits(SR, SR_BIF, true);
+            self.moe_dropped = true;
+        }
+    }
+
+    /// Dead time in ticks from BDTR.DTG (§28.6.20, t_DTS = t_CK_INT with CKD = 0).
+    pub fn dead_time_ticks(regs: &RegFile) -> u32 {
+        let dtg = regs.get(BDTR) & 0xFF;
+        match dtg >> 5 {
+            0..=3 => dtg,
+            4 | 5 => (64 + (dtg & 0x3F)) * 2,
+            6 => (32 + (dtg & 0x1F)) * 8,
+            _ => (32 + (dtg & 0x1F)) * 16,
+        }
+    }
+}

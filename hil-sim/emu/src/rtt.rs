@@ -1,0 +1,36 @@
+//! The host side of RTT (SEGGER's protocol, as probe-rs reads it): the up-buffer of
+//! channel 0 read from emulated RAM through the control block `_SEGGER_RTT`.
+
+use crate::periph::ticks;
+
+/// Host polling period (probe-rs polls every few milliseconds).
+pub const POLL_S: f64 = 1.0e-3;
+
+#[derive(Debug, Default)]
+pub struct Rtt {
+    pub block: Option<u32>,
+    /// Raw defmt bytes received, with the time (ticks) of each read.
+    pub bytes: Vec<u8>,
+    pub next_poll: u64,
+    /// The host reads (false: a detached or stalled host; the buffer fills).
+    pub reading: bool,
+    pub reads: u64,
+}
+
+/// The up-buffer descriptor of channel 0: offset in the control block (16-byte id, two
+/// counts).
+pub const UP0: u32 = 24;
+
+impl Rtt {
+    pub fn new(block: Option<u32>) -> Self {
+        Self {
+            block,
+            reading: true,
+            ..Self::default()
+        }
+    }
+
+    pub fn schedule(&mut self, now: u64) {
+        self.next_poll = now + ticks(POLL_S);
+    }
+}
