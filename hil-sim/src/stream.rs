@@ -70,7 +70,7 @@ impl Value {
         }
     }
 
-    fn text(&self) -> String {
+    pub fn text(&self) -> String {
         match self {
             Value::Uint(v) => v.to_string(),
             Value::F32(v) => v.to_string(),

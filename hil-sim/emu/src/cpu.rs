@@ -307,6 +307,7 @@ impl Emu {
                 m.stats.latency_max = m.stats.latency_max.max(instrs - since);
             }
             m.stats.isr_entered_at = Some(instrs);
+            m.stats.armed = true;
         }
         self.set_reg(RegisterARM::SP, frame)?;
         self.set_reg(RegisterARM::LR, exc_return)?;
@@ -352,12 +353,13 @@ impl Emu {
             if let Some(t0) = m.stats.isr_entered_at.take() {
                 let n = m.instrs - t0;
                 m.stats.isr_count += 1;
+                m.stats.isr_count_total += 1;
                 m.stats.isr_instrs_sum += n;
                 m.stats.isr_instrs_max = m.stats.isr_instrs_max.max(n);
             }
         }
         // A level-sensitive line still high pends again (B3.4.1).
-        if m.adc_irq_high && done == Some(nvic::irq(ADC1_2_IRQ)) {
+        if (m.adc_irq_high || m.stuck_control_irq) && done == Some(nvic::irq(ADC1_2_IRQ)) {
             m.nvic.pend_irq(ADC1_2_IRQ);
         }
         self.set_reg(RegisterARM::SP, sp)?;
@@ -576,7 +578,7 @@ fn on_block(uc: &mut Unicorn<'_, Machine>, addr: u32, size: u32) {
     }
     let mut stop = m.idle || m.stop || m.now >= m.deadline;
     let pending = m.nvic.any_pending();
-    let track = m.stats.isr_entered_at.is_none();
+    let track = m.stats.armed && m.stats.isr_entered_at.is_none();
     if pending || track {
         let primask = uc.reg_read(RegisterARM::PRIMASK).unwrap_or(0) & 1 != 0;
         let basepri = uc.reg_read(RegisterARM::BASEPRI).unwrap_or(0) as u8;

@@ -12,6 +12,7 @@ pub mod periph;
 pub mod regfile;
 pub mod regs_g474;
 pub mod rtt;
+pub mod scenarios;
 pub mod stats;
 
 pub use cpu::Emu;

@@ -94,8 +94,11 @@ pub struct Machine {
     /// Thumb instruction lengths of the flash image: is the halfword at 2·k the first of
     /// a 32-bit instruction.
     pub code_start: u32,
-    /// The FLASH_SR error flags' stale state a test wants at power-up.
+    /// The ADC1_2 line's level.
     pub adc_irq_high: bool,
+    /// Fault injection: the control interrupt's line stuck active (it pends again at
+    /// every return).
+    pub stuck_control_irq: bool,
 }
 
 /// Is this halfword the first of a 32-bit Thumb-2 instruction (A6.1)?
@@ -152,6 +155,7 @@ impl Machine {
             unmodelled: Unmodelled::default(),
             code_start: crate::elf::FLASH_BASE,
             adc_irq_high: false,
+            stuck_control_irq: false,
         };
         m.reset_peripherals(ResetKind::PowerOn);
         m
@@ -186,6 +190,8 @@ impl Machine {
         self.ppb_plain.clear();
         self.adc_irq_high = false;
         self.idle_pc = None;
+        self.stats.armed = false;
+        self.stats.masked_since = None;
         self.stats.boots.push((self.now, kind));
     }
 
@@ -290,6 +296,7 @@ impl Machine {
 
     /// TRGO2 at `t`: the plant catches up to the sampling instant and the ADCs convert.
     fn adc_trigger(&mut self, t: u64) {
+        self.stats.last_trigger = t;
         let (duties, on) = self.tim1.take_applied(&self.regs, t);
         self.board.advance_to(t, duties, on);
         self.check_break();
@@ -303,6 +310,9 @@ impl Machine {
         let pin_low = self.board.plant.comparator_tripped() && misc::pa6_is_bkin(&self.regs);
         let lock = self.lockup && misc::lockup_to_break(&self.regs);
         let active = tim1::Tim1::break_input(&self.regs, pin_low, lock);
+        if self.board.plant.comparator_tripped() && !active && tim1::Tim1::moe(&self.regs) {
+            self.tim1.breaks_unrouted += 1;
+        }
         self.tim1.apply_break(&mut self.regs, self.now, active);
     }
 

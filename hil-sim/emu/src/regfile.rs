@@ -52,6 +52,37 @@ pub fn written(def: &RegDef, old: u32, v: u32) -> u32 {
 /// writing 1" (§3.7.5); the SVD gives them plain writers.
 const W1C_OVERRIDES: &[(u32, u32)] = &[(0x4002_2010, 0x0000_C3FB)];
 
+/// Registers the G474 has and the SVD leaves out, from RM0440: the bank-2 write
+/// protection areas FLASH_WRP2AR/WRP2BR (§3.7.14-15), loaded from the option bytes.
+const MISSING: &[RegDef] = &[
+    RegDef {
+        addr: 0x4002_204C,
+        periph: "FLASH",
+        name: "WRP2AR",
+        reset: 0x0000_00FF,
+        readable: true,
+        writable: false,
+        w1s: 0,
+        w1c: 0,
+        w0c: 0,
+        w1t: 0,
+        read_only_bits: 0,
+    },
+    RegDef {
+        addr: 0x4002_2050,
+        periph: "FLASH",
+        name: "WRP2BR",
+        reset: 0x0000_00FF,
+        readable: true,
+        writable: false,
+        w1s: 0,
+        w1c: 0,
+        w0c: 0,
+        w1t: 0,
+        read_only_bits: 0,
+    },
+];
+
 /// Register values, by address.
 pub struct RegFile {
     defs: Vec<RegDef>,
@@ -61,8 +92,9 @@ pub struct RegFile {
 
 impl RegFile {
     pub fn new(defs: &'static [RegDef]) -> Self {
-        let index = defs.iter().enumerate().map(|(i, d)| (d.addr, i)).collect();
         let mut defs = defs.to_vec();
+        defs.extend(MISSING.iter().cloned());
+        let index = defs.iter().enumerate().map(|(i, d)| (d.addr, i)).collect();
         for &(addr, w1c) in W1C_OVERRIDES {
             if let Some(d) = defs.iter_mut().find(|d| d.addr == addr) {
                 d.w1c |= w1c;

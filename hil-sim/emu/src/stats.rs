@@ -10,7 +10,9 @@ pub struct Stats {
     /// Rising edges of the ADC1_2 line: control periods requested.
     pub control_requests: u64,
     pub pending_since: Option<u64>,
-    /// Control interrupts completed, their executed instructions (sum, max).
+    /// Control interrupts completed over the whole run, and in the window: their
+    /// executed instructions (sum, max).
+    pub isr_count_total: u64,
     pub isr_count: u64,
     pub isr_instrs_sum: u64,
     pub isr_instrs_max: u64,
@@ -22,9 +24,14 @@ pub struct Stats {
     pub masked_max: u64,
     pub masked_max_at: u64,
     pub masked_since: Option<u64>,
+    /// The window is open: the control interrupt has run since the last reset (init
+    /// runs masked by design and is not counted).
+    pub armed: bool,
     /// HardFault entries: (ticks, stacked pc).
     pub hard_faults: Vec<(u64, u32)>,
     pub lockups: u64,
+    /// The last TRGO2 (ticks): the sampling instant.
+    pub last_trigger: u64,
 }
 
 impl Stats {

@@ -67,6 +67,8 @@ pub struct Tim1 {
     pub moe_refused: u64,
     /// Breaks that cleared MOE.
     pub breaks: u64,
+    /// Periods the comparator was tripped with the bridge on and no break routed.
+    pub breaks_unrouted: u64,
 }
 
 impl Tim1 {
@@ -76,6 +78,7 @@ impl Tim1 {
             peaks: self.peaks,
             moe_refused: self.moe_refused,
             breaks: self.breaks,
+            breaks_unrouted: self.breaks_unrouted,
             ..Self::default()
         };
     }

@@ -1,0 +1,457 @@
+//! The firmware-in-the-loop scenarios: the release ELF on the emulated board, each
+//! ending in what a bench engineer would check (the streamed states and faults, MOE,
+//! the reset cause) and what the emulator measured (missed control periods, the control
+//! interrupt's executed instructions, the longest interrupt-masked stretch).
+
+use crate::board::Board;
+use crate::periph::tim1::Tim1;
+use crate::periph::{ticks, TICK_HZ};
+use crate::Emu;
+use anyhow::{bail, Context, Result};
+use hil_sim::stream::{self, Item};
+use std::fmt::Write as _;
+
+/// Every scenario, in the order of docs/performance.md.
+pub const ALL: &[&str] = &[
+    "power-up",
+    "wire-break",
+    "overcurrent",
+    "watchdog",
+    "store-flash-error",
+    "rtt-host-stops",
+];
+
+/// One streamed event: emulator time, the firmware's own t_ms, kind and fields.
+#[derive(Clone, Debug)]
+pub struct Event {
+    pub boot: usize,
+    pub kind: String,
+    pub text: String,
+}
+
+/// What a scenario measured.
+#[derive(Clone, Debug, Default)]
+pub struct Outcome {
+    pub name: String,
+    /// Per boot: the states entered with the firmware's t_ms.
+    pub states: Vec<Vec<(String, u32)>>,
+    pub events: Vec<Event>,
+    pub missed_periods: u64,
+    pub control_periods: u64,
+    pub isr_instrs_mean: f64,
+    pub isr_instrs_max: u64,
+    pub masked_max_instrs: u64,
+    pub latency_max_instrs: u64,
+    pub boots: usize,
+    pub hard_faults: usize,
+    /// Scenario-specific figures, printed as `key = value`.
+    pub notes: Vec<(String, String)>,
+    /// Rules the firmware broke (the models' counters), empty when none.
+    pub violations: Vec<String>,
+    pub emulated_s: f64,
+    pub wall_s: f64,
+}
+
+impl Outcome {
+    pub fn entered(&self, boot: usize, state: &str) -> Option<u32> {
+        self.states
+            .get(boot)?
+            .iter()
+            .find(|(s, _)| s == state)
+            .map(|(_, t)| *t)
+    }
+
+    pub fn has_event(&self, kind: &str, text_contains: &str) -> bool {
+        self.events
+            .iter()
+            .any(|e| e.kind == kind && e.text.contains(text_contains))
+    }
+
+    pub fn note(&self, key: &str) -> Option<&str> {
+        self.notes
+            .iter()
+            .find(|(k, _)| k == key)
+            .map(|(_, v)| v.as_str())
+    }
+
+    /// The state sequence of each boot, as one line per boot.
+    pub fn state_lines(&self) -> Vec<String> {
+        self.states
+            .iter()
+            .enumerate()
+            .map(|(b, s)| {
+                let seq: Vec<String> = s.iter().map(|(n, t)| format!("{n} {t} ms")).collect();
+                format!("boot {}: {}", b + 1, seq.join(" → "))
+            })
+            .collect()
+    }
+}
+
+/// The firmware's stream: states per boot (a new boot starts at the banner) and events.
+fn read_stream(emu: &Emu, out: &mut Outcome) -> Result<()> {
+    let d = stream::decode(&emu.elf, &emu.m().rtt.bytes).context("decoding the RTT stream")?;
+    let mut boot = 0usize;
+    let mut seen_banner = false;
+    out.states = vec![Vec::new()];
+    for item in d.items {
+        match item {
+            Item::Other(o) if o.starts_with("drive-fw:") => {
+                if seen_banner {
+                    boot += 1;
+                    out.states.push(Vec::new());
+                }
+                seen_banner = true;
+            }
+            Item::Other(o) => out.events.push(Event {
+                boot,
+                kind: "log".into(),
+                text: o,
+            }),
+            Item::Line(l) if l.kind == "mras" || l.kind == "mras-paths" => {}
+            Item::Line(l) => {
+                if l.kind == "mras-state" {
+                    if let (Some(s), Some(t)) = (l.get("state"), l.t_ms()) {
+                        out.states[boot].push((s.text(), t));
+                    }
+                }
+                out.events.push(Event {
+                    boot,
+                    kind: l.kind.clone(),
+                    text: l.describe(),
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The rules the models count, as sentences (empty when the firmware kept them all).
+pub fn violations(emu: &Emu) -> Vec<String> {
+    let m = emu.m();
+    let mut v = Vec::new();
+    let a = m.adcs.violations;
+    if a.aden_ignored > 0 {
+        v.push(format!(
+            "ADC: ADEN set within 4 ADC clocks of ADCAL clearing, ignored {} times (RM0440 §21.4.9)",
+            a.aden_ignored
+        ));
+    }
+    if a.cal_without_regulator > 0 {
+        v.push(format!(
+            "ADC: calibration started before the regulator settled ({}×, §21.4.6)",
+            a.cal_without_regulator
+        ));
+    }
+    if a.no_clock > 0 {
+        v.push(format!("ADC: no ADC clock ({}×, §21.4.3)", a.no_clock));
+    }
+    for (p, n) in &m.unmodelled.gated {
+        v.push(format!(
+            "clock gating: {n} accesses to {p} with its RCC enable off (§7.4)"
+        ));
+    }
+    if m.rcc.overclocked > 0 {
+        v.push("RCC/PWR: 170 MHz without range-1 boost (PWR_CR5.R1MODE = 1, §6.1.5)".into());
+    }
+    if m.rcc.latency_too_low > 0 {
+        v.push("FLASH: too few wait states for SYSCLK (§3.3.3)".into());
+    }
+    if m.flash_ctl.stale_flag_refusals > 0 {
+        v.push(format!(
+            "FLASH: {} operations refused with PGSERR, error flags of an earlier one still set (§3.3.7)",
+            m.flash_ctl.stale_flag_refusals
+        ));
+    }
+    if m.flash_ctl.code_bank_erases > 0 {
+        v.push(format!(
+            "FLASH: {} page erases in the bank the code runs from: CPU stalled {} ms each (§3.3.8)",
+            m.flash_ctl.code_bank_erases,
+            crate::periph::flash::ERASE_S * 1e3
+        ));
+    }
+    let peaks = m.tim1.peaks.max(1);
+    if m.tim1.updates > peaks + 2 {
+        v.push(format!(
+            "TIM1: {} update events in {} PWM periods: CCRs load twice per period, at peak and valley (RCR = 0, §28.3.3)",
+            m.tim1.updates, peaks
+        ));
+    }
+    if m.tim1.breaks_unrouted > 0 {
+        v.push(format!(
+            "TIM1: over-current on BKIN not routed to the break (AF1.BKINE = 0, §28.6.27): {} comparator trips ignored",
+            m.tim1.breaks_unrouted
+        ));
+    }
+    if !m.unmodelled.unknown.is_empty() {
+        let list: Vec<String> = m
+            .unmodelled
+            .unknown
+            .keys()
+            .map(|a| format!("{a:#010x}"))
+            .collect();
+        v.push(format!(
+            "bus: accesses to registers no model knows: {}",
+            list.join(", ")
+        ));
+    }
+    v
+}
+
+fn finish(
+    name: &str,
+    emu: &Emu,
+    t0: std::time::Instant,
+    notes: Vec<(String, String)>,
+) -> Result<Outcome> {
+    let m = emu.m();
+    let mut out = Outcome {
+        name: name.into(),
+        missed_periods: m.adcs.missed_triggers,
+        control_periods: m.stats.isr_count_total,
+        isr_instrs_mean: m.stats.isr_mean(),
+        isr_instrs_max: m.stats.isr_instrs_max,
+        masked_max_instrs: m.stats.masked_max,
+        latency_max_instrs: m.stats.latency_max,
+        boots: m.stats.boots.len(),
+        hard_faults: m.stats.hard_faults.len(),
+        notes,
+        violations: violations(emu),
+        emulated_s: m.time_s(),
+        wall_s: t0.elapsed().as_secs_f64(),
+        ..Outcome::default()
+    };
+    read_stream(emu, &mut out)?;
+    Ok(out)
+}
+
+/// Run until the stream of the current boot satisfies `done`, or `limit_s`.
+fn run_until(
+    emu: &mut Emu,
+    what: &str,
+    limit_s: f64,
+    done: impl Fn(&Outcome, usize) -> bool,
+) -> Result<f64> {
+    let step = 0.05;
+    let boots = emu.m().stats.boots.len();
+    while emu.m().time_s() < limit_s {
+        emu.run_for(step)?;
+        let mut o = Outcome::default();
+        read_stream(emu, &mut o)?;
+        let b = o.states.len() - 1;
+        if emu.m().stats.boots.len() == boots && done(&o, b) {
+            return Ok(emu.m().time_s());
+        }
+    }
+    bail!("{what} not seen within {limit_s} s of emulated time")
+}
+
+/// Run until the stream shows `state` entered in the current boot.
+fn run_until_state(emu: &mut Emu, state: &str, limit_s: f64) -> Result<f64> {
+    run_until(emu, &format!("state `{state}`"), limit_s, |o, b| {
+        o.entered(b, state).is_some()
+    })
+}
+
+/// A board with an erased calibration area, powered on.
+fn fresh(elf: &[u8], flash: Option<Vec<u8>>) -> Result<Emu> {
+    Emu::new(elf, Board::commissioning(1)?, flash)
+}
+
+/// Run a scenario on the firmware `elf`.
+pub fn run(name: &str, elf: &[u8]) -> Result<Outcome> {
+    let t0 = std::time::Instant::now();
+    let mut notes = Vec::new();
+    let mut note = |k: &str, v: String| notes.push((k.to_string(), v));
+    let emu = match name {
+        "power-up" => {
+            let mut emu = fresh(elf, None)?;
+            let t_run = run_until_state(&mut emu, "Run", 4.0)?;
+            emu.run_for(0.3)?;
+            note("first boot: Run at", format!("{t_run:.2} s"));
+            // Power off and on again with the kept flash: the stored calibration loads.
+            let first = finish(name, &emu, t0, Vec::new())?;
+            let mut again = fresh(elf, Some(emu.flash()))?;
+            let t_run2 = run_until_state(&mut again, "Run", 2.0)?;
+            again.run_for(0.2)?;
+            note("second boot: Run at", format!("{t_run2:.2} s"));
+            for l in first.state_lines() {
+                note("first power-up", l);
+            }
+            // Both power-ups measured: fold the first one's figures in.
+            let m = again.m_mut();
+            m.adcs.missed_triggers += first.missed_periods;
+            m.stats.isr_instrs_max = m.stats.isr_instrs_max.max(first.isr_instrs_max);
+            m.stats.masked_max = m.stats.masked_max.max(first.masked_max_instrs);
+            note(
+                "first boot: control periods",
+                first.control_periods.to_string(),
+            );
+            note("first boot: violations", first.violations.len().to_string());
+            for v in &first.violations {
+                note("first boot", v.clone());
+            }
+            again
+        }
+        "wire-break" => {
+            let mut emu = fresh(elf, None)?;
+            run_until_state(&mut emu, "Run", 4.0)?;
+            emu.run_for(0.2)?;
+            // Both wires of the sensor's bridge open: X and Y at the amplifier's zero.
+            let mut broken = emu.m().board.plant.sensor.params.clone();
+            broken.model = mras::sim::SensorModel::ideal(2);
+            broken.model.bx1 = 0.0;
+            broken.model.by1 = 0.0;
+            emu.m_mut().board.plant.sensor =
+                hil_sim::sensor::SensorSim::new(broken, 7).map_err(anyhow::Error::msg)?;
+            // From the first sampling instant that sees the broken sensor.
+            let t_break = emu.m().now;
+            while emu.m().stats.last_trigger < t_break {
+                emu.run_for(0.5e-6)?;
+            }
+            let t_sample = emu.m().stats.last_trigger;
+            while Tim1::moe(&emu.m().regs) && emu.m().now < t_break + ticks(0.01) {
+                emu.run_for(0.5e-6)?;
+            }
+            let dt = (emu.m().now - t_sample) as f64 / TICK_HZ;
+            note(
+                "bridge off after the first broken sample",
+                format!("{:.1} µs", dt * 1e6),
+            );
+            note(
+                "bridge off in control periods",
+                format!("{:.2}", dt * 20_000.0),
+            );
+            emu.run_for(0.05)?;
+            emu
+        }
+        "overcurrent" => {
+            let mut emu = fresh(elf, None)?;
+            run_until_state(&mut emu, "Run", 4.0)?;
+            emu.run_for(0.2)?;
+            // The comparator's threshold below the running current: it trips.
+            emu.m_mut().board.plant.break_level_a = 0.05;
+            let t_trip = emu.m().now;
+            while !emu.m().board.plant.comparator_tripped() && emu.m().now < t_trip + ticks(0.01) {
+                emu.run_for(1.0e-6)?;
+            }
+            let tripped_at = emu.m().now;
+            while Tim1::moe(&emu.m().regs) && emu.m().now < tripped_at + ticks(0.01) {
+                emu.run_for(0.2e-6)?;
+            }
+            let hw = emu.m().tim1.breaks;
+            note("MOE cleared by the break (hardware)", (hw > 0).to_string());
+            note(
+                "bridge off after the trip",
+                format!(
+                    "{:.1} µs",
+                    (emu.m().now - tripped_at) as f64 / TICK_HZ * 1e6
+                ),
+            );
+            emu.run_for(0.05)?;
+            emu
+        }
+        "watchdog" => {
+            let mut emu = fresh(elf, None)?;
+            run_until_state(&mut emu, "Run", 4.0)?;
+            emu.run_for(0.1)?;
+            // A stuck interrupt line: the control interrupt re-enters forever and the
+            // supervisor that feeds the watchdog never runs.
+            emu.m_mut().stuck_control_irq = true;
+            let t_stall = emu.m().time_s();
+            let boots = emu.m().stats.boots.len();
+            while emu.m().stats.boots.len() == boots && emu.m().time_s() < t_stall + 0.5 {
+                emu.run_for(0.005)?;
+            }
+            emu.m_mut().stuck_control_irq = false;
+            note(
+                "watchdog reset after the stall",
+                format!("{:.0} ms", (emu.m().time_s() - t_stall) * 1e3),
+            );
+            emu.run_for(0.3)?;
+            emu
+        }
+        "store-flash-error" => {
+            let mut board = Board::commissioning(1)?;
+            // The calibration pages write-protected in the option bytes (WRP2A).
+            board.wrp2a_pages = Some((126, 127));
+            let mut emu = Emu::new(elf, board, None)?;
+            run_until(&mut emu, "the store's fault", 4.0, |o, _| {
+                o.has_event("mras-fault", "StoreFailed")
+            })?;
+            emu.run_for(0.1)?;
+            note("MOE in Safe", Tim1::moe(&emu.m().regs).to_string());
+            emu
+        }
+        "rtt-host-stops" => {
+            let mut emu = fresh(elf, None)?;
+            emu.run_for(0.5)?;
+            // The host stops reading: the 1 KiB up-buffer fills, the firmware drops
+            // whole frames and keeps controlling.
+            emu.m_mut().rtt.reading = false;
+            let isr0 = emu.m().stats.isr_count_total;
+            emu.run_for(1.0)?;
+            let during = emu.m().stats.isr_count_total - isr0;
+            note(
+                "control periods while the host did not read (1 s)",
+                during.to_string(),
+            );
+            emu.m_mut().rtt.reading = true;
+            run_until_state(&mut emu, "Run", 5.0)?;
+            emu.run_for(0.2)?;
+            emu
+        }
+        other => bail!("unknown scenario `{other}` (known: {})", ALL.join(", ")),
+    };
+    finish(name, &emu, t0, notes)
+}
+
+/// docs/performance.md's per-scenario table and details.
+pub fn report(outcomes: &[Outcome], elf_note: &str) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "| scenario | boots | missed periods | control periods | ISR instructions mean / max | longest masked stretch (instructions) | longest request→entry (instructions) | emulated / wall |");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|");
+    for o in outcomes {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {:.0} / {} | {} | {} | {:.2} s / {:.1} s |",
+            o.name,
+            o.boots,
+            o.missed_periods,
+            o.control_periods,
+            o.isr_instrs_mean,
+            o.isr_instrs_max,
+            o.masked_max_instrs,
+            o.latency_max_instrs,
+            o.emulated_s,
+            o.wall_s
+        );
+    }
+    let _ = writeln!(s);
+    for o in outcomes {
+        let _ = writeln!(s, "### {}\n", o.name);
+        for l in o.state_lines() {
+            let _ = writeln!(s, "- {l}");
+        }
+        for e in o.events.iter().filter(|e| {
+            e.kind == "mras-fault"
+                || e.kind.contains("failed")
+                || e.kind == "mras-not-loaded"
+                || e.kind == "mras-loaded"
+                || e.kind == "mras-stored"
+        }) {
+            let _ = writeln!(s, "- boot {}: `{} {}`", e.boot + 1, e.kind, e.text);
+        }
+        for (k, v) in &o.notes {
+            let _ = writeln!(s, "- {k}: {v}");
+        }
+        if o.violations.is_empty() {
+            let _ = writeln!(s, "- rules broken: none");
+        }
+        for v in &o.violations {
+            let _ = writeln!(s, "- rule broken: {v}");
+        }
+        let _ = writeln!(s);
+    }
+    let _ = writeln!(s, "{elf_note}");
+    s
+}
