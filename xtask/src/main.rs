@@ -18,6 +18,8 @@ const CORE_CRATES: &[&str] = &["mras", "drive", "calib-record"];
 pub(crate) const FIRMWARE: &str = "drive-fw";
 /// The emulator image of the core (target only, built by `xtask qemu`).
 const QEMU_IMAGE: &str = "mras-qemu";
+/// The firmware-in-the-loop emulator (GPL-2.0, links Unicorn); its tests run in release.
+const EMULATOR: &str = "drive-emu";
 /// Budgets of the size report.
 const FLASH_BUDGET_BYTES: u64 = 64 * 1024;
 const RAM_BUDGET_BYTES: u64 = 16 * 1024;
@@ -39,6 +41,12 @@ cargo xtask <command>
   bench-accuracy  the accuracy benchmark against offline calibrations (500 sensors,
                 release): regenerates docs/results.md and docs/results/; further
                 arguments go to `hil-sim bench-accuracy` (--sensors, --seed, --reduced)
+  emu           the main job: the release firmware ELF on the emulated STM32G474
+                (hil-sim/emu, Unicorn) commissioning the simulated drive, then
+                powering up again with the stored calibration; CSV and plots in
+                target/emu (installs Debian cmake and libclang-dev if missing)
+  emu-report    every firmware-in-the-loop scenario; regenerates the scenario section
+                of docs/performance.md
   regs          regenerate the emulator's STM32G474 register table (hil-sim/emu/src/
                 regs_g474.rs) from the stm32g4 PAC's sources
   regs --check  fail if the committed register table differs from what the PAC generates
@@ -60,6 +68,8 @@ fn main() -> ExitCode {
         Some("qemu") => setup().and_then(|_| qemu::bit_exact()),
         Some("cycles") => setup().and_then(|_| qemu::cycles()),
         Some("regs") => regs::main(&args[1..]),
+        Some("emu") => emu(&["power-up"]),
+        Some("emu-report") => emu(&["scenarios", "--report", "docs/performance.md"]),
         Some("-h" | "--help" | "help") | None => {
             print!("{HELP}");
             Ok(())
@@ -136,6 +146,8 @@ fn test_host() -> Result<(), String> {
         FIRMWARE,
         "--exclude",
         QEMU_IMAGE,
+        "--exclude",
+        EMULATOR,
         "--locked",
     ]);
     run(c)
@@ -231,8 +243,28 @@ fn flash() -> Result<(), String> {
     run(c)
 }
 
+/// What the emulator crate's build needs: Unicorn's C code (cmake) and bindgen
+/// (libclang).
+fn emu_setup() -> Result<(), String> {
+    qemu::ensure("cmake", "cmake")?;
+    qemu::ensure_package("libclang-dev")
+}
+
+/// The emulator (drive-emu, release) on the release firmware.
+fn emu(args: &[&str]) -> Result<(), String> {
+    setup()?;
+    emu_setup()?;
+    run(cross_build(FIRMWARE))?;
+    let mut c = cargo();
+    c.args(["run", "--release", "--locked", "-p", EMULATOR, "--"]);
+    c.args(args);
+    run(c)
+}
+
 fn ci() -> Result<(), String> {
     setup()?;
+    emu_setup()?;
+    regs::main(&["--check".to_string()])?;
     let mut c = cargo();
     c.args(["fmt", "--all", "--", "--check"]);
     run(c)?;
@@ -262,6 +294,10 @@ fn ci() -> Result<(), String> {
     isr::check()?;
     qemu::bit_exact()?;
     test_host()?;
+    // The release firmware on the emulated board: the scenarios and the rule models.
+    let mut c = cargo();
+    c.args(["test", "--release", "--locked", "-p", EMULATOR]);
+    run(c)?;
     eprintln!("\nxtask ci: all checks passed");
     Ok(())
 }

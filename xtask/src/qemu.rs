@@ -30,6 +30,34 @@ fn dir() -> PathBuf {
     root().join("target").join("qemu")
 }
 
+/// Install a Debian package that provides no command (a library) when missing.
+pub(crate) fn ensure_package(package: &str) -> Result<(), String> {
+    let installed = || {
+        output_of("dpkg-query", &["-W", "-f=${Status}", package])
+            .is_some_and(|s| s.contains("install ok installed"))
+    };
+    if installed() {
+        return Ok(());
+    }
+    eprintln!("xtask: installing {package}");
+    for args in [
+        &["install", "-y", "-qq", package][..],
+        &["update", "-qq"],
+        &["install", "-y", "-qq", package],
+    ] {
+        let _ = Command::new("apt-get")
+            .args(args)
+            .env("DEBIAN_FRONTEND", "noninteractive")
+            .status();
+        if installed() {
+            return Ok(());
+        }
+    }
+    Err(format!(
+        "`apt-get install {package}` failed: install it (root needed)"
+    ))
+}
+
 /// Install a Debian package when its command is missing (the machines here run as root).
 pub(crate) fn ensure(command: &str, package: &str) -> Result<(), String> {
     if output_of("which", &[command]).is_some() {

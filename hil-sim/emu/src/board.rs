@@ -104,7 +104,7 @@ impl Board {
         self.plant_at += n * self.period_ticks;
         self.last = self.plant.sample();
         self.samples += 1;
-        if self.samples % self.log_every == 0 {
+        if self.samples.is_multiple_of(self.log_every) {
             self.truth_log.push(self.last.1);
         }
     }

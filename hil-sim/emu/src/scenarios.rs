@@ -81,7 +81,11 @@ impl Outcome {
             .enumerate()
             .map(|(b, s)| {
                 let seq: Vec<String> = s.iter().map(|(n, t)| format!("{n} {t} ms")).collect();
-                format!("boot {}: {}", b + 1, seq.join(" → "))
+                if seq.is_empty() {
+                    format!("boot {}: no state change streamed", b + 1)
+                } else {
+                    format!("boot {}: {}", b + 1, seq.join(" → "))
+                }
             })
             .collect()
     }
@@ -433,7 +437,10 @@ pub fn power_up_run(elf: &[u8]) -> Result<PowerUp> {
     let mut outcome = second.clone();
     outcome.states = [first.states.clone(), second.states.clone()].concat();
     outcome.events = first.events.clone();
-    outcome.events.extend(second.events.iter().map(|e| Event { boot: e.boot + 1, ..e.clone() }));
+    outcome.events.extend(second.events.iter().map(|e| Event {
+        boot: e.boot + 1,
+        ..e.clone()
+    }));
     outcome.missed_periods += first.missed_periods;
     outcome.control_periods += first.control_periods;
     outcome.isr_instrs_mean = (first.isr_instrs_mean * first.control_periods as f64
@@ -483,8 +490,16 @@ fn raw_error_pkpk(emu: &Emu, from_s: f64) -> f64 {
     let n = p.model.sensor_periods as f64;
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
     for t in emu.m().board.truth_log.iter().filter(|t| t.t_s >= from_s) {
-        let magnet = if p.mount.reversed { p.mount.offset_rad - t.theta_rad } else { p.mount.offset_rad + t.theta_rad };
-        let e = drive::align::wrap_pi((t.y as f64).atan2(t.x as f64) as f32 - (n * magnet).rem_euclid(std::f64::consts::TAU) as f32) as f64 / n;
+        let magnet = if p.mount.reversed {
+            p.mount.offset_rad - t.theta_rad
+        } else {
+            p.mount.offset_rad + t.theta_rad
+        };
+        let e = drive::align::wrap_pi(
+            (t.y as f64).atan2(t.x as f64) as f32
+                - (n * magnet).rem_euclid(std::f64::consts::TAU) as f32,
+        ) as f64
+            / n;
         lo = lo.min(e);
         hi = hi.max(e);
     }

@@ -6,12 +6,16 @@ use drive_emu::board::Board;
 use drive_emu::machine::Machine;
 use drive_emu::periph::flash::{CR as FLASH_CR, KEYR, SR as FLASH_SR};
 use drive_emu::periph::rcc::{AHB2ENR, APB2ENR};
-use drive_emu::periph::tim1::{self, Tim1};
 use drive_emu::periph::ticks;
+use drive_emu::periph::tim1::{self, Tim1};
 use drive_emu::rtt::Rtt;
 
 fn machine() -> Machine {
-    Machine::new(vec![0xFF; 512 * 1024], Board::commissioning(1).unwrap(), Rtt::new(None))
+    Machine::new(
+        vec![0xFF; 512 * 1024],
+        Board::commissioning(1).unwrap(),
+        Rtt::new(None),
+    )
 }
 
 /// Let `s` seconds pass with the CPU doing nothing.
@@ -93,7 +97,10 @@ fn erasing_the_code_bank_stalls_the_cpu_and_bank_2_does_not() {
     wait(&mut m, 0.03);
     erase(&mut m, false, 100);
     assert_eq!(m.flash_ctl.code_bank_erases, 1);
-    assert!(m.stall_until >= m.now + ticks(0.02), "the CPU waits for the erase");
+    assert!(
+        m.stall_until >= m.now + ticks(0.02),
+        "the CPU waits for the erase"
+    );
 }
 
 #[test]
@@ -165,5 +172,8 @@ fn break_clears_moe(bkine: bool) -> bool {
 #[test]
 fn bkin_clears_moe_only_when_routed_by_af1() {
     assert!(break_clears_moe(true));
-    assert!(!break_clears_moe(false), "AF1.BKINE = 0: the pin does not reach the break");
+    assert!(
+        !break_clears_moe(false),
+        "AF1.BKINE = 0: the pin does not reach the break"
+    );
 }

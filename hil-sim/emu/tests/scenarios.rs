@@ -27,8 +27,17 @@ fn run(name: &str) -> Outcome {
 fn healthy(o: &Outcome) {
     assert_eq!(o.missed_periods, 0, "{}: missed control periods", o.name);
     assert_eq!(o.hard_faults, 0, "{}: HardFault", o.name);
-    assert!(o.violations.is_empty(), "{}: rules broken: {:#?}", o.name, o.violations);
-    assert!(o.isr_instrs_max < 8500, "{}: the control interrupt overran the period", o.name);
+    assert!(
+        o.violations.is_empty(),
+        "{}: rules broken: {:#?}",
+        o.name,
+        o.violations
+    );
+    assert!(
+        o.isr_instrs_max < 8500,
+        "{}: the control interrupt overran the period",
+        o.name
+    );
 }
 
 #[test]
@@ -38,13 +47,25 @@ fn erased_flash_commissions_to_run_then_the_next_power_up_loads() {
     let seq: Vec<&str> = o.states[0].iter().map(|(s, _)| s.as_str()).collect();
     assert_eq!(
         seq,
-        ["LoadCalibration", "Align", "Sweep", "SpinUp", "Adapt", "Verify", "Store", "Run"]
+        [
+            "LoadCalibration",
+            "Align",
+            "Sweep",
+            "SpinUp",
+            "Adapt",
+            "Verify",
+            "Store",
+            "Run"
+        ]
     );
     assert!(o.has_event("mras-stored", ""));
     let second: Vec<&str> = o.states[1].iter().map(|(s, _)| s.as_str()).collect();
     assert_eq!(second, ["LoadCalibration", "Run"]);
     assert!(o.has_event("mras-loaded", ""));
-    assert!(o.entered(1, "Run").unwrap() < 200, "the stored calibration loads at once");
+    assert!(
+        o.entered(1, "Run").unwrap() < 200,
+        "the stored calibration loads at once"
+    );
 }
 
 #[test]
@@ -52,7 +73,11 @@ fn a_sensor_wire_break_in_run_turns_the_bridge_off_within_one_period() {
     let o = run("wire-break");
     healthy(&o);
     assert!(o.has_event("mras-fault", "cause=SensorLost"));
-    let periods: f64 = o.note("bridge off in control periods").unwrap().parse().unwrap();
+    let periods: f64 = o
+        .note("bridge off in control periods")
+        .unwrap()
+        .parse()
+        .unwrap();
     assert!(periods <= 1.0, "bridge off after {periods} periods");
 }
 
@@ -70,8 +95,16 @@ fn a_stalled_firmware_is_reset_by_the_watchdog_and_reports_it() {
     assert_eq!(o.missed_periods, 0);
     assert_eq!(o.boots, 2, "one watchdog reset");
     assert!(o.has_event("mras-fault", "cause=Watchdog"));
-    let ms: f64 = o.note("watchdog reset after the stall").unwrap().trim_end_matches(" ms").parse().unwrap();
-    assert!((90.0..=120.0).contains(&ms), "IWDG after {ms} ms (100 ms configured)");
+    let ms: f64 = o
+        .note("watchdog reset after the stall")
+        .unwrap()
+        .trim_end_matches(" ms")
+        .parse()
+        .unwrap();
+    assert!(
+        (90.0..=120.0).contains(&ms),
+        "IWDG after {ms} ms (100 ms configured)"
+    );
 }
 
 #[test]

@@ -223,7 +223,7 @@ impl FlashCtl {
         }
         match self.first_word.take() {
             None => {
-                if addr % 8 != 0 {
+                if !addr.is_multiple_of(8) {
                     regs.set_bits(SR, SR_PGAERR, true);
                     return Effect::None;
                 }

@@ -154,12 +154,10 @@ impl Tim1 {
                     self.ccr[k] = regs.get(a);
                 }
             }
-            BDTR => {
-                if regs.get(BDTR) & BDTR_MOE != 0 && break_in && regs.bit(BDTR, BDTR_BKE) {
-                    // §28.3.21: MOE cannot be set while the break input is active.
-                    regs.set_bits(BDTR, BDTR_MOE, false);
-                    self.moe_refused += 1;
-                }
+            BDTR if regs.get(BDTR) & BDTR_MOE != 0 && break_in && regs.bit(BDTR, BDTR_BKE) => {
+                // §28.3.21: MOE cannot be set while the break input is active.
+                regs.set_bits(BDTR, BDTR_MOE, false);
+                self.moe_refused += 1;
             }
             _ => {}
         }
