@@ -30,6 +30,24 @@ fn dir() -> PathBuf {
     root().join("target").join("qemu")
 }
 
+/// `apt-get install` (then `apt-get update` and again) until `installed` holds.
+fn apt_install(package: &str, installed: impl Fn() -> bool) -> bool {
+    let install = || {
+        Command::new("apt-get")
+            .args(["install", "-y", "-qq", package])
+            .env("DEBIAN_FRONTEND", "noninteractive")
+            .status()
+            .is_ok_and(|s| s.success())
+    };
+    (install() && installed())
+        || (Command::new("apt-get")
+            .args(["update", "-qq"])
+            .status()
+            .is_ok()
+            && install()
+            && installed())
+}
+
 /// Install a Debian package that provides no command (a library) when missing.
 pub(crate) fn ensure_package(package: &str) -> Result<(), String> {
     let installed = || {
@@ -40,47 +58,23 @@ pub(crate) fn ensure_package(package: &str) -> Result<(), String> {
         return Ok(());
     }
     eprintln!("xtask: installing {package}");
-    for args in [
-        &["install", "-y", "-qq", package][..],
-        &["update", "-qq"],
-        &["install", "-y", "-qq", package],
-    ] {
-        let _ = Command::new("apt-get")
-            .args(args)
-            .env("DEBIAN_FRONTEND", "noninteractive")
-            .status();
-        if installed() {
-            return Ok(());
-        }
+    if apt_install(package, installed) {
+        Ok(())
+    } else {
+        Err(format!(
+            "`apt-get install {package}` failed: install it (root needed)"
+        ))
     }
-    Err(format!(
-        "`apt-get install {package}` failed: install it (root needed)"
-    ))
 }
 
 /// Install a Debian package when its command is missing (the machines here run as root).
 pub(crate) fn ensure(command: &str, package: &str) -> Result<(), String> {
-    if output_of("which", &[command]).is_some() {
+    let installed = || output_of("which", &[command]).is_some();
+    if installed() {
         return Ok(());
     }
     eprintln!("xtask: installing {package} (provides {command})");
-    let ok = Command::new("apt-get")
-        .args(["install", "-y", "-qq", package])
-        .env("DEBIAN_FRONTEND", "noninteractive")
-        .status()
-        .map(|s| s.success())
-        .unwrap_or(false)
-        || (Command::new("apt-get")
-            .args(["update", "-qq"])
-            .status()
-            .is_ok()
-            && Command::new("apt-get")
-                .args(["install", "-y", "-qq", package])
-                .env("DEBIAN_FRONTEND", "noninteractive")
-                .status()
-                .map(|s| s.success())
-                .unwrap_or(false));
-    if ok && output_of("which", &[command]).is_some() {
+    if apt_install(package, installed) {
         Ok(())
     } else {
         Err(format!(

@@ -24,6 +24,16 @@ const EXC_RETURN_FP: u32 = 0xFFFF_FFE1;
 const EXC_RETURN_BASIC: u32 = 0xFFFF_FFF1;
 const EXC_RETURN_THREAD: u32 = 0x8;
 
+/// The core registers of a basic frame, in stack order (PC and xPSR follow; B1.5.6).
+const FRAME_REGS: [RegisterARM; 6] = [
+    RegisterARM::R0,
+    RegisterARM::R1,
+    RegisterARM::R2,
+    RegisterARM::R3,
+    RegisterARM::R12,
+    RegisterARM::LR,
+];
+
 /// The emulated board running a firmware image.
 pub struct Emu {
     pub uc: Unicorn<'static, Machine>,
@@ -272,15 +282,7 @@ impl Emu {
         let align = sp & 4 != 0;
         let frame = (sp - size) & !7;
         let xpsr = self.reg(RegisterARM::XPSR);
-        let regs = [
-            RegisterARM::R0,
-            RegisterARM::R1,
-            RegisterARM::R2,
-            RegisterARM::R3,
-            RegisterARM::R12,
-            RegisterARM::LR,
-        ];
-        for (i, r) in regs.iter().enumerate() {
+        for (i, r) in FRAME_REGS.iter().enumerate() {
             let v = self.reg(*r);
             self.write_u32(frame + 4 * i as u32, v)?;
         }
@@ -321,15 +323,7 @@ impl Emu {
     fn exit(&mut self, exc_return: u32) -> Result<()> {
         let fp = exc_return & 0x10 == 0;
         let frame = self.reg(RegisterARM::SP);
-        let regs = [
-            RegisterARM::R0,
-            RegisterARM::R1,
-            RegisterARM::R2,
-            RegisterARM::R3,
-            RegisterARM::R12,
-            RegisterARM::LR,
-        ];
-        for (i, r) in regs.iter().enumerate() {
+        for (i, r) in FRAME_REGS.iter().enumerate() {
             let v = self.read_u32(frame + 4 * i as u32)?;
             self.set_reg(*r, v)?;
         }

@@ -63,7 +63,6 @@ pub struct Machine {
     pub deadline: u64,
     pub stop: bool,
     pub idle: bool,
-    pub idle_pc: Option<u32>,
     pub fault: Option<Fault>,
     pub exc_return: Option<u32>,
     pub reset_request: Option<ResetKind>,
@@ -91,9 +90,6 @@ pub struct Machine {
     pub rtt: Rtt,
     pub stats: Stats,
     pub unmodelled: Unmodelled,
-    /// Thumb instruction lengths of the flash image: is the halfword at 2·k the first of
-    /// a 32-bit instruction.
-    pub code_start: u32,
     /// The ADC1_2 line's level.
     pub adc_irq_high: bool,
     /// Fault injection: the control interrupt's line stuck active (it pends again at
@@ -130,7 +126,6 @@ impl Machine {
             deadline: 0,
             stop: false,
             idle: false,
-            idle_pc: None,
             fault: None,
             exc_return: None,
             reset_request: None,
@@ -153,7 +148,6 @@ impl Machine {
             rtt,
             stats: Stats::default(),
             unmodelled: Unmodelled::default(),
-            code_start: crate::elf::FLASH_BASE,
             adc_irq_high: false,
             stuck_control_irq: false,
         };
@@ -189,7 +183,6 @@ impl Machine {
         self.dwt_ctrl = 0x4000_0000;
         self.ppb_plain.clear();
         self.adc_irq_high = false;
-        self.idle_pc = None;
         self.stats.armed = false;
         self.stats.masked_since = None;
         self.stats.boots.push((self.now, kind));
@@ -206,7 +199,7 @@ impl Machine {
 
     /// Instructions in a translated block at `addr` of `size` bytes, from the image.
     pub fn count_instrs(&self, addr: u32, size: u32) -> (u64, bool) {
-        let Some(off) = addr.checked_sub(self.code_start) else {
+        let Some(off) = addr.checked_sub(crate::elf::FLASH_BASE) else {
             return ((size as u64 / 2).max(1), false);
         };
         let code = &self.flash;
@@ -230,7 +223,7 @@ impl Machine {
     pub fn is_idle_branch(&self, addr: u32, size: u32) -> bool {
         size == 2
             && addr
-                .checked_sub(self.code_start)
+                .checked_sub(crate::elf::FLASH_BASE)
                 .and_then(|o| self.flash.get(o as usize..o as usize + 2))
                 .is_some_and(|b| b == [0xFE, 0xE7])
     }

@@ -55,33 +55,26 @@ const W1C_OVERRIDES: &[(u32, u32)] = &[(0x4002_2010, 0x0000_C3FB)];
 /// Registers the G474 has and the SVD leaves out, from RM0440: the bank-2 write
 /// protection areas FLASH_WRP2AR/WRP2BR (§3.7.14-15), loaded from the option bytes.
 const MISSING: &[RegDef] = &[
-    RegDef {
-        addr: 0x4002_204C,
-        periph: "FLASH",
-        name: "WRP2AR",
-        reset: 0x0000_00FF,
-        readable: true,
-        writable: false,
-        w1s: 0,
-        w1c: 0,
-        w0c: 0,
-        w1t: 0,
-        read_only_bits: 0,
-    },
-    RegDef {
-        addr: 0x4002_2050,
-        periph: "FLASH",
-        name: "WRP2BR",
-        reset: 0x0000_00FF,
-        readable: true,
-        writable: false,
-        w1s: 0,
-        w1c: 0,
-        w0c: 0,
-        w1t: 0,
-        read_only_bits: 0,
-    },
+    option_byte_register(0x4002_204C, "WRP2AR"),
+    option_byte_register(0x4002_2050, "WRP2BR"),
 ];
+
+/// A FLASH register loaded from the option bytes: read-only, 0x0000_00FF (area empty).
+const fn option_byte_register(addr: u32, name: &'static str) -> RegDef {
+    RegDef {
+        addr,
+        periph: "FLASH",
+        name,
+        reset: 0x0000_00FF,
+        readable: true,
+        writable: false,
+        w1s: 0,
+        w1c: 0,
+        w0c: 0,
+        w1t: 0,
+        read_only_bits: 0,
+    }
+}
 
 /// Register values, by address.
 pub struct RegFile {
