@@ -472,7 +472,7 @@ mod tests {
     use drive::motion::LoopMode;
     use drive::telemetry::Command;
     use mras::sim::{Adc, SensorModel, SpatialError};
-    use mras::{Config, Tracker};
+    use mras::Config;
     use std::f64::consts::TAU;
 
     const T_S: f64 = 50e-6;
@@ -510,7 +510,7 @@ mod tests {
             .unwrap()
             .with_substeps(substeps);
         let d = rig::drive_config(&plant, &control, j, T_S).unwrap();
-        let period = ControlPeriod::new(d, Tracker::new(cfg).unwrap()).unwrap();
+        let period = ControlPeriod::new(d, mras::Front::new(cfg).unwrap()).unwrap();
         let mut r = Rig::new(plant, period, Some(control.reference));
         r.command = Command {
             setpoint: Setpoint::Application,
@@ -550,6 +550,7 @@ mod tests {
                     duties,
                     enable: true,
                     supervisor_due: false,
+                    handoff: None,
                 });
             }
             out.push((p.theta_rad(), p.i_ab));

@@ -172,7 +172,6 @@ pub fn run_boot(rig: &mut Rig, sc: &Scenario, duration_s: f64, mut hook: Option<
     let final_state = sup.map_or(State::Safe, |p| p.state());
     let alignment = sup.map_or(Alignment::IDENTITY, |p| p.alignment());
     let in_run = final_state == State::Run;
-    let tracker = rig.period.tracker();
     Boot {
         final_state,
         cause: sup.and_then(|p| p.cause()),
@@ -182,7 +181,9 @@ pub fn run_boot(rig: &mut Rig, sc: &Scenario, duration_s: f64, mut hook: Option<
         adapt_s,
         adapt_revs,
         faulted_samples: faulted,
-        coefficients: tracker
+        coefficients: rig
+            .adaptation()
+            .adapter()
             .coefficients()
             .iter()
             .map(|(k, v)| (crate::scenario::path_name(k), v.re, v.im))

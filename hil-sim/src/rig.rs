@@ -13,11 +13,13 @@
 
 use crate::plant::{Plant, Truth};
 use calib_record::{FlashSlots, RamFlash, RamFlashError, Slot};
+use drive::adaptation::AdaptationTask;
 use drive::control::{ControlPeriod, DriveConfig, MotorConfig, Output};
 use drive::motion::{Angle, LoopMode, MotionRef};
 use drive::supervisor::{NamedError, Supervisor};
 use drive::telemetry::{Command, Event, Fault, Install, Record, TelemetrySlot};
-use mras::{Estimate, F32Trig, Trig};
+use mras::{Estimate, F32Trig, InjectionUpdate, Trig};
+use std::collections::VecDeque;
 use std::f64::consts::TAU;
 
 /// The motion profile the application asks for.
@@ -245,6 +247,10 @@ pub struct Step {
 pub struct Rig<T: Trig = F32Trig> {
     pub plant: Plant,
     pub period: ControlPeriod<T>,
+    /// The firmware's adaptation task, run right after each control period (the next
+    /// priority down), and its updates on their way back to the control period.
+    adaptation: AdaptationTask,
+    updates: VecDeque<InjectionUpdate>,
     /// The command in force. Without a supervisor the experiment sets it.
     pub command: Command,
     reference: Option<Reference>,
@@ -262,6 +268,9 @@ impl<T: Trig> Rig<T> {
     pub fn new(plant: Plant, period: ControlPeriod<T>, reference: Option<Reference>) -> Self {
         Self {
             plant,
+            adaptation: AdaptationTask::new(period.tracker().config())
+                .expect("the control period validated this configuration"),
+            updates: VecDeque::new(),
             period,
             command: Command::OFF,
             reference,
@@ -274,8 +283,14 @@ impl<T: Trig> Rig<T> {
                 duties: [0.5; 3],
                 enable: false,
                 supervisor_due: false,
+                handoff: None,
             },
         }
+    }
+
+    /// The MRAS adaptation: coefficients and convergence.
+    pub fn adaptation(&self) -> &AdaptationTask {
+        &self.adaptation
     }
 
     /// The firmware's supervisor commands the rig, with its calibration pages.
@@ -335,14 +350,25 @@ impl<T: Trig> Rig<T> {
             self.missed_periods += 1;
             Output {
                 supervisor_due: false,
+                handoff: None,
                 ..self.last_output
             }
         } else {
             if let Some(i) = self.mailbox.take() {
-                self.period.install(&i);
+                let updates = &mut self.updates;
+                self.adaptation.install(&i, |u| updates.push_back(u));
+            }
+            while let Some(u) = self.updates.front() {
+                if !self.period.apply(u) {
+                    break;
+                }
+                self.updates.pop_front();
             }
             self.period.step(&sample, &self.command)
         };
+        if let Some(h) = &out.handoff {
+            self.updates.extend(self.adaptation.step(h));
+        }
         if out.supervisor_due {
             self.telemetry.publish(self.period.snapshot());
             self.run_supervisor(t);
@@ -383,9 +409,10 @@ impl<T: Trig> Rig<T> {
         if t < task.busy_until_s {
             return;
         }
-        let Some(tm) = self.telemetry.take() else {
+        let Some(mut tm) = self.telemetry.take() else {
             return;
         };
+        tm.merge(self.adaptation.report());
         let out = task.sup.step(&tm, &mut task.flash);
         let busy = task.flash.take_busy_s();
         if busy > 0.0 {

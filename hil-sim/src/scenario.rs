@@ -537,7 +537,7 @@ impl Scenario {
         let control = f.control.to_params()?;
         let mut dcfg = rig::drive_config(&plant, &control, j_hat, t_s)?;
         adjust(&mut dcfg);
-        let tracker = Tracker::new(cfg).map_err(|e| e.to_string())?;
+        let tracker = mras::Front::new(cfg).map_err(|e| e.to_string())?;
         let period = ControlPeriod::new(dcfg, tracker).map_err(|e| e.to_string())?;
         Ok(Rig::new(plant, period, Some(control.reference)))
     }
@@ -776,7 +776,9 @@ pub fn run(
         after.add(&s, &probe);
         if t >= enable_s {
             let th0 = *theta_at_enable.get_or_insert(s.truth.theta_rad);
-            if converged_at.is_none() && k % 64 == 0 && rig.period.tracker().convergence().converged
+            if converged_at.is_none()
+                && k % 64 == 0
+                && rig.adaptation().adapter().convergence().converged
             {
                 converged_at = Some((t - enable_s, (s.truth.theta_rad - th0).abs() / TAU));
             }
@@ -794,7 +796,7 @@ pub fn run(
                 y: s.input.1,
                 zd_x: s.estimate.decoupled.re,
                 zd_y: s.estimate.decoupled.im,
-                coefficients: rig.period.tracker().coefficients(),
+                coefficients: rig.adaptation().adapter().coefficients(),
             });
         }
         if progress && steps >= 200_000 && k % (steps / 10) == 0 && k > 0 {
@@ -808,8 +810,9 @@ pub fn run(
             );
         }
     }
-    let tracker = rig.period.tracker();
-    let coefficients = tracker
+    let coefficients = rig
+        .adaptation()
+        .adapter()
         .coefficients()
         .iter()
         .map(|(k, v)| (path_name(k), v.re, v.im))

@@ -3,11 +3,18 @@
 //! Priorities (RTIC 2):
 //! 3. `control`, bound to ADC1_2 (end of the injected sequence triggered by TIM1 TRGO2):
 //!    read the ADCs → `drive::control::ControlPeriod::step` → compare registers and MOE.
-//!    At the supervisor's divider ticks it publishes a telemetry snapshot.
-//! 2. `supervisor` (1 kHz, spawned by `control`): `drive::supervisor::Supervisor::step`
-//!    on the snapshot and the calibration flash, the watchdog, and the RTT stream. It is
-//!    the only runtime context that logs; defmt-rtt neither blocks nor masks interrupts
-//!    (firmware/app/Cargo.toml), so the control interrupt is never held up by RTT.
+//!    It hands the accepted sample to `adapt` and, at the supervisor's divider ticks,
+//!    publishes a telemetry snapshot.
+//! 2. `adapt` (every period, pended by `control`): the MRAS adaptation
+//!    (`drive::adaptation::AdaptationTask`) on the handed-over samples; its updates go
+//!    back to `control`, in force a fixed latency later (`mras::UPDATE_LATENCY_PERIODS`),
+//!    so the result does not depend on when in between it ran. Both directions are
+//!    lock-free queues: neither side ever masks the other.
+//! 1. `supervisor` (1 kHz, spawned by `control`): `drive::supervisor::Supervisor::step`
+//!    on the snapshot and the adaptation's report, the calibration flash, the watchdog,
+//!    and the RTT stream. It is the only runtime context that logs; defmt-rtt neither
+//!    blocks nor masks interrupts (firmware/app/Cargo.toml), so the control interrupt is
+//!    never held up by RTT.
 #![no_std]
 #![no_main]
 
@@ -39,18 +46,21 @@ mod app {
     use crate::{board, calibration, fault_record};
     use calib_record::config_hash;
     use cortex_m::peripheral::DWT;
+    use drive::adaptation::{AdaptReport, AdaptationTask};
     use drive::commissioning::Cause;
     use drive::control::ControlPeriod;
     use drive::motion::MotionRef;
     use drive::supervisor::Supervisor;
     use drive::telemetry::{self, Command, Install, TelemetrySlot};
-    use mras::Tracker;
+    use heapless::spsc::{Consumer, Producer, Queue};
+    use mras::{AdaptSample, Front, InjectionUpdate};
     use stm32g4xx_hal::gpio::GpioExt;
     use stm32g4xx_hal::independent_watchdog::IndependentWatchdog;
     use stm32g4xx_hal::pwr::{PwrExt, VoltageScale};
     use stm32g4xx_hal::rcc::{
         Config as RccConfig, PllConfig, PllMDiv, PllNMul, PllRDiv, PllSrc, RccExt,
     };
+    use stm32g4xx_hal::stm32::Interrupt;
 
     /// The core's sine/cosine: the CORDIC, or the portable `F32Trig` (feature `cordic`).
     #[cfg(feature = "cordic")]
@@ -64,8 +74,10 @@ mod app {
         command: Command,
         /// Control → supervisor, at the divider ticks.
         telemetry: TelemetrySlot,
-        /// Coefficients loaded from flash, for `control` to install.
+        /// Coefficients loaded from flash, for `adapt` to install.
         mailbox: Option<Install>,
+        /// Adaptation → supervisor, after each snapshot period.
+        report: AdaptReport,
     }
 
     #[local]
@@ -73,6 +85,12 @@ mod app {
         adcs: Adcs,
         pwm: Pwm,
         period: ControlPeriod<CoreTrig>,
+        /// Accepted samples to `adapt`, and its updates back.
+        handoff_tx: Producer<'static, AdaptSample, HANDOFF_DEPTH>,
+        updates_rx: Consumer<'static, InjectionUpdate, UPDATE_DEPTH>,
+        adaptation: AdaptationTask,
+        handoff_rx: Consumer<'static, AdaptSample, HANDOFF_DEPTH>,
+        updates_tx: Producer<'static, InjectionUpdate, UPDATE_DEPTH>,
         /// The previous control interrupt's cycle count (DWT CYCCNT).
         last_cycles: u32,
         supervisor: Supervisor,
@@ -80,7 +98,15 @@ mod app {
         watchdog: IndependentWatchdog,
     }
 
-    #[init]
+    /// Queue sizes (one slot is kept free): samples `adapt` may lag behind by, and the
+    /// updates in flight (one per stride, and a whole install at once).
+    const HANDOFF_DEPTH: usize = 16;
+    const UPDATE_DEPTH: usize = 2 * mras::MAX_PATHS;
+
+    #[init(local = [
+        handoff: Queue<AdaptSample, HANDOFF_DEPTH> = Queue::new(),
+        updates: Queue<InjectionUpdate, UPDATE_DEPTH> = Queue::new(),
+    ])]
     fn init(cx: init::Context) -> (Shared, Local) {
         let dp = cx.device;
         let mut cp = cx.core;
@@ -175,10 +201,16 @@ mod app {
         #[cfg(not(feature = "cordic"))]
         let trig = mras::F32Trig;
         let cfg = board::core_config();
-        let tracker = match Tracker::with_trig(cfg, trig) {
+        let tracker = match Front::with_trig(cfg, trig) {
             Ok(t) => t,
             Err(e) => defmt::panic!("core configuration: {=str}: {=str}", e.field, e.problem),
         };
+        // Validated by `Front::with_trig` just above: cannot fail.
+        let Ok(adaptation) = AdaptationTask::new(&cfg) else {
+            defmt::panic!("core configuration")
+        };
+        let (handoff_tx, handoff_rx) = cx.local.handoff.split();
+        let (updates_tx, updates_rx) = cx.local.updates.split();
         let Some(drive_cfg) = board::drive_config() else {
             defmt::panic!("board sensor scaling out of range (board.rs)")
         };
@@ -238,11 +270,17 @@ mod app {
                 command: Command::OFF,
                 telemetry: TelemetrySlot::EMPTY,
                 mailbox: None,
+                report: AdaptReport::EMPTY,
             },
             Local {
                 adcs,
                 pwm,
                 period,
+                handoff_tx,
+                updates_rx,
+                adaptation,
+                handoff_rx,
+                updates_tx,
                 last_cycles: 0,
                 supervisor,
                 flash,
@@ -252,8 +290,9 @@ mod app {
     }
 
     /// The control period: highest priority, bound to the end of the injected sequence.
-    #[task(binds = ADC1_2, priority = 3, local = [adcs, pwm, period, last_cycles],
-           shared = [command, telemetry, mailbox])]
+    #[task(binds = ADC1_2, priority = 3,
+           local = [adcs, pwm, period, last_cycles, handoff_tx, updates_rx],
+           shared = [command, telemetry])]
     fn control(mut cx: control::Context) {
         let t0 = DWT::cycle_count();
         let l = cx.local;
@@ -261,15 +300,21 @@ mod app {
         sample.overcurrent = l.pwm.break_active();
         sample.cycles = *l.last_cycles;
         let command = cx.shared.command.lock(|c| *c);
-        // Installed in place: no copy of the (rarely present) coefficients per period.
-        cx.shared.mailbox.lock(|m| {
-            if let Some(i) = m {
-                l.period.install(i);
-                *m = None;
+        // The adaptation's updates due by this period.
+        while let Some(u) = l.updates_rx.peek() {
+            if !l.period.apply(u) {
+                break;
             }
-        });
+            l.updates_rx.dequeue();
+        }
         let out = l.period.step(&sample, &command);
         l.pwm.apply(&out);
+        if let Some(h) = out.handoff {
+            if l.handoff_tx.enqueue(h).is_err() {
+                l.period.note_handoff_dropped();
+            }
+            rtic::pend(Interrupt::USART3);
+        }
         if out.supervisor_due {
             let snapshot = l.period.snapshot();
             cx.shared.telemetry.lock(|t| t.publish(snapshot));
@@ -279,14 +324,38 @@ mod app {
         *l.last_cycles = DWT::cycle_count().wrapping_sub(t0);
     }
 
+    /// The MRAS adaptation on every sample `control` handed over (USART3's vector, which
+    /// no peripheral raises here, pended by `control`).
+    #[task(binds = USART3, priority = 2, local = [adaptation, handoff_rx, updates_tx],
+           shared = [mailbox, report])]
+    fn adapt(mut cx: adapt::Context) {
+        let l = cx.local;
+        if let Some(i) = cx.shared.mailbox.lock(Option::take) {
+            // The queue holds a whole install beside the updates in flight.
+            l.adaptation.install(&i, |u| {
+                l.updates_tx.enqueue(u).ok();
+            });
+            cx.shared.report.lock(|r| *r = *l.adaptation.report());
+        }
+        while let Some(s) = l.handoff_rx.dequeue() {
+            if let Some(u) = l.adaptation.step(&s) {
+                l.updates_tx.enqueue(u).ok();
+            }
+            if s.has(AdaptSample::REPORT) {
+                cx.shared.report.lock(|r| *r = *l.adaptation.report());
+            }
+        }
+    }
+
     /// Commissioning, calibration flash, watchdog and the stream (1 kHz).
-    #[task(priority = 2, local = [supervisor, flash, watchdog],
-           shared = [command, telemetry, mailbox])]
+    #[task(priority = 1, local = [supervisor, flash, watchdog],
+           shared = [command, telemetry, mailbox, report])]
     async fn supervisor(mut cx: supervisor::Context) {
         let l = cx.local;
-        let Some(tm) = cx.shared.telemetry.lock(TelemetrySlot::take) else {
+        let Some(mut tm) = cx.shared.telemetry.lock(TelemetrySlot::take) else {
             return;
         };
+        tm.merge(&cx.shared.report.lock(|r| *r));
         let out = l.supervisor.step(&tm, l.flash);
         cx.shared.command.lock(|c| *c = out.command);
         if out.install.is_some() {

@@ -1,10 +1,13 @@
 //! The control period: one call per PWM period, the whole hot path.
 //!
-//! ADC counts in → scaling → [`mras::Tracker::step`] → motion loop (speed or the
+//! ADC counts in → scaling → [`mras::Front::step`] → motion loop (speed or the
 //! application's) → d/q current loop in the frame of the aligned, corrected estimate →
 //! SVPWM duties out, with the bridge enable and the torque feed-forward for the next
 //! period. The firmware's control interrupt is "read registers, [`ControlPeriod::step`],
-//! write registers"; hil-sim calls the same function on its simulated ADC counts.
+//! write registers"; hil-sim calls the same function on its simulated ADC counts. The
+//! MRAS adaptation is not in it: each accepted sample is handed over
+//! ([`Output::handoff`]) to [`crate::adaptation::AdaptationTask`], which runs below the
+//! control period, and its updates come back through [`ControlPeriod::apply`].
 //!
 //! One latched safe state: a fault in any period (sensor, ADC range, over-current)
 //! switches the bridge off from that period on, and it stays off, whatever the command,
@@ -13,13 +16,14 @@
 //! No f64, no panics, no allocation; the trigonometry is the core's (the CORDIC on the
 //! target), so the FOC angle and the observer use the same sine and cosine.
 
+use crate::adaptation::AdaptReport;
 use crate::adc::{scale_pair, ChannelScaling, SampleError};
 use crate::align::{electrical_angle, wrap_pi, ShiftMeter, Sweep};
 use crate::commissioning::{Adaptation, Setpoint};
 use crate::foc::{clarke, inverse_park, park, svpwm, CurrentLoop, CurrentLoopParams};
 use crate::motion::{Angle, LoopMode, MotionLoop, MotionRef};
-use crate::telemetry::{Command, CycleStats, Fault, Install, InstallAck, Telemetry};
-use mras::{ConfigError, Estimate, Tracker, Trig};
+use crate::telemetry::{Command, CycleStats, Fault, Telemetry};
+use mras::{AdaptSample, ConfigError, Estimate, Front, InjectionUpdate, Trig};
 
 /// The motor as the controller knows it.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -96,13 +100,16 @@ pub struct Output {
     pub enable: bool,
     /// Take a [`ControlPeriod::snapshot`] and run the supervisor.
     pub supervisor_due: bool,
+    /// This period's sample for the adaptation, if the core accepted it (flagged
+    /// [`AdaptSample::REPORT`] on supervisor periods).
+    pub handoff: Option<AdaptSample>,
 }
 
 /// The control period and its state.
 #[derive(Clone, Debug)]
 pub struct ControlPeriod<T: Trig> {
     cfg: DriveConfig,
-    tracker: Tracker<T>,
+    tracker: Front<T>,
     /// Electrical periods per sensor period, p/N.
     electrical_per_sensor: f32,
     pole_pairs: f32,
@@ -135,7 +142,7 @@ pub struct ControlPeriod<T: Trig> {
     until_supervisor: u32,
     /// Since the previous snapshot.
     cycles: CycleStats,
-    install: Option<InstallAck>,
+    handoffs_dropped: u32,
     /// The scaled sensor vector fed to the core, and the fault of the period.
     last_xy: (f32, f32),
     last_fault: Option<Fault>,
@@ -211,7 +218,7 @@ impl DriveConfig {
 }
 
 impl<T: Trig> ControlPeriod<T> {
-    pub fn new(cfg: DriveConfig, tracker: Tracker<T>) -> Result<Self, ConfigError> {
+    pub fn new(cfg: DriveConfig, tracker: Front<T>) -> Result<Self, ConfigError> {
         cfg.validate(tracker.config())?;
         let m = &cfg.motor;
         let kt = 1.5 * m.pole_pairs as f32 * m.flux_wb;
@@ -252,7 +259,7 @@ impl<T: Trig> ControlPeriod<T> {
             ticks: 0,
             until_supervisor: cfg.supervisor_divider,
             cycles: CycleStats::EMPTY,
-            install: None,
+            handoffs_dropped: 0,
             last_xy: (0.0, 0.0),
             last_fault: None,
             last_currents_a: (0.0, 0.0),
@@ -266,14 +273,16 @@ impl<T: Trig> ControlPeriod<T> {
         self.reference = r;
     }
 
-    /// Install coefficients (loaded from flash); the answer goes out with the next
-    /// snapshot.
-    pub fn install(&mut self, i: &Install) {
-        let accepted = self.tracker.set_coefficients(&i.coefficients).is_ok();
-        self.install = Some(InstallAck {
-            generation: i.generation,
-            accepted,
-        });
+    /// The hardware layer could not hand this period's sample over (queue full).
+    pub fn note_handoff_dropped(&mut self) {
+        self.handoffs_dropped = self.handoffs_dropped.saturating_add(1);
+    }
+
+    /// Put an update of the adaptation in force if it is due by the coming period
+    /// (`false`: not yet; offer it again next period).
+    #[inline(always)]
+    pub fn apply(&mut self, u: &InjectionUpdate) -> bool {
+        self.tracker.apply(u)
     }
 
     /// One period.
@@ -335,6 +344,12 @@ impl<T: Trig> ControlPeriod<T> {
         if supervisor_due {
             self.until_supervisor = self.cfg.supervisor_divider;
         }
+        let handoff = self.tracker.take_handoff().map(|mut h| {
+            if supervisor_due {
+                h.flags |= AdaptSample::REPORT;
+            }
+            h
+        });
         let (ia, ib) = currents.unwrap_or((0.0, 0.0));
         self.last_currents_a = (ia, ib);
         let sweeping = matches!(cmd.setpoint, Setpoint::Sweep { .. });
@@ -343,7 +358,7 @@ impl<T: Trig> ControlPeriod<T> {
         }
         self.sweeping = sweeping;
         if self.latched.is_some() || cmd.setpoint == Setpoint::Off {
-            return self.disarm(supervisor_due);
+            return self.disarm(supervisor_due, handoff);
         }
 
         let est = self.tracker.last_estimate();
@@ -423,10 +438,11 @@ impl<T: Trig> ControlPeriod<T> {
             duties,
             enable: true,
             supervisor_due,
+            handoff,
         }
     }
 
-    fn disarm(&mut self, supervisor_due: bool) -> Output {
+    fn disarm(&mut self, supervisor_due: bool, handoff: Option<AdaptSample>) -> Output {
         self.current.reset();
         self.speed.reset();
         self.application.reset();
@@ -435,6 +451,7 @@ impl<T: Trig> ControlPeriod<T> {
             duties: [0.5; 3],
             enable: false,
             supervisor_due,
+            handoff,
         }
     }
 
@@ -480,15 +497,11 @@ impl<T: Trig> ControlPeriod<T> {
         }
     }
 
-    /// The snapshot the supervisor works on; restarts the per-snapshot statistics.
+    /// The snapshot the supervisor works on; restarts the per-snapshot statistics. The
+    /// adaptation's figures are the adaptation's to add ([`Telemetry::merge`]).
     pub fn snapshot(&mut self) -> Telemetry {
         let est = self.tracker.last_estimate();
-        let conv = self.tracker.convergence();
-        let residual_max_rad = conv
-            .residual_rad
-            .iter()
-            .take(conv.len as usize)
-            .fold(0.0f32, |a, b| a.max(*b));
+        let a = AdaptReport::EMPTY;
         let t = Telemetry {
             ticks: self.ticks,
             fault: self.latched,
@@ -496,16 +509,17 @@ impl<T: Trig> ControlPeriod<T> {
             core_faults: self.tracker.faults().bits(),
             omega_rad_s: self.direction * est.omega_rad_s,
             amplitude: est.amplitude,
-            converged: conv.converged,
-            revs: conv.revs_adapted,
-            residual_max_rad,
-            coefficients: self.tracker.coefficients(),
+            converged: a.converged,
+            revs: a.revs,
+            residual_max_rad: a.residual_max_rad,
+            coefficients: a.coefficients,
             sweep: self.sweep.result(),
             corrected_offset_e_rad: self.corrected_offset(),
             currents_ready: self.currents_ready,
             currents_implausible: self.currents_implausible,
-            install: self.install,
+            install: a.install,
             cycles: self.cycles,
+            handoffs_dropped: self.handoffs_dropped,
         };
         self.cycles = CycleStats::EMPTY;
         t
@@ -522,7 +536,7 @@ impl<T: Trig> ControlPeriod<T> {
         ))
     }
 
-    pub fn tracker(&self) -> &Tracker<T> {
+    pub fn tracker(&self) -> &Front<T> {
         &self.tracker
     }
 

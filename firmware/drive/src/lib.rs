@@ -9,6 +9,7 @@
 #![no_std]
 #![deny(unsafe_code)]
 
+pub mod adaptation;
 pub mod adc;
 pub mod align;
 pub mod commissioning;

@@ -159,6 +159,9 @@ pub struct Telemetry {
     pub install: Option<InstallAck>,
     /// The control interrupt's cycles (firmware only; empty on the host).
     pub cycles: CycleStats,
+    /// Samples the adaptation task never got since start (its queue was full: the task
+    /// starved). Zero on a healthy drive; the coefficients then lag, nothing else.
+    pub handoffs_dropped: u32,
 }
 
 /// Where the control period leaves its snapshots for the supervisor (an RTIC shared

@@ -2,12 +2,13 @@
 //! scaling faults, the supervisor's divider, installs.
 
 use calib_record::Alignment;
+use drive::adaptation::AdaptationTask;
 use drive::adc::ChannelScaling;
 use drive::commissioning::{Adaptation, Setpoint};
 use drive::control::{ControlPeriod, CurrentSensing, DriveConfig, MotorConfig, Sample};
 use drive::motion::LoopMode;
 use drive::telemetry::{Command, Fault, Install};
-use mras::{Coefficients, Config, Cplx, PathKind, Tracker};
+use mras::{Coefficients, Config, Cplx, Front, PathKind};
 
 const T: f32 = 50e-6;
 const AMPLITUDE: f32 = 1600.0;
@@ -46,7 +47,7 @@ fn period() -> ControlPeriod<mras::F32Trig> {
         sample_period_s: T,
         ..Config::default()
     };
-    ControlPeriod::new(config(), Tracker::new(core).unwrap()).unwrap()
+    ControlPeriod::new(config(), Front::new(core).unwrap()).unwrap()
 }
 
 /// The sensor at `theta_s_rad` (sensor electrical), currents at zero.
@@ -211,26 +212,44 @@ fn the_supervisor_is_due_every_divider_periods() {
 
 #[test]
 fn installs_are_acknowledged_with_their_generation() {
-    let mut p = period();
     let paths = Config::default();
+    let mut task = AdaptationTask::new(&paths).unwrap();
     let mut good = Coefficients::zeros(paths.paths());
     good.set(PathKind::Offset, Cplx::new(0.05, -0.02));
-    p.install(&Install {
-        generation: 7,
-        coefficients: good,
-    });
-    let ack = p.snapshot().install.unwrap();
+    let mut sent = Vec::new();
+    task.install(
+        &Install {
+            generation: 7,
+            coefficients: good,
+        },
+        |u| sent.push(u),
+    );
+    let ack = task.report().install.unwrap();
     assert_eq!((ack.generation, ack.accepted), (7, true));
-    assert_eq!(p.tracker().coefficients(), good);
-    // Another path list: refused, the coefficients stay.
+    assert_eq!(task.report().coefficients, good);
+    // Every path's term goes to the control period, due at once.
+    assert_eq!(sent.len(), good.len());
+    assert_eq!(sent[0].value, Cplx::new(0.05, -0.02));
+    let mut p = period();
+    assert!(sent.iter().all(|u| p.apply(u)));
+    // Another path list: refused, the coefficients stay, nothing is sent.
     let other = Coefficients::zeros(&[PathKind::Offset]);
-    p.install(&Install {
-        generation: 8,
-        coefficients: other,
-    });
-    let ack = p.snapshot().install.unwrap();
+    sent.clear();
+    task.install(
+        &Install {
+            generation: 8,
+            coefficients: other,
+        },
+        |u| sent.push(u),
+    );
+    let ack = task.report().install.unwrap();
     assert_eq!((ack.generation, ack.accepted), (8, false));
-    assert_eq!(p.tracker().coefficients(), good);
+    assert_eq!(task.adapter().coefficients(), good);
+    assert!(sent.is_empty());
+    // The report reaches the supervisor's snapshot.
+    let mut t = p.snapshot();
+    t.merge(task.report());
+    assert_eq!(t.install.map(|a| a.generation), Some(8));
 }
 
 #[test]
@@ -260,16 +279,16 @@ fn configurations_are_checked_by_field() {
     };
     let mut c = config();
     c.motor.pole_pairs = 3; // N = 2 does not divide 3
-    let e = ControlPeriod::new(c, Tracker::new(core).unwrap()).unwrap_err();
+    let e = ControlPeriod::new(c, Front::new(core).unwrap()).unwrap_err();
     assert_eq!(e.field, "motor.pole_pairs");
     let mut c = config();
     c.control_period_s = 25e-6;
-    let e = ControlPeriod::new(c, Tracker::new(core).unwrap()).unwrap_err();
+    let e = ControlPeriod::new(c, Front::new(core).unwrap()).unwrap_err();
     assert_eq!(e.field, "drive.control_period_s");
     let mut c = config();
     c.current.amps_per_count = f32::NAN;
-    assert!(ControlPeriod::new(c, Tracker::new(core).unwrap()).is_err());
+    assert!(ControlPeriod::new(c, Front::new(core).unwrap()).is_err());
     let mut c = config();
     c.supervisor_divider = 0;
-    assert!(ControlPeriod::new(c, Tracker::new(core).unwrap()).is_err());
+    assert!(ControlPeriod::new(c, Front::new(core).unwrap()).is_err());
 }

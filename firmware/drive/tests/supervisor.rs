@@ -84,6 +84,7 @@ fn telemetry(ticks: u32) -> Telemetry {
         currents_implausible: false,
         install: None,
         cycles: CycleStats::EMPTY,
+        handoffs_dropped: 0,
     }
 }
 

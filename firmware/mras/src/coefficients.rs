@@ -26,6 +26,13 @@ pub struct Coefficients {
 }
 
 impl Coefficients {
+    /// No paths: what a snapshot carries before the adaptation has reported.
+    pub const EMPTY: Self = Self {
+        kinds: [PathKind::Offset; MAX_PATHS],
+        values: [Cplx::ZERO; MAX_PATHS],
+        len: 0,
+    };
+
     /// All-zero coefficients for a path list (at most [`MAX_PATHS`] are kept).
     pub fn zeros(paths: &[PathKind]) -> Self {
         let mut kinds = [PathKind::Offset; MAX_PATHS];

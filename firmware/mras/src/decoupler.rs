@@ -89,7 +89,7 @@ pub(crate) fn coef_delta(kind: PathKind, g: Cplx, scale: f32) -> Cplx {
 /// The decoupling vector's terms by kind (eq. 9, 16), `coef + coef_p` of each path,
 /// refreshed when a path updates: the per-sample sum is then straight-line code.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-struct Injection {
+pub(crate) struct Injection {
     /// Offset path (zero if none).
     offset: Cplx,
     /// C + jD of the amplitude/quadrature path (zero if none).
@@ -111,7 +111,7 @@ const OFFSET_SLOT: u8 = u8::MAX;
 const CD_SLOT: u8 = u8::MAX - 1;
 
 impl Injection {
-    fn new(paths: &[PathKind]) -> Self {
+    pub(crate) fn new(paths: &[PathKind]) -> Self {
         let mut inj = Self::default();
         for (i, p) in paths.iter().enumerate() {
             inj.slot_of[i] = match *p {
@@ -130,7 +130,7 @@ impl Injection {
         inj
     }
 
-    fn set(&mut self, path: usize, coef: Cplx) {
+    pub(crate) fn set(&mut self, path: usize, coef: Cplx) {
         match self.slot_of.get(path).copied() {
             Some(OFFSET_SLOT) => self.offset = coef,
             Some(CD_SLOT) => self.cd = coef,
@@ -141,6 +141,18 @@ impl Injection {
             }
             None => {}
         }
+    }
+
+    /// The decoupling vector added to the measured vector before the cross product.
+    ///
+    /// Evaluated at θ̂s + `lag_rad` to first order, `D(θ̂s) + lag·dD/dθ̂s`, where the
+    /// caller's lag is the slow part of ε (≈ θs - θ̂s): when the observer lags the
+    /// rotor (a load step the feedforward does not know, until its disturbance estimate
+    /// catches up) the correction still lands at the sensor's angle.
+    #[inline(always)]
+    pub(crate) fn decoupling_vector(&self, pw: &Powers, lag_rad: f32) -> Cplx {
+        let (d, slope) = self.vector(pw);
+        d + slope.scale(lag_rad)
     }
 
     /// `D(θ̂s)`: offset + (C·cos θ̂s + D·sin θ̂s on X) + Σ d_h·e^{j h θ̂s}, and its
@@ -171,23 +183,57 @@ impl Injection {
     }
 }
 
-/// What the bank needs from one control period.
-pub(crate) struct Sample<'a> {
+/// One accepted control period as the adaptation needs it: what the control interrupt
+/// hands to the adaptation (a lower-priority task in the firmware, see [`crate::Adapter`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AdaptSample {
+    /// The front's period count at this sample (schedules the resulting update).
+    pub index: u32,
     /// ε, sensor electrical radians (normalised by |Zd|).
     pub eps_e_rad: f32,
-    /// `pw[i] = e^{j i θ̂s}` at the prior estimate.
-    pub pw: &'a Powers,
+    /// `e^{jθ̂s}` at the prior estimate: the reference the correlation demodulates with.
+    pub u: Cplx,
     /// ω̂ as output by the observer (rad/s mechanical).
     pub omega_rad_s: f32,
     /// |Zd| of this sample.
     pub amplitude: f32,
     pub disturbance_nm: f32,
     pub torque_ff_nm: f32,
-    /// No loss of lock latched.
-    pub locked: bool,
-    /// Manual freeze: measure the residual but do not adapt.
-    pub frozen: bool,
+    /// |Z| at a (re-)acquisition ([`AdaptSample::RESTART`]): the smoothing restarts there.
+    pub restart_amplitude: f32,
+    pub flags: u8,
 }
+
+impl AdaptSample {
+    /// No loss of lock latched.
+    pub const LOCKED: u8 = 1;
+    /// Manual freeze: measure the residual but do not adapt.
+    pub const FROZEN: u8 = 2;
+    /// The observer (re-)acquired on this sample: restart smoothing and blocks first.
+    pub const RESTART: u8 = 4;
+    /// Publish the convergence report after this sample (the supervisor's snapshot).
+    pub const REPORT: u8 = 8;
+
+    #[inline(always)]
+    pub fn has(&self, flag: u8) -> bool {
+        self.flags & flag != 0
+    }
+}
+
+/// A new decoupling-vector term for one path, `coef + coef_p` (path order), and the
+/// front's period from which it is in force: a fixed latency after the sample that
+/// completed the path's block, so that where the adaptation runs (inline on the host,
+/// in a task on the target) does not change a single bit of the result.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct InjectionUpdate {
+    pub apply_at: u32,
+    pub path: u8,
+    pub value: Cplx,
+}
+
+/// Control periods between the sample that completes a block and the period its update
+/// is in force: the adaptation task's deadline (0.2 ms at 20 kHz).
+pub const UPDATE_LATENCY_PERIODS: u32 = 4;
 
 /// The adaptation law with its constants folded for the control path.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -301,8 +347,10 @@ impl Smoothed {
 }
 
 /// The paths, adapted in turn: every sample adds `ε·e^{-j m θ̂s}` to each path's block
-/// sum (two multiply-adds a path), and one path per sample, round-robin, turns its block
-/// into an update (compensation by 1/H, filtering, integration over the block's angle).
+/// sum (two multiply-adds a path), and every `stride` samples one path, round-robin,
+/// turns its block into an update (compensation by 1/H, filtering, integration over the
+/// block's angle). It runs on [`AdaptSample`]s, off the control interrupt on the target;
+/// the decoupling vector's terms it produces go back as [`InjectionUpdate`]s.
 /// The law is integrated over angle, so updating a path with its block every `len`
 /// samples gives the dynamics of updating it every sample, at a fraction of the cost
 /// (docs/performance.md).
@@ -315,7 +363,9 @@ pub(crate) struct PathBank {
     m: [u8; MAX_PATHS],
     /// Σ ε·e^{-j m θ̂s} of each path over the samples since its last update (its block).
     acc: [Cplx; MAX_PATHS],
-    inject: Injection,
+    /// `pw[i] = e^{j i θ̂s}` of the sample in work, up to the largest m.
+    pw: Powers,
+    max_m: usize,
     /// m·N as f32: the temporal frequency of the path's error is m·N·ω̂.
     m_n: [f32; MAX_PATHS],
     /// Samples between two path updates, and per path block (`stride · len`).
@@ -349,6 +399,11 @@ impl PathBank {
     pub fn new(cfg: &Config, gains: &ObserverGains) -> Self {
         let paths = cfg.paths();
         let mut m = [0; MAX_PATHS];
+        let max_m = paths
+            .iter()
+            .map(|p| p.error_harmonic() as usize)
+            .max()
+            .unwrap_or(0);
         let mut m_n = [0.0; MAX_PATHS];
         for (i, p) in paths.iter().enumerate() {
             m[i] = p.error_harmonic();
@@ -362,7 +417,8 @@ impl PathBank {
             len: paths.len(),
             m,
             acc: [Cplx::ZERO; MAX_PATHS],
-            inject: Injection::new(paths),
+            pw: [Cplx::ONE; 32],
+            max_m: max_m.min(POWER_MASK),
             m_n,
             stride,
             block,
@@ -401,28 +457,15 @@ impl PathBank {
         self.open_run = 0;
     }
 
-    /// The decoupling vector added to the measured vector before the cross product.
-    ///
-    /// Evaluated at θ̂s + `lag_rad` to first order, `D(θ̂s) + lag·dD/dθ̂s`, where the
-    /// caller's lag is the slow part of ε (≈ θs - θ̂s): when the observer lags the
-    /// rotor (a load step the feedforward does not know, until its disturbance estimate
-    /// catches up) the correction still lands at the sensor's angle.
-    #[inline(always)]
-    pub fn decoupling_vector(&self, pw: &Powers, lag_rad: f32) -> Cplx {
-        let (d, slope) = self.inject.vector(pw);
-        d + slope.scale(lag_rad)
-    }
-
     /// Start from these coefficients (path order; e.g. from flash): fresh path states,
-    /// revolution count and blocks, and the decoupling vector re-read.
+    /// revolution count and blocks.
     pub fn load(&mut self, coefs: impl Iterator<Item = Cplx>) {
-        for (i, (s, v)) in self.state.iter_mut().zip(coefs).enumerate() {
+        for (s, v) in self.state.iter_mut().zip(coefs) {
             *s = PathState {
                 coef: v,
                 coef_at_rev_start: v,
                 ..Default::default()
             };
-            self.inject.set(i, v);
         }
         self.revs_adapted = 0;
         self.angle_this_rev_rad = 0.0;
@@ -430,13 +473,18 @@ impl PathBank {
     }
 
     /// One sample: gate and accumulate; every `stride` samples also smooth and update
-    /// one path. Returns whether the adaptation is running (gates open, not frozen).
+    /// one path. Returns whether the adaptation is running (gates open, not frozen), and
+    /// the path's new decoupling-vector term when one was updated.
     #[inline(always)]
-    pub fn step(&mut self, x: &Sample) -> bool {
+    pub fn step(&mut self, x: &AdaptSample) -> (bool, Option<InjectionUpdate>) {
+        if x.has(AdaptSample::RESTART) {
+            self.restart(x.restart_amplitude);
+        }
+        self.update_powers(x.u);
         let k = &self.k;
         self.omega_sum += x.omega_rad_s;
         self.amplitude_sum += x.amplitude;
-        let open = x.locked
+        let open = x.has(AdaptSample::LOCKED)
             && self.speed_ok
             && x.omega_rad_s >= self.omega_window[0]
             && x.omega_rad_s <= self.omega_window[1]
@@ -446,7 +494,7 @@ impl PathBank {
         if open {
             let eps = x.eps_e_rad;
             for (a, &m) in self.acc.iter_mut().zip(&self.m).take(self.len) {
-                let p = x.pw[m as usize & POWER_MASK];
+                let p = self.pw[m as usize & POWER_MASK];
                 a.re += p.re * eps;
                 a.im -= p.im * eps;
             }
@@ -454,20 +502,34 @@ impl PathBank {
         } else {
             self.open_run = 0;
         }
-        let adapting = open && !x.frozen;
+        let adapting = open && !x.has(AdaptSample::FROZEN);
         self.adapted_samples += adapting as u32;
         self.phase += 1;
+        let mut update = None;
         if self.phase >= self.stride {
             self.phase = 0;
-            self.tick(x);
+            update = self.tick(x);
         }
-        adapting
+        (adapting, update)
+    }
+
+    /// `pw[i] = u^i` up to the largest error harmonic, by complex multiplication.
+    #[inline(always)]
+    fn update_powers(&mut self, u: Cplx) {
+        self.pw[1] = u;
+        if let Some(higher) = self.pw.get_mut(2..=self.max_m) {
+            let mut p = u;
+            for v in higher {
+                p = p * u;
+                *v = p;
+            }
+        }
     }
 
     /// Every `stride` samples: smooth ω̂ and |Zd| with their means over the stride,
     /// re-derive the speed gates, count revolutions, update the next path.
     #[inline(always)]
-    fn tick(&mut self, x: &Sample) {
+    fn tick(&mut self, x: &AdaptSample) -> Option<InjectionUpdate> {
         let k = &self.k;
         let omega_mean = self.omega_sum * self.inv_stride;
         let amplitude_mean = self.amplitude_sum * self.inv_stride;
@@ -495,25 +557,22 @@ impl PathBank {
             }
             self.revs_adapted = self.revs_adapted.saturating_add(1);
         }
-        if self.len > 0 {
-            let i = self.slot;
-            self.slot = if i + 1 >= self.len { 0 } else { i + 1 };
-            self.update_path(i, x, d_theta_e * self.block as f32);
+        if self.len == 0 {
+            return None;
         }
+        let i = self.slot;
+        self.slot = if i + 1 >= self.len { 0 } else { i + 1 };
+        self.adapt_path(i, x, d_theta_e * self.block as f32);
+        self.state.get(i).map(|s| InjectionUpdate {
+            apply_at: x.index.wrapping_add(UPDATE_LATENCY_PERIODS),
+            path: i as u8,
+            value: s.coef + s.coef_p,
+        })
     }
 
     /// Turn path `i`'s block sum into an update; `block_rad` is the block's angle.
     #[inline(always)]
-    fn update_path(&mut self, i: usize, x: &Sample, block_rad: f32) {
-        self.adapt_path(i, x, block_rad);
-        if let Some(s) = self.state.get(i) {
-            let d = s.coef + s.coef_p;
-            self.inject.set(i, d);
-        }
-    }
-
-    #[inline(always)]
-    fn adapt_path(&mut self, i: usize, x: &Sample, block_rad: f32) {
+    fn adapt_path(&mut self, i: usize, x: &AdaptSample, block_rad: f32) {
         let k = self.k;
         let full = self.open_run >= self.block;
         let (Some(s), Some(&kind), Some(&m_n), Some(acc)) = (
@@ -556,7 +615,7 @@ impl PathBank {
             s.g_filtered = s.g_filtered + (g_est - s.g_filtered).scale(g_alpha);
             s.residual = s.residual + (g_est - s.residual).scale(r_alpha);
         }
-        if x.frozen {
+        if x.has(AdaptSample::FROZEN) {
             s.coef_p = Cplx::ZERO;
             return;
         }

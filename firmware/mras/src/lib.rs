@@ -13,6 +13,7 @@
 #![no_std]
 #![deny(unsafe_code)]
 
+mod adapter;
 pub mod closed_form;
 mod coefficients;
 mod complex;
@@ -24,12 +25,14 @@ pub mod sim;
 mod tracker;
 mod trig;
 
+pub use adapter::Adapter;
 pub use coefficients::{Coefficients, CoefficientsError, Convergence, PaperForm};
 pub use complex::Cplx;
 pub use config::{
     AdaptationLaw, Config, ConfigError, ConvergenceConfig, Gates, HealthConfig, InputScaling,
     ObserverConfig, PathKind, MAX_PATHS,
 };
+pub use decoupler::{AdaptSample, InjectionUpdate, UPDATE_LATENCY_PERIODS};
 pub use health::{Fault, Faults};
-pub use tracker::{Estimate, Tracker};
+pub use tracker::{Estimate, Front, Tracker};
 pub use trig::{inv_sqrt_f32, sin_cos_f32, sqrt_f32, F32Trig, LibmTrig, Trig};

@@ -1,13 +1,16 @@
-//! The core's one entry point: one [`Tracker::step`] per control period.
+//! The core per control period: [`Front::step`] (observer, decoupling vector, health)
+//! in the control interrupt, [`Adapter::step`] (the MRAS adaptation) on the samples it
+//! hands over, and [`Tracker`], both run inline for the host.
 
+use crate::adapter::Adapter;
 use crate::coefficients::{CoefficientsError, Convergence};
 use crate::complex::Cplx;
 use crate::config::{Config, ConfigError};
-use crate::decoupler::{PathBank, Powers, Sample};
+use crate::decoupler::{AdaptSample, Injection, InjectionUpdate, Powers};
 use crate::health::{Fault, Faults};
 use crate::observer::{DiscreteGains, ObserverGains, ObserverState};
 use crate::trig::{inv_sqrt_f32, sin_cos_f32, F32Trig, Trig};
-use crate::{Coefficients, MAX_PATHS};
+use crate::Coefficients;
 use core::f32::consts::TAU;
 
 /// What the observer knows after one sample.
@@ -27,7 +30,8 @@ pub struct Estimate {
     pub amplitude: f32,
     /// ε: angle between the decoupled vector and the reference (rad, sensor electrical).
     pub epsilon_rad: f32,
-    /// Whether any path adapted on this sample.
+    /// Whether any path adapted on this sample ([`Tracker`] only: the [`Front`] does
+    /// not know, its adaptation runs elsewhere).
     pub adapting: bool,
     /// The decoupled vector Zd = Z + D(θ̂s) (scaled units), for plots of the corrected
     /// sensor image (paper Fig. 8a).
@@ -41,9 +45,11 @@ impl Estimate {
     }
 }
 
-/// Observer + MRAS decoupler + health monitor.
+/// The part of the core that runs on every sample: observer, decoupling vector and health
+/// monitor. Every accepted sample leaves an [`AdaptSample`] for the [`Adapter`], whose
+/// [`InjectionUpdate`]s come back through [`Front::apply`].
 #[derive(Clone, Debug)]
-pub struct Tracker<T: Trig = F32Trig> {
+pub struct Front<T: Trig = F32Trig> {
     cfg: Config,
     trig: T,
     gains: ObserverGains,
@@ -54,7 +60,14 @@ pub struct Tracker<T: Trig = F32Trig> {
     /// `obs.periods` split into (sensor period within the turn, turns); refreshed only
     /// when the period count changes, to keep integer division out of most samples.
     mech: (i32, i32),
-    bank: PathBank,
+    /// The decoupling vector's terms (eq. 9, 16), as the adaptation last updated them.
+    inject: Injection,
+    /// Periods stepped (wrapping): the clock of [`InjectionUpdate::apply_at`].
+    index: u32,
+    /// This period's sample for the adaptation, if it was accepted.
+    handoff: Option<AdaptSample>,
+    /// |Z| of the acquisition, handed over with the first sample after it.
+    restart: Option<f32>,
     acquired: bool,
     frozen: bool,
     faults: Faults,
@@ -76,15 +89,15 @@ const LAG_TAU_S: f32 = 2.0e-3;
 /// Beyond this the first-order placement is not trusted (acquisition, loss of lock).
 const MAX_LAG_RAD: f32 = 0.2;
 
-impl Tracker<F32Trig> {
-    /// A tracker with the portable trigonometry.
+impl Front<F32Trig> {
+    /// A front with the portable trigonometry.
     pub fn new(cfg: Config) -> Result<Self, ConfigError> {
         Self::with_trig(cfg, F32Trig)
     }
 }
 
-impl<T: Trig> Tracker<T> {
-    /// A tracker with a given trigonometry implementation (e.g. the CORDIC).
+impl<T: Trig> Front<T> {
+    /// A front with a given trigonometry implementation (e.g. the CORDIC).
     pub fn with_trig(cfg: Config, trig: T) -> Result<Self, ConfigError> {
         cfg.validate()?;
         let gains = ObserverGains::from_eigenvalues(
@@ -92,7 +105,10 @@ impl<T: Trig> Tracker<T> {
             cfg.observer.inertia_kg_m2,
         );
         Ok(Self {
-            bank: PathBank::new(&cfg, &gains),
+            inject: Injection::new(cfg.paths()),
+            index: 0,
+            handoff: None,
+            restart: None,
             discrete: DiscreteGains::new(&gains, cfg.sample_period_s, cfg.sensor_periods),
             gains,
             obs: ObserverState::default(),
@@ -134,7 +150,16 @@ impl<T: Trig> Tracker<T> {
     /// On `Err` for bad input (non-finite, |Z| out of band, railed ADC) nothing but the
     /// latched fault set changes. On `Err(LossOfLock)` the observer has still advanced
     /// (so that it can re-acquire) but adaptation is suspended until [`Self::clear_faults`].
+    ///
+    /// An accepted sample (`Ok`, or `Err(LossOfLock)`) leaves its [`AdaptSample`] for
+    /// [`Self::take_handoff`]. Updates due by this period must have been applied first.
     pub fn step(&mut self, x_raw: f32, y_raw: f32, torque_ff_nm: f32) -> Result<Estimate, Fault> {
+        self.index = self.index.wrapping_add(1);
+        self.handoff = None;
+        self.sample(x_raw, y_raw, torque_ff_nm)
+    }
+
+    fn sample(&mut self, x_raw: f32, y_raw: f32, torque_ff_nm: f32) -> Result<Estimate, Fault> {
         let inp = &self.cfg.input;
         // One comparison each rejects NaN, ±inf and railed values; which of them it was
         // is sorted out on the rejecting path only.
@@ -165,7 +190,7 @@ impl<T: Trig> Tracker<T> {
         if !self.acquired {
             // Once: start at the measured angle, then run this sample as any other.
             self.acquire(z);
-            return self.step(x_raw, y_raw, torque_ff_nm);
+            return self.sample(x_raw, y_raw, torque_ff_nm);
         }
 
         // Reference unit vector and its powers at the prior estimate θ̂s.
@@ -173,7 +198,7 @@ impl<T: Trig> Tracker<T> {
         self.update_powers(Cplx::new(c, s));
 
         // Decoupled vector and the cross-product error, normalised by |Zd|.
-        let zd = z + self.bank.decoupling_vector(&self.pw, self.lag_rad);
+        let zd = z + self.inject.decoupling_vector(&self.pw, self.lag_rad);
         let zd2 = zd.norm_sqr();
         if zd2 < 0.25 * self.amplitude2_band[0] {
             // Coefficients plus input cancel the vector: nothing to track on.
@@ -202,18 +227,29 @@ impl<T: Trig> Tracker<T> {
         }
         let amplitude = zd_abs;
         let o = &self.obs;
-        let adapting = self.bank.step(&Sample {
+        let flags = if self.faults.contains(Fault::LossOfLock) {
+            0
+        } else {
+            AdaptSample::LOCKED
+        } | if self.frozen { AdaptSample::FROZEN } else { 0 }
+            | if self.restart.is_some() {
+                AdaptSample::RESTART
+            } else {
+                0
+            };
+        self.handoff = Some(AdaptSample {
+            index: self.index,
             eps_e_rad,
-            pw: &self.pw,
+            u: Cplx::new(c, s),
             omega_rad_s: o.omega_rad_s,
             amplitude,
             disturbance_nm: o.disturbance_nm,
             torque_ff_nm,
-            locked: !self.faults.contains(Fault::LossOfLock),
-            frozen: self.frozen,
+            restart_amplitude: self.restart.take().unwrap_or(0.0),
+            flags,
         });
 
-        let mut est = self.estimate_of(&self.obs, amplitude, eps_e_rad, adapting);
+        let mut est = self.estimate_of(&self.obs, amplitude, eps_e_rad, false);
         est.decoupled = zd;
         if next.periods != self.obs.periods {
             self.mech = Self::split_periods(next.periods, n);
@@ -263,7 +299,7 @@ impl<T: Trig> Tracker<T> {
         };
         self.mech = (0, 0);
         self.lag_rad = 0.0;
-        self.bank.restart(z.abs());
+        self.restart = Some(z.abs());
         self.acquired = true;
     }
 
@@ -326,56 +362,166 @@ impl<T: Trig> Tracker<T> {
         self.faults = Faults::default();
     }
 
-    /// Snapshot of the persistent coefficients (proportional parts excluded).
-    pub fn coefficients(&self) -> Coefficients {
-        let mut c = Coefficients::zeros(self.cfg.paths());
-        // `take`, not `[..len]`: no panic path (the snapshot is taken in the control
-        // interrupt).
-        for (v, s) in c
-            .values
-            .iter_mut()
-            .zip(self.bank.state.iter().take(self.bank.len))
-        {
-            *v = s.coef;
-        }
-        c
+    /// This period's sample for the adaptation (`None` if it was rejected).
+    pub fn take_handoff(&mut self) -> Option<AdaptSample> {
+        self.handoff.take()
     }
 
-    /// Load coefficients (e.g. from flash). Refused unless the paths match the
-    /// configuration exactly and every value is finite and within the coefficient limit.
+    /// The period count of the last [`Self::step`].
+    pub fn index(&self) -> u32 {
+        self.index
+    }
+
+    /// Put an update in force if it is due at the coming period (`false`: not yet, keep
+    /// it). A late one (its task missed the deadline) is applied at once.
+    #[inline(always)]
+    pub fn apply(&mut self, u: &InjectionUpdate) -> bool {
+        // Wrapping comparison: due when apply_at - (index + 1) is "not positive".
+        let due = (u.apply_at.wrapping_sub(self.index.wrapping_add(1)) as i32) <= 0;
+        if due {
+            self.inject.set(u.path as usize, u.value);
+        }
+        due
+    }
+
+    /// Every path's decoupling-vector term at once (coefficients loaded from flash, which
+    /// the [`Adapter`] has validated).
+    pub fn load_injection(&mut self, c: &Coefficients) {
+        for (i, (_, v)) in c.iter().enumerate() {
+            self.inject.set(i, v);
+        }
+    }
+}
+
+/// [`Front`] and [`Adapter`] run inline, in the order the firmware runs them: the
+/// adaptation of a sample right after it, its update in force
+/// [`crate::UPDATE_LATENCY_PERIODS`] later. Bit for bit what the firmware's control
+/// interrupt and adaptation task compute, with one call per period.
+#[derive(Clone, Debug)]
+pub struct Tracker<T: Trig = F32Trig> {
+    front: Front<T>,
+    adapter: Adapter,
+    /// Updates not yet due, in order (at most one per stride, within the latency).
+    pending: heapless::Deque<InjectionUpdate, { crate::MAX_PATHS }>,
+    adapting: bool,
+}
+
+impl Tracker<F32Trig> {
+    /// A tracker with the portable trigonometry.
+    pub fn new(cfg: Config) -> Result<Self, ConfigError> {
+        Self::with_trig(cfg, F32Trig)
+    }
+}
+
+impl<T: Trig> Tracker<T> {
+    /// A tracker with a given trigonometry implementation (e.g. the CORDIC).
+    pub fn with_trig(cfg: Config, trig: T) -> Result<Self, ConfigError> {
+        Ok(Self {
+            adapter: Adapter::new(&cfg)?,
+            front: Front::with_trig(cfg, trig)?,
+            pending: heapless::Deque::new(),
+            adapting: false,
+        })
+    }
+
+    /// One control period: raw ADC values and the torque feedforward T* (N·m); see
+    /// [`Front::step`].
+    pub fn step(&mut self, x_raw: f32, y_raw: f32, torque_ff_nm: f32) -> Result<Estimate, Fault> {
+        while let Some(u) = self.pending.front() {
+            if !self.front.apply(u) {
+                break;
+            }
+            self.pending.pop_front();
+        }
+        let result = self.front.step(x_raw, y_raw, torque_ff_nm);
+        // `adapting` stays that of the last accepted sample, as the estimate does.
+        if let Some(s) = self.front.take_handoff() {
+            let (adapting, update) = self.adapter.step(&s);
+            self.adapting = adapting;
+            if let Some(u) = update {
+                if let Err(u) = self.pending.push_back(u) {
+                    // Cannot happen (one update per stride, latency < capacity strides);
+                    // apply rather than lose it.
+                    self.front.apply(&InjectionUpdate {
+                        apply_at: self.front.index(),
+                        ..u
+                    });
+                }
+            }
+        }
+        result.map(|e| Estimate {
+            adapting: self.adapting,
+            ..e
+        })
+    }
+
+    pub fn front(&self) -> &Front<T> {
+        &self.front
+    }
+
+    pub fn adapter(&self) -> &Adapter {
+        &self.adapter
+    }
+
+    pub fn config(&self) -> &Config {
+        self.front.config()
+    }
+
+    pub fn gains(&self) -> &ObserverGains {
+        self.front.gains()
+    }
+
+    pub fn trig(&self) -> &T {
+        self.front.trig()
+    }
+
+    pub fn last_estimate(&self) -> Estimate {
+        Estimate {
+            adapting: self.adapting,
+            ..self.front.last_estimate()
+        }
+    }
+
+    pub fn observer_state(&self) -> ObserverState {
+        self.front.observer_state()
+    }
+
+    pub fn reset_observer(&mut self) {
+        self.front.reset_observer();
+    }
+
+    pub fn set_frozen(&mut self, frozen: bool) {
+        self.front.set_frozen(frozen);
+    }
+
+    pub fn is_frozen(&self) -> bool {
+        self.front.is_frozen()
+    }
+
+    pub fn faults(&self) -> Faults {
+        self.front.faults()
+    }
+
+    pub fn clear_faults(&mut self) {
+        self.front.clear_faults();
+    }
+
+    /// Snapshot of the persistent coefficients (proportional parts excluded).
+    pub fn coefficients(&self) -> Coefficients {
+        self.adapter.coefficients()
+    }
+
+    /// Load coefficients (e.g. from flash), validated by [`Adapter::set_coefficients`];
+    /// the updates still pending are dropped.
     pub fn set_coefficients(&mut self, c: &Coefficients) -> Result<(), CoefficientsError> {
-        if !c.kinds.iter().take(c.len()).eq(self.cfg.paths().iter()) {
-            return Err(CoefficientsError::PathMismatch);
-        }
-        let limit = self.cfg.health.coefficient_limit * self.cfg.health.amplitude_max;
-        if c.iter().any(|(_, v)| !v.is_finite() || v.abs() > limit) {
-            return Err(CoefficientsError::OutOfRange);
-        }
-        self.bank.load(c.iter().map(|(_, v)| v));
+        self.adapter.set_coefficients(c)?;
+        self.pending.clear();
+        self.front.load_injection(c);
         Ok(())
     }
 
     /// Convergence measures and the `converged` judgement.
     pub fn convergence(&self) -> Convergence {
-        let cc = &self.cfg.convergence;
-        let mut out = Convergence {
-            residual_rad: [0.0; MAX_PATHS],
-            change_per_rev: [0.0; MAX_PATHS],
-            len: self.bank.len as u8,
-            revs_adapted: self.bank.revs_adapted,
-            converged: false,
-        };
-        let mut all_small = true;
-        let per_path = out
-            .residual_rad
-            .iter_mut()
-            .zip(out.change_per_rev.iter_mut());
-        for (s, (residual, change)) in self.bank.state.iter().take(self.bank.len).zip(per_path) {
-            *residual = s.residual.abs();
-            *change = s.change_last_rev;
-            all_small &= *residual < cc.residual_rad && *change < cc.change_per_rev;
-        }
-        out.converged = all_small && self.bank.revs_adapted >= cc.min_revs as u32;
-        out
+        self.adapter.convergence()
     }
 }

@@ -12,6 +12,8 @@ use cortex_m_rt::entry;
 use cortex_m_semihosting::debug;
 #[cfg(not(cycles_mode))]
 use cortex_m_semihosting::hio;
+#[cfg(cycles_mode)]
+use mras::{Adapter, Front, InjectionUpdate};
 use mras::{Config, Tracker};
 
 static VECTOR: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/vector.bin"));
@@ -46,8 +48,8 @@ const WARMUP_STEPS: usize = 4000;
 #[cfg(cycles_mode)]
 const MEASURED_STEPS: usize = 64;
 
-/// Markers around each measured `Tracker::step`: the instruction trace counts what runs
-/// between a call to `mras_step_begin` and the next call to `mras_step_end`.
+/// Markers around each measured step: the instruction trace counts what runs between a
+/// call to `mras_step_begin` and the next call to `mras_step_end`.
 #[cfg(cycles_mode)]
 #[inline(never)]
 #[no_mangle]
@@ -67,6 +69,9 @@ pub extern "C" fn mras_step_end() {
 fn main() -> ! {
     // Prefixes of the core's default bank (offset, C/D, h4, h5, ...): observer only, + offset
     // and C/D, + two harmonic paths (the measured configurations), then all of it.
+    // Per configuration: `MEASURED_STEPS` of the front (what runs in the control
+    // interrupt), then as many of the adapter (the adaptation task), as the firmware
+    // drives them.
     let default = Config::default();
     let all = default.paths();
     for (config, paths) in [0usize, 2, 4, all.len()].into_iter().enumerate() {
@@ -74,19 +79,46 @@ fn main() -> ! {
         if cfg.set_paths(&all[..paths]).is_err() {
             exit(debug::EXIT_FAILURE);
         }
-        let Ok(mut tracker) = Tracker::new(cfg) else {
+        let (Ok(mut front), Ok(mut adapter)) = (Front::new(cfg), Adapter::new(&cfg)) else {
             exit(debug::EXIT_FAILURE)
         };
+        let mut pending = heapless::Deque::<InjectionUpdate, { mras::MAX_PATHS }>::new();
         let records = VECTOR.chunks_exact(mras::sim::VECTOR_RECORD_BYTES);
-        for (k, rec) in records.take(WARMUP_STEPS + MEASURED_STEPS).enumerate() {
+        for (k, rec) in records.take(WARMUP_STEPS + 2 * MEASURED_STEPS).enumerate() {
             let (x, y, tq) = mras::sim::decode_vector_record(rec);
-            if k >= WARMUP_STEPS {
-                mras_step_begin(config as u32);
-                let r = tracker.step(x, y, tq);
+            while let Some(u) = pending.front() {
+                if !front.apply(u) {
+                    break;
+                }
+                pending.pop_front();
+            }
+            let measure_front = (WARMUP_STEPS..WARMUP_STEPS + MEASURED_STEPS).contains(&k);
+            let measure_adapter = k >= WARMUP_STEPS + MEASURED_STEPS;
+            if measure_front {
+                mras_step_begin(2 * config as u32);
+            }
+            let r = front.step(x, y, tq);
+            let handoff = front.take_handoff();
+            if measure_front {
                 mras_step_end();
-                core::hint::black_box(r.is_ok());
-            } else {
-                let _ = tracker.step(x, y, tq);
+            }
+            core::hint::black_box(r.is_ok());
+            if let Some(s) = handoff {
+                if measure_adapter {
+                    mras_step_begin(2 * config as u32 + 1);
+                }
+                let (_, update) = adapter.step(&s);
+                if measure_adapter {
+                    mras_step_end();
+                }
+                if let Some(u) = update {
+                    if pending.push_back(u).is_err() {
+                        exit(debug::EXIT_FAILURE);
+                    }
+                }
+            } else if measure_adapter {
+                // Every measured step must be a sample the adapter runs on.
+                exit(debug::EXIT_FAILURE);
             }
         }
     }

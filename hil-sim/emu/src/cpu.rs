@@ -583,8 +583,10 @@ fn on_block(uc: &mut Unicorn<'_, Machine>, addr: u32, size: u32) {
                 stop |= prio < exec;
             }
         }
-        // The control interrupt masked by PRIMASK/BASEPRI (not by running itself).
-        let masked = primask || (basepri != 0 && (basepri as i16 & 0xF0) <= m.control_priority());
+        // The control interrupt masked by PRIMASK/BASEPRI (not by running itself), once
+        // the window is open: init runs masked by design.
+        let masked = m.stats.armed
+            && (primask || (basepri != 0 && (basepri as i16 & 0xF0) <= m.control_priority()));
         match (masked, m.stats.masked_since) {
             (true, None) => m.stats.masked_since = Some(m.instrs - n),
             (false, Some(t0)) => {

@@ -40,7 +40,7 @@ use drive::control::ControlPeriod;
 use drive::motion::LoopMode;
 use drive::telemetry::Command;
 use mras::sim::{wrap_pi, SpatialError};
-use mras::{Config, Estimate, Fault, PathKind, Tracker};
+use mras::{Config, Estimate, Fault, Front, PathKind, Tracker};
 use std::f64::consts::TAU;
 
 pub use oracle::oracle_angle_rad;
@@ -445,7 +445,7 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult, String
     let dcfg = rig::drive_config(&plant, &control, j, SAMPLE_PERIOD_S)?;
     let period = ControlPeriod::new(
         dcfg,
-        Tracker::new(tracker_config(Method::Ours, j)?).map_err(|e| e.to_string())?,
+        Front::new(tracker_config(Method::Ours, j)?).map_err(|e| e.to_string())?,
     )
     .map_err(|e| e.to_string())?;
     let mut drive = Rig::new(plant, period, None);
@@ -519,9 +519,13 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult, String
                 // Revolutions travelled, not net: a reversal must not count backwards.
                 let last = theta_adapt.replace(theta_rad).unwrap_or(theta_rad);
                 travelled_rad += (theta_rad - last).abs();
-                let trackers = [drive.period.tracker(), &passengers[0], &passengers[1]];
-                for (r, t) in runs.iter_mut().zip(trackers) {
-                    if r.outcome.converged_revs.is_none() && t.convergence().converged {
+                let convergence = [
+                    drive.adaptation().adapter().convergence(),
+                    passengers[0].convergence(),
+                    passengers[1].convergence(),
+                ];
+                for (r, c) in runs.iter_mut().zip(convergence) {
+                    if r.outcome.converged_revs.is_none() && c.converged {
                         r.outcome.converged_revs = Some(travelled_rad / TAU);
                         r.outcome.converged_in_commissioning = commissioning;
                     }
