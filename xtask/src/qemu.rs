@@ -12,7 +12,7 @@ use crate::{cross_build, hil_sim, output_of, root, run, TARGET};
 use m4_cycles::{insn_cycles, is_register_save, is_single_ldst, Insn};
 use std::collections::HashMap;
 use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
 const MACHINE: &str = "netduinoplus2";
@@ -333,7 +333,7 @@ const ENTRY_EXIT: &str = "function entry and exit (register saves)";
 
 /// Sum the per-address cycles into [`STAGES`] with `addr2line -i` (inlined frames).
 fn stages(
-    image: &PathBuf,
+    image: &Path,
     insns: &HashMap<u32, Insn>,
     by_pc: &HashMap<u32, (u64, String)>,
 ) -> Result<Vec<(&'static str, u64)>, String> {

@@ -68,7 +68,7 @@ pub const SPEED_BANDWIDTH_HZ: f32 = 10.0;
 /// `drive::supervisor::RECORD_DIVIDER`-th supervisor step (100 Hz).
 pub const SUPERVISOR_DIVIDER: u32 = PWM_HZ / 1000;
 // The supervisor runs at exactly 1 kHz, and ARR fits TIM1's 16 bits, at any PWM_HZ.
-const _: () = assert!(PWM_HZ % 1000 == 0 && SYSCLK_HZ / (2 * PWM_HZ) <= u16::MAX as u32);
+const _: () = assert!(PWM_HZ.is_multiple_of(1000) && SYSCLK_HZ / (2 * PWM_HZ) <= u16::MAX as u32);
 /// Independent watchdog timeout, fed by the supervisor (1 kHz). Longer than a flash
 /// page erase plus the record's programming (≤ 40 ms + 2 ms), during which the
 /// supervisor does not run.

@@ -182,11 +182,7 @@ fn perf(builds: &[String], window_s: f64, report: Option<PathBuf>) -> Result<()>
         text.push('\n');
         if p.missed_control > 0 {
             // Which stage to look at first: the largest share of the longest interrupt.
-            let worst = p
-                .stages
-                .iter()
-                .max_by_key(|s| s.4)
-                .map_or("?", |s| s.0);
+            let worst = p.stages.iter().max_by_key(|s| s.4).map_or("?", |s| s.0);
             missed.push(format!(
                 "{label}: {} missed control periods; interrupt {:.0} mean / {} max est. cycles of {} per period; largest stage by max: {worst}",
                 p.missed_control, p.isr_cycles_mean, p.isr_cycles_max, p.period_cycles
@@ -195,7 +191,11 @@ fn perf(builds: &[String], window_s: f64, report: Option<PathBuf>) -> Result<()>
     }
     match report {
         Some(p) => {
-            let doc = splice(&std::fs::read_to_string(&p).unwrap_or_default(), &text, PERF);
+            let doc = splice(
+                &std::fs::read_to_string(&p).unwrap_or_default(),
+                &text,
+                PERF,
+            );
             std::fs::write(&p, doc).with_context(|| p.display().to_string())?;
             eprintln!("drive-emu: report written to {}", p.display());
         }

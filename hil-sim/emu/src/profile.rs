@@ -188,7 +188,11 @@ impl Profile {
         static CACHE: OnceLock<Mutex<HashMap<u64, Arc<Profile>>>> = OnceLock::new();
         let key = elf_key(elf);
         let cache = CACHE.get_or_init(Default::default);
-        if let Some(p) = cache.lock().map_err(|_| anyhow!("profile cache"))?.get(&key) {
+        if let Some(p) = cache
+            .lock()
+            .map_err(|_| anyhow!("profile cache"))?
+            .get(&key)
+        {
             return Ok(p.clone());
         }
         let p = Arc::new(Self::compute(elf, key)?);
@@ -201,10 +205,8 @@ impl Profile {
 
     fn compute(elf: &[u8], key: u64) -> Result<Profile> {
         // binutils read files: the ELF as the emulator got it, in a file of its own.
-        let path = std::env::temp_dir().join(format!(
-            "drive-emu-{}-{key:016x}.elf",
-            std::process::id()
-        ));
+        let path =
+            std::env::temp_dir().join(format!("drive-emu-{}-{key:016x}.elf", std::process::id()));
         std::fs::write(&path, elf).with_context(|| path.display().to_string())?;
         let result = Self::from_file(elf, &path);
         let _ = std::fs::remove_file(&path);
@@ -308,36 +310,60 @@ mod tests {
     #[test]
     fn telemetry_wins_over_core_and_core_over_the_rest() {
         let c = [
-            frame("mras::tracker::Tracker<T>::estimate_of", "/w/firmware/mras/src/tracker.rs:9"),
-            frame("drive::control::ControlPeriod<T>::snapshot", "/w/firmware/drive/src/control.rs:1"),
+            frame(
+                "mras::tracker::Tracker<T>::estimate_of",
+                "/w/firmware/mras/src/tracker.rs:9",
+            ),
+            frame(
+                "drive::control::ControlPeriod<T>::snapshot",
+                "/w/firmware/drive/src/control.rs:1",
+            ),
             frame("ADC1_2", "/w/firmware/app/src/main.rs:35"),
         ];
         assert_eq!(classify(&c), Stage::Telemetry);
         assert_eq!(classify(&[c[0].clone(), c[2].clone()]), Stage::Core);
         let svpwm = [
             frame("drive::foc::svpwm", "/w/firmware/drive/src/foc.rs:3"),
-            frame("drive::foc::CurrentLoop::step", "/w/firmware/drive/src/foc.rs:9"),
+            frame(
+                "drive::foc::CurrentLoop::step",
+                "/w/firmware/drive/src/foc.rs:9",
+            ),
         ];
         assert_eq!(classify(&svpwm), Stage::Svpwm);
         assert_eq!(classify(&svpwm[1..]), Stage::CurrentLoop);
         let read = [
-            frame("stm32g4::generic::Reg<REG>::read", "/r/stm32g4/src/generic.rs:1"),
-            frame("drive_fw::adc::Adcs::read", "/w/firmware/app/src/adc.rs:120"),
+            frame(
+                "stm32g4::generic::Reg<REG>::read",
+                "/r/stm32g4/src/generic.rs:1",
+            ),
+            frame(
+                "drive_fw::adc::Adcs::read",
+                "/w/firmware/app/src/adc.rs:120",
+            ),
         ];
         assert_eq!(classify(&read), Stage::AdcRead);
         assert_eq!(
-            classify(&[frame("drive::adc::scale_pair", "/w/firmware/drive/src/adc.rs:1")]),
+            classify(&[frame(
+                "drive::adc::scale_pair",
+                "/w/firmware/drive/src/adc.rs:1"
+            )]),
             Stage::Scaling
         );
         assert_eq!(
-            classify(&[frame("drive::motion::Loop::step", "/w/firmware/drive/src/motion.rs:1")]),
+            classify(&[frame(
+                "drive::motion::Loop::step",
+                "/w/firmware/drive/src/motion.rs:1"
+            )]),
             Stage::Rest
         );
     }
 
     #[test]
     fn callees_take_the_call_site_stage_unless_their_own_chain_outranks_it() {
-        assert_eq!(Stage::Rest.under(Some(Stage::CurrentLoop)), Stage::CurrentLoop);
+        assert_eq!(
+            Stage::Rest.under(Some(Stage::CurrentLoop)),
+            Stage::CurrentLoop
+        );
         assert_eq!(Stage::Core.under(Some(Stage::Telemetry)), Stage::Telemetry);
         assert_eq!(Stage::Svpwm.under(Some(Stage::Core)), Stage::Core);
         assert_eq!(Stage::Scaling.under(Some(Stage::Rest)), Stage::Scaling);

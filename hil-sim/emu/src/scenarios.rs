@@ -581,7 +581,9 @@ pub fn report(outcomes: &[Outcome], elf_note: &str) -> String {
 /// polled every 50 ms of emulated time), then `window_s` in Run.
 #[derive(Clone, Debug)]
 pub struct Perf {
+    /// The PWM rate of the timer, and the one the firmware's banner states.
     pub pwm_hz: f64,
+    pub firmware_pwm_hz: Option<u32>,
     pub period_cycles: u64,
     /// The states of the power-up with the firmware's t_ms.
     pub states: Vec<(String, u32)>,
@@ -639,8 +641,20 @@ pub fn perf_run(elf: &[u8], window_s: f64) -> Result<Perf> {
             )
         })
         .collect();
+    let d = stream::decode(&emu.elf, &m.rtt.bytes).context("decoding the RTT stream")?;
+    // "drive-fw: 20000 Hz PWM, SYSCLK ..."
+    let firmware_pwm_hz = d.items.iter().find_map(|i| match i {
+        Item::Other(o) => o
+            .strip_prefix("drive-fw: ")?
+            .split(" Hz PWM")
+            .next()?
+            .parse()
+            .ok(),
+        _ => None,
+    });
     Ok(Perf {
         pwm_hz: 1.0 / m.board.period_s(),
+        firmware_pwm_hz,
         period_cycles: period_cycles(&emu),
         states: out.states.first().cloned().unwrap_or_default(),
         missed_total: m.adcs.missed_triggers,
@@ -667,7 +681,9 @@ pub fn perf_run(elf: &[u8], window_s: f64) -> Result<Perf> {
                     ""
                 };
                 let why = match (x.in_isr_instrs, x.masked_instrs) {
-                    (Some(n), _) => format!("the control interrupt still running ({n} instructions in)"),
+                    (Some(n), _) => {
+                        format!("the control interrupt still running ({n} instructions in)")
+                    }
                     (None, Some(n)) => format!("interrupts masked for {n} instructions"),
                     (None, None) => "the interrupt pending behind another".to_string(),
                 };
@@ -703,7 +719,11 @@ pub fn perf_table(p: &Perf, title: &str) -> String {
         p.isr_instrs_mean, p.isr_instrs_max, p.isr_cycles_mean, p.isr_cycles_max
     );
     let share = |c: f64| 100.0 * c / p.period_cycles.max(1) as f64;
-    let states: Vec<String> = p.states.iter().map(|(n, t)| format!("{n} {t} ms")).collect();
+    let states: Vec<String> = p
+        .states
+        .iter()
+        .map(|(n, t)| format!("{n} {t} ms"))
+        .collect();
     let _ = writeln!(
         s,
         "- whole interrupt: {:.0} cycles mean ({:.1} % of the period), {} max ({:.1} %), over {} interrupts in {:.1} s of Run",

@@ -250,7 +250,8 @@ mod tests {
 
     #[test]
     fn objdump_lines_parse_to_address_mnemonic_operands_size() {
-        let l = " 8002090:\tb580      \tpush\t{r7, lr}\n 8002092:\tf8d0 1004 \tldr.w\tr1, [r0, #4]\n";
+        let l =
+            " 8002090:\tb580      \tpush\t{r7, lr}\n 8002092:\tf8d0 1004 \tldr.w\tr1, [r0, #4]\n";
         let m = parse_objdump(l);
         assert_eq!(m[&0x0800_2090], insn("push", "{r7, lr}"));
         assert_eq!(m[&0x0800_2092].size, 4);
@@ -266,7 +267,10 @@ mod tests {
 
     #[test]
     fn trm_costs() {
-        assert_eq!(insn_cycles(&insn("push", "{r4, r5, r7, lr}"), false, false), 5);
+        assert_eq!(
+            insn_cycles(&insn("push", "{r4, r5, r7, lr}"), false, false),
+            5
+        );
         assert_eq!(insn_cycles(&insn("pop", "{r4, pc}"), true, false), 5);
         assert_eq!(insn_cycles(&insn("b.n", "8000"), true, false), 3);
         assert_eq!(insn_cycles(&insn("bne.n", "8000"), false, false), 1);
@@ -276,7 +280,10 @@ mod tests {
         assert_eq!(insn_cycles(&ld, false, false), 2);
         assert_eq!(insn_cycles(&ld, false, true), 1);
         assert_eq!(insn_cycles(&insn("ldr", "r0, [pc, #8]"), false, true), 3);
-        assert_eq!(insn_cycles(&insn("vdiv.f32", "s0, s1, s2"), false, false), 14);
+        assert_eq!(
+            insn_cycles(&insn("vdiv.f32", "s0, s1, s2"), false, false),
+            14
+        );
         assert!(is_single_ldst(&ld) && !is_single_ldst(&insn("ldrd", "r0, r1, [r2]")));
     }
 
