@@ -21,7 +21,32 @@ use crate::regfile::RegFile;
 use crate::rtt::Rtt;
 use crate::stats::Stats;
 use std::collections::{BTreeMap, HashMap};
+use std::hash::{BuildHasherDefault, Hasher};
 use std::sync::Arc;
+
+/// The block-cost cache's hasher: one multiply per (address, size) key. The lookup runs
+/// once per executed block, where SipHash cost a visible share of the emulation.
+#[derive(Default)]
+pub struct BlockKeyHasher(u64);
+
+impl Hasher for BlockKeyHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(b as u64);
+        }
+    }
+
+    fn write_u64(&mut self, k: u64) {
+        // Fibonacci hashing (Knuth): the high bits are well mixed.
+        self.0 = (self.0 ^ k)
+            .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            .rotate_left(32);
+    }
+}
 
 pub const SRAM: u32 = 0x2000_0000;
 pub const SRAM_BYTES: u32 = 128 * 1024;
@@ -66,7 +91,7 @@ pub struct Machine {
     pub cycles: u64,
     /// The firmware's per-address costs and stages (None: cycles = instructions).
     pub profile: Option<Arc<Profile>>,
-    pub block_costs: HashMap<(u32, u32), BlockCost>,
+    pub block_costs: HashMap<u64, BlockCost, BuildHasherDefault<BlockKeyHasher>>,
     /// The block executed last (for the taken-branch refill), None after an exception
     /// entry or return (whose cost covers the refill).
     pub prev_block: Option<BlockCost>,
@@ -141,7 +166,7 @@ impl Machine {
             instrs: 0,
             cycles: 0,
             profile: None,
-            block_costs: HashMap::new(),
+            block_costs: HashMap::default(),
             prev_block: None,
             prev_stage: None,
             call_stack: Vec::new(),
@@ -252,7 +277,7 @@ impl Machine {
         };
         let b = *self
             .block_costs
-            .entry((addr, size))
+            .entry((addr as u64) << 32 | size as u64)
             .or_insert_with(|| p.block(addr, size));
         let in_isr = self.stats.isr_entered_at.is_some();
         let mut credit = 0;

@@ -142,11 +142,12 @@ fn splice(doc: &str, generated: &str, sec: Section) -> String {
     let (begin, end) = (sec.begin, sec.end);
     let section = format!("{begin}\n{generated}{end}\n");
     match (doc.find(begin), doc.find(end)) {
-        (Some(a), Some(b)) if a < b => format!(
-            "{}{section}{}",
-            &doc[..a],
-            doc[b + end.len()..].trim_start_matches('\n')
-        ),
+        (Some(a), Some(b)) if a < b => {
+            // One blank line between the section and what follows it, if anything.
+            let rest = doc[b + end.len()..].trim_start_matches('\n');
+            let gap = if rest.is_empty() { "" } else { "\n" };
+            format!("{}{section}{gap}{rest}", &doc[..a])
+        }
         _ => format!("{doc}\n{}\n\n{section}", sec.heading),
     }
 }

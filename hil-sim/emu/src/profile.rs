@@ -223,8 +223,18 @@ impl Profile {
             .map_err(|e| anyhow!("{e} (install binutils-arm-none-eabi)"))?;
         let pcs: Vec<u32> = insns.keys().copied().collect();
         let chains = m4_cycles::inlined_chains(path, &pcs).map_err(anyhow::Error::msg)?;
+        Ok(Self::from_parts(&insns, &chains, handler))
+    }
+
+    /// The profile of a disassembly, its inlined chains and the control interrupt
+    /// handler's address range (its register saves are entry/exit).
+    pub fn from_parts(
+        insns: &HashMap<u32, Insn>,
+        chains: &HashMap<u32, Vec<Frame>>,
+        handler: Option<std::ops::Range<u32>>,
+    ) -> Profile {
         let mut costs = HashMap::with_capacity(insns.len());
-        for (&pc, i) in &insns {
+        for (&pc, i) in insns {
             let in_handler = handler.as_ref().is_some_and(|h| h.contains(&pc));
             let stage = if in_handler && m4_cycles::is_register_save(i) {
                 Stage::EntryExit
@@ -246,7 +256,7 @@ impl Profile {
                 },
             );
         }
-        Ok(Profile { costs })
+        Profile { costs }
     }
 
     /// The cost of the block at `addr` of `size` bytes. Addresses the disassembly does
@@ -356,6 +366,39 @@ mod tests {
             )]),
             Stage::Rest
         );
+    }
+
+    #[test]
+    fn a_block_sums_its_instructions_with_pipelined_loads_and_keeps_the_refill_for_later() {
+        let listing = " 8000238:\tb580      \tpush\t{r7, lr}\n\
+                       \x20800023a:\t6808      \tldr\tr0, [r1, #0]\n\
+                       \x20800023c:\t6811      \tldr\tr1, [r2, #0]\n\
+                       \x20800023e:\tf000 f801 \tbl\t8000244\n";
+        let insns = m4_cycles::parse_objdump(listing);
+        assert_eq!(insns.len(), 4);
+        let mut chains = HashMap::new();
+        for pc in [0x0800_023a, 0x0800_023c] {
+            chains.insert(
+                pc,
+                vec![frame(
+                    "drive_fw::adc::Adcs::read",
+                    "/w/firmware/app/src/adc.rs:1",
+                )],
+            );
+        }
+        let p = Profile::from_parts(&insns, &chains, Some(0x0800_0238..0x0800_0244));
+        let b = p.block(0x0800_0238, 10);
+        // push {r7, lr} 3, ldr 2, ldr after a load 1, bl 1 (its refill comes with the
+        // next block, when it is known to have branched).
+        assert_eq!((b.instrs, b.cycles), (4, 7));
+        assert_eq!(b.by_stage[Stage::EntryExit as usize], (1, 3));
+        assert_eq!(b.by_stage[Stage::AdcRead as usize], (2, 3));
+        assert_eq!(b.by_stage[Stage::Rest as usize], (1, 1));
+        assert!(b.last_is_call && b.last_refill == 2 && b.end == 0x0800_0242);
+        // Entered at the second load: not pipelined within the block, but it can be
+        // after a fall-through.
+        let b = p.block(0x0800_023c, 2);
+        assert_eq!((b.cycles, b.first_credit), (2, 1));
     }
 
     #[test]
