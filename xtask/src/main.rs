@@ -47,6 +47,11 @@ cargo xtask <command>
                 target/emu (installs Debian cmake and libclang-dev if missing)
   emu-report    every firmware-in-the-loop scenario; regenerates the scenario section
                 of docs/performance.md
+  perf          the control interrupt by stage at 20 and 40 kHz: cross-builds both
+                firmware rates (target/perf/drive-fw-20k, -40k), commissions each
+                to Run on the emulator, measures 0.5 s of Run (instructions and
+                estimated Cortex-M4 cycles per stage); regenerates the perf section
+                of docs/performance.md; fails if a build misses a control period
   regs          regenerate the emulator's STM32G474 register table (hil-sim/emu/src/
                 regs_g474.rs) from the stm32g4 PAC's sources
   regs --check  fail if the committed register table differs from what the PAC generates
@@ -70,6 +75,7 @@ fn main() -> ExitCode {
         Some("regs") => regs::main(&args[1..]),
         Some("emu") => emu(&["power-up"]),
         Some("emu-report") => emu(&["scenarios", "--report", "docs/performance.md"]),
+        Some("perf") => perf(Some("docs/performance.md")),
         Some("-h" | "--help" | "help") | None => {
             print!("{HELP}");
             Ok(())
@@ -261,6 +267,48 @@ fn emu(args: &[&str]) -> Result<(), String> {
     run(c)
 }
 
+/// The firmware's PWM rates `perf` measures: (label, cargo features, ELF name).
+const PERF_BUILDS: [(&str, &[&str], &str); 2] = [
+    ("20 kHz", &[], "drive-fw-20k"),
+    ("40 kHz", &["--features", "pwm-40khz"], "drive-fw-40k"),
+];
+
+/// Both rates cross-built (each copied aside: they link to the same path), each
+/// commissioned to Run on the emulator and measured by stage; `report` regenerates
+/// that document's section. The default build is rebuilt last, so the release ELF
+/// other commands use stays the 20 kHz one.
+fn perf(report: Option<&str>) -> Result<(), String> {
+    setup()?;
+    emu_setup()?;
+    qemu::ensure("arm-none-eabi-objdump", "binutils-arm-none-eabi")?;
+    let dir = root().join("target").join("perf");
+    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let built = root()
+        .join("target")
+        .join(TARGET)
+        .join("release")
+        .join(FIRMWARE);
+    let mut builds = Vec::new();
+    for (label, features, name) in PERF_BUILDS.iter().rev() {
+        let mut c = cross_build(FIRMWARE);
+        c.args(*features);
+        run(c)?;
+        let out = dir.join(name);
+        std::fs::copy(&built, &out).map_err(|e| format!("{}: {e}", out.display()))?;
+        builds.push(format!("{label}={}", out.display()));
+    }
+    builds.reverse();
+    let mut c = cargo();
+    c.args(["run", "--release", "--locked", "-p", EMULATOR, "--", "perf"]);
+    for b in &builds {
+        c.arg("--build").arg(b);
+    }
+    if let Some(r) = report {
+        c.args(["--report", r]);
+    }
+    run(c)
+}
+
 fn ci() -> Result<(), String> {
     setup()?;
     emu_setup()?;
@@ -298,6 +346,8 @@ fn ci() -> Result<(), String> {
     let mut c = cargo();
     c.args(["test", "--release", "--locked", "-p", EMULATOR]);
     run(c)?;
+    // Both PWM rates commission to Run without a missed control period (~1 min).
+    perf(None)?;
     eprintln!("\nxtask ci: all checks passed");
     Ok(())
 }

@@ -9,9 +9,10 @@
 //! counted between the markers and weighted by Cortex-M4 cycle counts (TRM r0p1 §3.3).
 
 use crate::{cross_build, hil_sim, output_of, root, run, TARGET};
+use m4_cycles::{insn_cycles, is_register_save, is_single_ldst, Insn};
 use std::collections::HashMap;
 use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
 const MACHINE: &str = "netduinoplus2";
@@ -159,145 +160,12 @@ pub fn bit_exact() -> Result<(), String> {
     Ok(())
 }
 
-/// One disassembled instruction.
-struct Insn {
-    mnemonic: String,
-    operands: String,
-    size: u32,
-}
-
-fn disassemble(image: &PathBuf) -> Result<HashMap<u32, Insn>, String> {
-    ensure("arm-none-eabi-objdump", "binutils-arm-none-eabi")?;
-    let out = Command::new("arm-none-eabi-objdump")
-        .arg("-d")
-        .arg(image)
-        .output()
-        .map_err(|e| e.to_string())?;
-    let mut map = HashMap::new();
-    for line in String::from_utf8_lossy(&out.stdout).lines() {
-        // " 8002090:\tb580      \tpush\t{r7, lr}"
-        let mut f = line.split('\t');
-        let (Some(addr), Some(hex), Some(mn)) = (f.next(), f.next(), f.next()) else {
-            continue;
-        };
-        let Ok(addr) = u32::from_str_radix(addr.trim().trim_end_matches(':'), 16) else {
-            continue;
-        };
-        let size = hex.split_whitespace().map(|w| w.len() as u32 / 2).sum();
-        map.insert(
-            addr,
-            Insn {
-                mnemonic: mn.trim().to_string(),
-                operands: f.next().unwrap_or("").trim().to_string(),
-                size,
-            },
-        );
-    }
-    Ok(map)
-}
-
-/// Registers in a `{r4, r5, lr}` / `{s16-s19}` / `{d8}` list (d counts as two words).
-fn reg_count(ops: &str) -> u32 {
-    let inner = ops
-        .split('{')
-        .nth(1)
-        .and_then(|s| s.split('}').next())
-        .unwrap_or("");
-    inner
-        .split(',')
-        .map(|r| {
-            let r = r.trim();
-            let w = if r.starts_with('d') { 2 } else { 1 };
-            match r.split_once('-') {
-                Some((a, b)) => {
-                    let n = |x: &str| {
-                        x.trim_start_matches(|c: char| c.is_alphabetic())
-                            .parse::<u32>()
-                            .unwrap_or(0)
-                    };
-                    w * (n(b).saturating_sub(n(a)) + 1)
-                }
-                None if r.is_empty() => 0,
-                None => w,
-            }
-        })
-        .sum()
-}
-
-/// Whether `i` is a single integer load or store (the ones the M4 pipelines, TRM §3.3.2).
-fn is_single_ldst(i: &Insn) -> bool {
-    let m = i.mnemonic.as_str();
-    (m.starts_with("ldr") || m.starts_with("str"))
-        && !m.starts_with("ldrd")
-        && !m.starts_with("strd")
-}
-
-/// Cortex-M4 cycles (TRM r0p1 table 3-1; P, the pipeline refill of a taken branch, = 2;
-/// SDIV/UDIV 2-12, counted as 7). Single integer loads and stores per §3.3.2: a store
-/// with an immediate offset is one cycle, a load is two unless it follows another
-/// single load or store; FPU loads and stores are 2 (table 7-1, no overlap credited).
-fn insn_cycles(i: &Insn, taken: bool, after_ldst: bool) -> u32 {
-    let m = i.mnemonic.split('.').next().unwrap_or("");
-    let base = m.trim_end_matches('w');
-    let is_branch = matches!(base, "b" | "bl" | "bx" | "blx" | "cbz" | "cbnz")
-        || (base.starts_with('b')
-            && base.len() == 3
-            && !base.starts_with("bi")
-            && !base.starts_with("bf"));
-    let refill = if taken { 2 } else { 0 };
-    if is_branch {
-        return 1 + refill;
-    }
-    if base == "tbb" || base == "tbh" {
-        // Table branch: load (2), add, pipeline reload (3), §3.3.2.
-        return 6;
-    }
-    match base {
-        "push" | "stmdb" | "stm" | "stmia" => 1 + reg_count(&i.operands),
-        "pop" | "ldm" | "ldmia" | "ldmdb" => {
-            1 + reg_count(&i.operands) + if i.operands.contains("pc") { 2 } else { 0 }
-        }
-        "vpush" | "vpop" | "vldmia" | "vstmia" | "vldmdb" | "vstmdb" | "vldm" | "vstm" => {
-            1 + reg_count(&i.operands)
-        }
-        "vldr" | "vstr" => {
-            if i.operands.starts_with('d') {
-                3
-            } else {
-                2
-            }
-        }
-        "ldrd" | "strd" => 3,
-        "vdiv" | "vsqrt" => 14,
-        "vmla" | "vmls" | "vnmla" | "vnmls" | "vfma" | "vfms" | "vfnma" | "vfnms" => 3,
-        "sdiv" | "udiv" => 7,
-        _ if base.starts_with("str") => {
-            if i.operands.contains('#') || !i.operands.contains(", r") {
-                1
-            } else {
-                2
-            }
-        }
-        _ if base.starts_with("ldr") => {
-            if i.operands.contains("[pc") {
-                // A literal load contends with instruction fetch.
-                3
-            } else if after_ldst {
-                1
-            } else {
-                2
-            }
-        }
-        "vmov" if i.operands.matches(',').count() >= 3 => 2,
-        _ => 1,
-    }
-}
-
 pub fn cycles() -> Result<(), String> {
     ensure("qemu-system-arm", "qemu-system-arm")?;
     let (v, _) = vector()?;
     let img = image(&v, "cycles")?;
-    let insns = disassemble(&img)?;
+    ensure("arm-none-eabi-objdump", "binutils-arm-none-eabi")?;
+    let insns = m4_cycles::disassemble(&img)?;
     eprintln!(
         "\n$ qemu-system-arm -M {MACHINE} -singlestep -d exec,nochain ... (instruction trace)"
     );
@@ -472,51 +340,25 @@ const ENTRY_EXIT: &str = "function entry and exit (register saves)";
 
 /// Sum the per-address cycles into [`STAGES`] with `addr2line -i` (inlined frames).
 fn stages(
-    image: &PathBuf,
+    image: &Path,
     insns: &HashMap<u32, Insn>,
     by_pc: &HashMap<u32, (u64, String)>,
 ) -> Result<Vec<(&'static str, u64)>, String> {
     ensure("arm-none-eabi-addr2line", "binutils-arm-none-eabi")?;
     let pcs: Vec<u32> = by_pc.keys().copied().collect();
-    let out = Command::new("arm-none-eabi-addr2line")
-        .arg("-e")
-        .arg(image)
-        .args(["-a", "-f", "-i", "-C"])
-        .args(pcs.iter().map(|pc| format!("{pc:#x}")))
-        .output()
-        .map_err(|e| format!("arm-none-eabi-addr2line: {e}"))?;
-    // Output: an address line "0x0800048c", then (function, file:line) pairs, innermost first.
-    let mut chains: HashMap<u32, Vec<String>> = HashMap::new();
-    let mut current: Option<(u32, usize)> = None;
-    for line in String::from_utf8_lossy(&out.stdout).lines() {
-        if let Some(pc) = line
-            .strip_prefix("0x")
-            .and_then(|h| u32::from_str_radix(h, 16).ok())
-        {
-            current = Some((pc, 0));
-            continue;
-        }
-        // Function names and file:line locations alternate; keep the names.
-        if let Some((pc, k)) = current.as_mut() {
-            if *k % 2 == 0 {
-                chains.entry(*pc).or_default().push(line.to_string());
-            }
-            *k += 1;
-        }
-    }
+    let chains = m4_cycles::inlined_chains(image, &pcs)?;
     let mut totals = vec![0u64; STAGES.len()];
     let mut entry_exit = 0u64;
     for (pc, (c, symbol)) in by_pc {
-        let saves = insns.get(pc).is_some_and(|i| {
-            matches!(i.mnemonic.as_str(), "push" | "pop" | "vpush" | "vpop")
-                || (i.operands.starts_with("sp!") && i.mnemonic.starts_with("stmdb"))
-                || (i.operands.starts_with("sp!") && i.mnemonic.starts_with("ldmia"))
-        });
+        let saves = insns.get(pc).is_some_and(is_register_save);
         if saves {
             entry_exit += c;
             continue;
         }
-        let mut frames = chains.get(pc).cloned().unwrap_or_default();
+        let mut frames: Vec<String> = chains
+            .get(pc)
+            .map(|c| c.iter().map(|f| f.function.clone()).collect())
+            .unwrap_or_default();
         frames.push(symbol.clone());
         let stage = frames
             .iter()

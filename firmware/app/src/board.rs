@@ -8,8 +8,12 @@
 pub const SYSCLK_HZ: u32 = 170_000_000;
 
 /// PWM carrier and control rate: TIM1 centre-aligned, one control period per carrier
-/// period (the ADCs are triggered once per period, at the counter's peak).
+/// period (the ADCs are triggered once per period, at the counter's peak). Everything
+/// rate-dependent below derives from it; feature `pwm-40khz` doubles it.
+#[cfg(not(feature = "pwm-40khz"))]
 pub const PWM_HZ: u32 = 20_000;
+#[cfg(feature = "pwm-40khz")]
+pub const PWM_HZ: u32 = 40_000;
 /// TIM1 ARR for centre-aligned mode: f_pwm = f_tim / (2·ARR).
 pub const PWM_ARR: u16 = (SYSCLK_HZ / (2 * PWM_HZ)) as u16;
 /// Control period T seen by the core.
@@ -63,6 +67,8 @@ pub const SPEED_BANDWIDTH_HZ: f32 = 10.0;
 /// Supervisor rate as a divisor of the control rate (1 kHz); the stream is every
 /// `drive::supervisor::RECORD_DIVIDER`-th supervisor step (100 Hz).
 pub const SUPERVISOR_DIVIDER: u32 = PWM_HZ / 1000;
+// The supervisor runs at exactly 1 kHz, and ARR fits TIM1's 16 bits, at any PWM_HZ.
+const _: () = assert!(PWM_HZ.is_multiple_of(1000) && SYSCLK_HZ / (2 * PWM_HZ) <= u16::MAX as u32);
 /// Independent watchdog timeout, fed by the supervisor (1 kHz). Longer than a flash
 /// page erase plus the record's programming (≤ 40 ms + 2 ms), during which the
 /// supervisor does not run.

@@ -17,7 +17,8 @@ pub const CURRENT_A_PER_COUNT: f64 = -0.0161;
 
 pub struct Board {
     pub plant: Plant,
-    /// The PWM period the plant integrates per step (ticks).
+    /// The PWM period the plant integrates per step (ticks): the timer's, once the
+    /// firmware has started TIM1 (`advance_to`).
     period_ticks: u64,
     /// The time the plant's state belongs to.
     plant_at: u64,
@@ -40,6 +41,8 @@ impl Board {
         // that its worst sensor (amplitude 1.2, offsets 0.1, harmonics) stays in range.
         let sp = sc.file.sensor.to_params().map_err(anyhow::Error::msg)?;
         let sensor = hil_sim::sensor::SensorSim::new(sp, seed).map_err(anyhow::Error::msg)?;
+        // Until the firmware starts TIM1 the plant only coasts at rest; its step is then
+        // the period the firmware programmed (`advance_to`), so any PWM rate runs.
         let pwm_hz = 20_000.0;
         let mut plant = Plant::new(motor, sensor, 1.0 / pwm_hz, 0.3).map_err(anyhow::Error::msg)?;
         plant.current_adc = CurrentAdc {
@@ -86,9 +89,46 @@ impl Board {
         }
     }
 
+    /// The PWM period the plant steps by (s).
+    pub fn period_s(&self) -> f64 {
+        self.period_ticks as f64 / TICK_HZ
+    }
+
+    pub fn period_ticks(&self) -> u64 {
+        self.period_ticks
+    }
+
+    /// Step the plant by `period_ticks` from now on: the same motor, sensor (with its
+    /// noise state) and settings at the same angle, its clock carried over. Done at the
+    /// first trigger, before the bridge ever switched, so nothing else of the state
+    /// matters (the motor is at rest).
+    fn set_period(&mut self, period_ticks: u64) {
+        if period_ticks == 0 || period_ticks == self.period_ticks {
+            return;
+        }
+        let dt_s = period_ticks as f64 / TICK_HZ;
+        let old = &self.plant;
+        let Ok(mut p) = Plant::new(old.motor.clone(), old.sensor.clone(), dt_s, old.theta_rad())
+        else {
+            // The same motor and sensor were accepted at construction.
+            unreachable!("the plant's parameters were validated when the board was built");
+        };
+        p.current_adc = old.current_adc;
+        p.break_level_a = old.break_level_a;
+        p.break_opens_bridge = old.break_opens_bridge;
+        let steps = (old.time_s() / dt_s).round() as u64;
+        for _ in 0..steps {
+            p.advance_applied(&Self::idle());
+        }
+        self.plant = p;
+        self.period_ticks = period_ticks;
+    }
+
     /// The plant up to the sampling instant `t`, the last period driven with `duties`
-    /// (bridge on if `on`), any periods before it coasting.
-    pub fn advance_to(&mut self, t: u64, duties: [f32; 3], on: bool) {
+    /// (bridge on if `on`), any periods before it coasting. `period_ticks` is the PWM
+    /// period the timer runs (2·ARR·(PSC + 1) timer clocks, centre-aligned).
+    pub fn advance_to(&mut self, t: u64, duties: [f32; 3], on: bool, period_ticks: u64) {
+        self.set_period(period_ticks);
         let n =
             ((t.saturating_sub(self.plant_at)) as f64 / self.period_ticks as f64).round() as u64;
         if n == 0 {

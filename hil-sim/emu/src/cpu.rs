@@ -9,6 +9,7 @@ use crate::machine::{Fault, Machine, ADC1_2_IRQ, SRAM, SRAM_BYTES};
 use crate::nvic;
 use crate::periph::rcc::ResetKind;
 use crate::periph::ticks;
+use crate::profile::{Profile, Stage, ENTRY_CYCLES, EXIT_CYCLES, LAZY_FP_WORDS};
 use crate::rtt::{Rtt, UP0};
 use anyhow::{anyhow, bail, Result};
 use unicorn_engine::{Arch, ArmCpuModel, HookType, MemType, Mode, Prot, RegisterARM, Unicorn};
@@ -62,7 +63,8 @@ impl Emu {
             }
             None => image,
         };
-        let m = Machine::new(flash, board, Rtt::new(rtt_block));
+        let mut m = Machine::new(flash, board, Rtt::new(rtt_block));
+        m.profile = Some(Profile::for_elf(elf)?);
         let mut uc = Unicorn::new_with_data(Arch::ARM, Mode::THUMB, m).map_err(uc_err)?;
         // Not UC_MODE_MCLASS, which makes a Cortex-M33: a Cortex-M4 with our own
         // exception model.
@@ -303,14 +305,23 @@ impl Emu {
         let handler = self.m().vector(n);
         let m = self.m_mut();
         m.nvic.take(n);
+        // The frame push is in the entry's cost; no branch refill follows it.
+        let cost = ENTRY_CYCLES + if fp { LAZY_FP_WORDS } else { 0 };
+        m.prev_block = None;
+        m.prev_stage = None;
         if n == nvic::irq(ADC1_2_IRQ) {
             let instrs = m.instrs;
             if let Some(since) = m.stats.pending_since.take() {
                 m.stats.latency_max = m.stats.latency_max.max(instrs - since);
             }
             m.stats.isr_entered_at = Some(instrs);
+            m.stats.isr_cycles_entered_at = Some(m.cycles);
+            m.stats.stage_now = Default::default();
+            m.stats.charge(Stage::EntryExit, 0, cost);
+            m.call_stack.clear();
             m.stats.armed = true;
         }
+        m.cycles += cost;
         self.set_reg(RegisterARM::SP, frame)?;
         self.set_reg(RegisterARM::LR, exc_return)?;
         // IPSR = n, T = 1, IT/ICI cleared.
@@ -343,6 +354,10 @@ impl Emu {
         let sp = frame + size + if xpsr & (1 << 9) != 0 { 4 } else { 0 };
         let m = self.m_mut();
         let done = m.nvic.active.pop();
+        let cost = EXIT_CYCLES + if fp { LAZY_FP_WORDS } else { 0 };
+        m.cycles += cost;
+        m.prev_block = None;
+        m.prev_stage = None;
         if done == Some(nvic::irq(ADC1_2_IRQ)) {
             if let Some(t0) = m.stats.isr_entered_at.take() {
                 let n = m.instrs - t0;
@@ -351,6 +366,14 @@ impl Emu {
                 m.stats.isr_instrs_sum += n;
                 m.stats.isr_instrs_max = m.stats.isr_instrs_max.max(n);
             }
+            if let Some(c0) = m.stats.isr_cycles_entered_at.take() {
+                let c = m.cycles - c0;
+                m.stats.isr_cycles_sum += c;
+                m.stats.isr_cycles_max = m.stats.isr_cycles_max.max(c);
+                m.stats.charge(Stage::EntryExit, 0, cost);
+                m.stats.close_stages();
+            }
+            m.call_stack.clear();
         }
         // A level-sensitive line still high pends again (B3.4.1).
         if (m.adc_irq_high || m.stuck_control_irq) && done == Some(nvic::irq(ADC1_2_IRQ)) {
@@ -561,6 +584,7 @@ fn on_block(uc: &mut Unicorn<'_, Machine>, addr: u32, size: u32) {
     let (n, vfp) = m.count_instrs(addr, size);
     m.instrs += n;
     m.now += n * m.rcc.ticks_per_instr;
+    m.account_cycles(addr, size, n);
     if vfp && !m.fpu_enabled() {
         // The block's FP instruction would raise NOCP on silicon (CPACR CP10/11 off).
         m.fault = Some(Fault::NoCoprocessor(addr));

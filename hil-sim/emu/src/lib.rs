@@ -9,6 +9,7 @@ pub mod elf;
 pub mod machine;
 pub mod nvic;
 pub mod periph;
+pub mod profile;
 pub mod regfile;
 pub mod regs_g474;
 pub mod rtt;

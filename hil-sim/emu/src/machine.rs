@@ -3,8 +3,9 @@
 //! private peripheral bus, the peripheral models and the plant they drive.
 //!
 //! Time is counted in 170 MHz ticks: each executed instruction costs one cycle of the
-//! current system clock (no wait states, no multi-cycle instructions: instruction
-//! counts, not cycle estimates). Peripheral events (timer edges, ADC conversions, flash
+//! current system clock (no wait states, no multi-cycle instructions: the time base is
+//! instruction counts). Estimated Cortex-M4 cycles (`profile`) are counted beside it
+//! for the reports. Peripheral events (timer edges, ADC conversions, flash
 //! operations, the watchdog) stop the CPU at the next block boundary.
 
 use crate::board::Board;
@@ -15,10 +16,37 @@ use crate::periph::misc::{self, Cordic, Iwdg};
 use crate::periph::rcc::{self, Rcc, ResetKind};
 use crate::periph::tim1::{self, Edge, Tim1};
 use crate::periph::{ticks, TICK_HZ};
+use crate::profile::{BlockCost, Profile, Stage};
 use crate::regfile::RegFile;
 use crate::rtt::Rtt;
 use crate::stats::Stats;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
+use std::hash::{BuildHasherDefault, Hasher};
+use std::sync::Arc;
+
+/// The block-cost cache's hasher: one multiply per (address, size) key. The lookup runs
+/// once per executed block, where SipHash cost a visible share of the emulation.
+#[derive(Default)]
+pub struct BlockKeyHasher(u64);
+
+impl Hasher for BlockKeyHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(b as u64);
+        }
+    }
+
+    fn write_u64(&mut self, k: u64) {
+        // Fibonacci hashing (Knuth): the high bits are well mixed.
+        self.0 = (self.0 ^ k)
+            .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            .rotate_left(32);
+    }
+}
 
 pub const SRAM: u32 = 0x2000_0000;
 pub const SRAM_BYTES: u32 = 128 * 1024;
@@ -59,6 +87,19 @@ pub struct Machine {
     /// Time (170 MHz ticks) and executed instructions.
     pub now: u64,
     pub instrs: u64,
+    /// Estimated Cortex-M4 cycles executed (instructions when there is no profile).
+    pub cycles: u64,
+    /// The firmware's per-address costs and stages (None: cycles = instructions).
+    pub profile: Option<Arc<Profile>>,
+    pub block_costs: HashMap<u64, BlockCost, BuildHasherDefault<BlockKeyHasher>>,
+    /// The block executed last (for the taken-branch refill), None after an exception
+    /// entry or return (whose cost covers the refill).
+    pub prev_block: Option<BlockCost>,
+    /// The stage the previous block's last instruction was charged to.
+    pub prev_stage: Option<Stage>,
+    /// Inside the control interrupt: (return address, stage of the call site) of the
+    /// out-of-line calls under way, so that callees take their caller's stage.
+    pub call_stack: Vec<(u32, Stage)>,
     /// Leave Unicorn when `now` reaches this.
     pub deadline: u64,
     pub stop: bool,
@@ -123,6 +164,12 @@ impl Machine {
             flash: flash_image,
             now: 0,
             instrs: 0,
+            cycles: 0,
+            profile: None,
+            block_costs: HashMap::default(),
+            prev_block: None,
+            prev_stage: None,
+            call_stack: Vec::new(),
             deadline: 0,
             stop: false,
             idle: false,
@@ -219,6 +266,57 @@ impl Machine {
         (n.max(1), vfp)
     }
 
+    /// The estimated cycles of the block at `addr` of `size` bytes (`n` instructions):
+    /// its cached cost, the previous block's taken-branch refill when this one does not
+    /// follow it, the pipelined first load when it does; inside the control interrupt,
+    /// the same by stage.
+    pub fn account_cycles(&mut self, addr: u32, size: u32, n: u64) {
+        let Some(p) = self.profile.as_ref() else {
+            self.cycles += n;
+            return;
+        };
+        let b = *self
+            .block_costs
+            .entry((addr as u64) << 32 | size as u64)
+            .or_insert_with(|| p.block(addr, size));
+        let in_isr = self.stats.isr_entered_at.is_some();
+        let mut credit = 0;
+        if let Some(prev) = self.prev_block {
+            if addr != prev.end {
+                let refill = prev.last_refill as u64;
+                self.cycles += refill;
+                if let (true, Some(s)) = (in_isr, self.prev_stage) {
+                    self.stats.charge(s, 0, refill);
+                    // A call: its callee runs for the call site's stage until it
+                    // returns to the instruction after the call (bounded: recursion
+                    // or a missed return must not grow it without end).
+                    if prev.last_is_call && self.call_stack.len() < 64 {
+                        self.call_stack.push((prev.end, s));
+                    } else if self.call_stack.last().is_some_and(|&(r, _)| r == addr) {
+                        self.call_stack.pop();
+                    }
+                }
+            } else if prev.last_single_ldst {
+                credit = b.first_credit;
+            }
+        }
+        self.cycles += (b.cycles - credit) as u64;
+        if in_isr {
+            let caller = self.call_stack.last().map(|c| c.1);
+            for s in Stage::ALL {
+                let (i, c) = b.by_stage[s as usize];
+                if i > 0 {
+                    self.stats.charge(s.under(caller), i as u64, c as u64);
+                }
+            }
+            if let (true, Some(s)) = (credit > 0, b.first_stage) {
+                self.stats.stage_now[s.under(caller) as usize].1 -= credit as u64;
+            }
+            self.prev_stage = b.last_stage.map(|s| s.under(caller));
+        }
+        self.prev_block = Some(b);
+    }
+
     /// Is the block at `addr` the idle loop `b .` (0xE7FE)?
     pub fn is_idle_branch(&self, addr: u32, size: u32) -> bool {
         size == 2
@@ -291,11 +389,23 @@ impl Machine {
     fn adc_trigger(&mut self, t: u64) {
         self.stats.last_trigger = t;
         let (duties, on) = self.tim1.take_applied(&self.regs, t);
-        self.board.advance_to(t, duties, on);
+        let period = self.tim1.period_ticks();
+        self.board.advance_to(t, duties, on, period);
         self.check_break();
         let sample = self.board.sample();
         let read = |adc: usize, ch: u32| crate::board::Board::channel(&sample, adc, ch);
+        let missed = self.adcs.missed_triggers;
         self.adcs.trgo2(&mut self.regs, t, &read);
+        if self.adcs.missed_triggers > missed {
+            let instrs = self.instrs;
+            self.stats.missed.push(crate::stats::Missed {
+                t,
+                before_control: !self.stats.armed,
+                pc: self.prev_block.map_or(0, |b| b.end),
+                in_isr_instrs: self.stats.isr_entered_at.map(|t0| instrs - t0),
+                masked_instrs: self.stats.masked_since.map(|t0| instrs - t0),
+            });
+        }
     }
 
     /// The over-current comparator on PA6 → TIM1 break.

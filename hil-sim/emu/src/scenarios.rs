@@ -40,6 +40,11 @@ pub struct Outcome {
     pub control_periods: u64,
     pub isr_instrs_mean: f64,
     pub isr_instrs_max: u64,
+    /// The same interrupts' estimated Cortex-M4 cycles (`profile`).
+    pub isr_cycles_mean: f64,
+    pub isr_cycles_max: u64,
+    /// The PWM (control) period the firmware programmed, in CPU cycles.
+    pub period_cycles: u64,
     pub masked_max_instrs: u64,
     pub latency_max_instrs: u64,
     pub boots: usize,
@@ -214,6 +219,9 @@ fn finish(
         control_periods: m.stats.isr_count_total,
         isr_instrs_mean: m.stats.isr_mean(),
         isr_instrs_max: m.stats.isr_instrs_max,
+        isr_cycles_mean: m.stats.isr_cycles_mean(),
+        isr_cycles_max: m.stats.isr_cycles_max,
+        period_cycles: period_cycles(emu),
         masked_max_instrs: m.stats.masked_max,
         latency_max_instrs: m.stats.latency_max,
         boots: m.stats.boots.len(),
@@ -226,6 +234,11 @@ fn finish(
     };
     read_stream(emu, &mut out)?;
     Ok(out)
+}
+
+/// The control period the firmware's timer runs, in CPU cycles (the tick is 170 MHz).
+pub fn period_cycles(emu: &Emu) -> u64 {
+    emu.m().board.period_ticks() / emu.m().rcc.ticks_per_instr.max(1)
 }
 
 /// Run until the stream of the current boot satisfies `done`, or `limit_s`.
@@ -325,7 +338,7 @@ pub fn run(name: &str, elf: &[u8]) -> Result<Outcome> {
             );
             note(
                 "bridge off in control periods",
-                format!("{:.2}", dt * 20_000.0),
+                format!("{:.2}", dt / emu.m().board.period_s()),
             );
             emu.run_for(0.05)?;
             emu
@@ -447,6 +460,10 @@ pub fn power_up_run(elf: &[u8]) -> Result<PowerUp> {
         + second.isr_instrs_mean * second.control_periods as f64)
         / (first.control_periods + second.control_periods).max(1) as f64;
     outcome.isr_instrs_max = first.isr_instrs_max.max(second.isr_instrs_max);
+    outcome.isr_cycles_mean = (first.isr_cycles_mean * first.control_periods as f64
+        + second.isr_cycles_mean * second.control_periods as f64)
+        / (first.control_periods + second.control_periods).max(1) as f64;
+    outcome.isr_cycles_max = first.isr_cycles_max.max(second.isr_cycles_max);
     outcome.masked_max_instrs = first.masked_max_instrs.max(second.masked_max_instrs);
     outcome.violations = [first.violations.clone(), second.violations.clone()].concat();
     outcome.emulated_s = first.emulated_s + second.emulated_s;
@@ -509,18 +526,20 @@ fn raw_error_pkpk(emu: &Emu, from_s: f64) -> f64 {
 /// docs/performance.md's per-scenario table and details.
 pub fn report(outcomes: &[Outcome], elf_note: &str) -> String {
     let mut s = String::new();
-    let _ = writeln!(s, "| scenario | boots | missed periods | control periods | ISR instructions mean / max | longest masked stretch (instructions) | longest request→entry (instructions) | emulated / wall |");
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "| scenario | boots | missed periods | control periods | ISR instructions mean / max | ISR est. cycles mean / max | longest masked stretch (instructions) | longest request→entry (instructions) | emulated / wall |");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
     for o in outcomes {
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {:.0} / {} | {} | {} | {:.2} s / {:.1} s |",
+            "| {} | {} | {} | {} | {:.0} / {} | {:.0} / {} | {} | {} | {:.2} s / {:.1} s |",
             o.name,
             o.boots,
             o.missed_periods,
             o.control_periods,
             o.isr_instrs_mean,
             o.isr_instrs_max,
+            o.isr_cycles_mean,
+            o.isr_cycles_max,
             o.masked_max_instrs,
             o.latency_max_instrs,
             o.emulated_s,
@@ -554,5 +573,189 @@ pub fn report(outcomes: &[Outcome], elf_note: &str) -> String {
         let _ = writeln!(s);
     }
     let _ = writeln!(s, "{elf_note}");
+    s
+}
+
+/// The control interrupt measured over Run: the commissioning power-up of an erased
+/// board, the measurement window restarted when the stream reports `Run` (the stream is
+/// polled every 50 ms of emulated time), then `window_s` in Run.
+#[derive(Clone, Debug)]
+pub struct Perf {
+    /// The PWM rate of the timer, and the one the firmware's banner states.
+    pub pwm_hz: f64,
+    pub firmware_pwm_hz: Option<u32>,
+    pub period_cycles: u64,
+    /// The states of the power-up with the firmware's t_ms.
+    pub states: Vec<(String, u32)>,
+    /// Missed periods over the whole power-up (every trigger that found the previous
+    /// sequence unread), those after the control interrupt first ran (control periods
+    /// lost), and in the window.
+    pub missed_total: u64,
+    pub missed_control: u64,
+    pub missed_window: u64,
+    pub hard_faults: usize,
+    pub violations: Vec<String>,
+    pub isr_count: u64,
+    pub isr_instrs_mean: f64,
+    pub isr_instrs_max: u64,
+    pub isr_cycles_mean: f64,
+    pub isr_cycles_max: u64,
+    /// Per stage: (label, instructions mean, max, cycles mean, max).
+    pub stages: Vec<(&'static str, f64, u64, f64, u64)>,
+    pub masked_max_instrs: u64,
+    /// Over the power-up before the window: the longest interrupt-masked stretch
+    /// (instructions, ending at ms), the longest interrupt (instructions, cycles).
+    pub powerup_masked_max: (u64, f64),
+    pub powerup_isr_max: (u64, u64),
+    /// The missed periods: (ms, why, pc of the code running then).
+    pub missed: Vec<(f64, String, u32)>,
+    pub window_s: f64,
+    pub wall_s: f64,
+}
+
+/// Commission `elf` to Run and measure the control interrupt over `window_s` of Run.
+pub fn perf_run(elf: &[u8], window_s: f64) -> Result<Perf> {
+    let t0 = std::time::Instant::now();
+    let mut emu = fresh(elf, None)?;
+    run_until_state(&mut emu, "Run", 4.0)?;
+    let missed_before = emu.m().adcs.missed_triggers;
+    let st = &emu.m().stats;
+    let powerup_masked_max = (st.masked_max, st.masked_max_at as f64 / TICK_HZ * 1e3);
+    let powerup_isr_max = (st.isr_instrs_max, st.isr_cycles_max);
+    emu.m_mut().stats.restart_window();
+    emu.run_for(window_s)?;
+    let out = finish("perf", &emu, t0, Vec::new())?;
+    let m = emu.m();
+    let st = &m.stats;
+    let n = st.isr_count.max(1) as f64;
+    let stages = crate::profile::Stage::ALL
+        .iter()
+        .map(|s| {
+            let k = *s as usize;
+            (
+                s.label(),
+                st.stage_sum[k].0 as f64 / n,
+                st.stage_max[k].0,
+                st.stage_sum[k].1 as f64 / n,
+                st.stage_max[k].1,
+            )
+        })
+        .collect();
+    let d = stream::decode(&emu.elf, &m.rtt.bytes).context("decoding the RTT stream")?;
+    // "drive-fw: 20000 Hz PWM, SYSCLK ..."
+    let firmware_pwm_hz = d.items.iter().find_map(|i| match i {
+        Item::Other(o) => o
+            .strip_prefix("drive-fw: ")?
+            .split(" Hz PWM")
+            .next()?
+            .parse()
+            .ok(),
+        _ => None,
+    });
+    Ok(Perf {
+        pwm_hz: 1.0 / m.board.period_s(),
+        firmware_pwm_hz,
+        period_cycles: period_cycles(&emu),
+        states: out.states.first().cloned().unwrap_or_default(),
+        missed_total: m.adcs.missed_triggers,
+        missed_control: st.missed.iter().filter(|x| !x.before_control).count() as u64,
+        missed_window: m.adcs.missed_triggers - missed_before,
+        hard_faults: st.hard_faults.len(),
+        violations: out.violations,
+        isr_count: st.isr_count,
+        isr_instrs_mean: st.isr_mean(),
+        isr_instrs_max: st.isr_instrs_max,
+        isr_cycles_mean: st.isr_cycles_mean(),
+        isr_cycles_max: st.isr_cycles_max,
+        stages,
+        masked_max_instrs: st.masked_max,
+        powerup_masked_max,
+        powerup_isr_max,
+        missed: st
+            .missed
+            .iter()
+            .map(|x| {
+                let when = if x.before_control {
+                    "before the control interrupt first ran (init), "
+                } else {
+                    ""
+                };
+                let why = match (x.in_isr_instrs, x.masked_instrs) {
+                    (Some(n), _) => {
+                        format!("the control interrupt still running ({n} instructions in)")
+                    }
+                    (None, Some(n)) => format!("interrupts masked for {n} instructions"),
+                    (None, None) => "the interrupt pending behind another".to_string(),
+                };
+                (x.t as f64 / TICK_HZ * 1e3, format!("{when}{why}"), x.pc)
+            })
+            .collect(),
+        window_s,
+        wall_s: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// docs/performance.md's table of one build: the stages, the whole interrupt and the
+/// period's figures.
+pub fn perf_table(p: &Perf, title: &str) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "#### {title}: PWM {:.0} kHz, a period of {} cycles\n",
+        p.pwm_hz / 1e3,
+        p.period_cycles
+    );
+    let _ = writeln!(
+        s,
+        "| stage | instructions mean | instructions max | est. cycles mean | est. cycles max |"
+    );
+    let _ = writeln!(s, "|---|---:|---:|---:|---:|");
+    for (label, im, ix, cm, cx) in &p.stages {
+        let _ = writeln!(s, "| {label} | {im:.0} | {ix} | {cm:.0} | {cx} |");
+    }
+    let _ = writeln!(
+        s,
+        "| **whole interrupt** | **{:.0}** | **{}** | **{:.0}** | **{}** |\n",
+        p.isr_instrs_mean, p.isr_instrs_max, p.isr_cycles_mean, p.isr_cycles_max
+    );
+    let share = |c: f64| 100.0 * c / p.period_cycles.max(1) as f64;
+    let states: Vec<String> = p
+        .states
+        .iter()
+        .map(|(n, t)| format!("{n} {t} ms"))
+        .collect();
+    let _ = writeln!(
+        s,
+        "- whole interrupt: {:.0} cycles mean ({:.1} % of the period), {} max ({:.1} %), over {} interrupts in {:.1} s of Run",
+        p.isr_cycles_mean,
+        share(p.isr_cycles_mean),
+        p.isr_cycles_max,
+        share(p.isr_cycles_max as f64),
+        p.isr_count,
+        p.window_s
+    );
+    let _ = writeln!(
+        s,
+        "- longest interrupt-masked stretch in Run: {} instructions",
+        p.masked_max_instrs
+    );
+    let _ = writeln!(
+        s,
+        "- missed control periods: {} after the control interrupt started, {} in the window (trigger overruns over the whole power-up, init included: {}); HardFaults: {}; rules broken: {}",
+        p.missed_control,
+        p.missed_window,
+        p.missed_total,
+        p.hard_faults,
+        if p.violations.is_empty() { "none".to_string() } else { p.violations.join("; ") }
+    );
+    let _ = writeln!(
+        s,
+        "- before Run: longest interrupt-masked stretch {} instructions (ending at {:.1} ms), longest interrupt {} instructions / {} est. cycles",
+        p.powerup_masked_max.0, p.powerup_masked_max.1, p.powerup_isr_max.0, p.powerup_isr_max.1
+    );
+    for (ms, why, _) in &p.missed {
+        let _ = writeln!(s, "- trigger overrun at {ms:.1} ms: {why}");
+    }
+    let _ = writeln!(s, "- power-up: {}", states.join(" → "));
     s
 }

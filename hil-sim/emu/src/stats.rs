@@ -1,7 +1,22 @@
-//! What a run measured: boots, the control interrupt's executed instructions and
-//! latency, the longest interrupt-masked stretch, faults.
+//! What a run measured: boots, the control interrupt's executed instructions, its
+//! estimated cycles (total and per stage) and latency, the longest interrupt-masked
+//! stretch, faults.
 
 use crate::periph::rcc::ResetKind;
+use crate::profile::{Stage, STAGE_COUNT};
+
+/// A trigger that found the previous sequence unread: at `t` (ticks), with the control
+/// interrupt running for `in_isr_instrs` instructions, or masked for `masked_instrs`;
+/// `before_control` when the control interrupt had not run since the reset (init).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Missed {
+    pub t: u64,
+    pub before_control: bool,
+    pub in_isr_instrs: Option<u64>,
+    pub masked_instrs: Option<u64>,
+    /// The block the CPU executed last (where the firmware was).
+    pub pc: u32,
+}
 
 #[derive(Clone, Debug, Default)]
 pub struct Stats {
@@ -17,6 +32,16 @@ pub struct Stats {
     pub isr_instrs_sum: u64,
     pub isr_instrs_max: u64,
     pub isr_entered_at: Option<u64>,
+    /// The same interrupts' estimated cycles (sum, max) and the cycle count at entry
+    /// (before the exception entry's own cost).
+    pub isr_cycles_sum: u64,
+    pub isr_cycles_max: u64,
+    pub isr_cycles_entered_at: Option<u64>,
+    /// Per stage: (instructions, cycles) of the interrupt under way, summed over the
+    /// window, and the largest of one interrupt.
+    pub stage_now: [(u64, u64); STAGE_COUNT],
+    pub stage_sum: [(u64, u64); STAGE_COUNT],
+    pub stage_max: [(u64, u64); STAGE_COUNT],
     /// Longest wait from the request to the handler (instructions).
     pub latency_max: u64,
     /// Longest stretch with the control interrupt masked by PRIMASK or BASEPRI
@@ -27,6 +52,8 @@ pub struct Stats {
     /// The window is open: the control interrupt has run since the last reset (init
     /// runs masked by design and is not counted).
     pub armed: bool,
+    /// Missed control periods: when, and what held the interrupt off (see `Missed`).
+    pub missed: Vec<Missed>,
     /// HardFault entries: (ticks, stacked pc).
     pub hard_faults: Vec<(u64, u32)>,
     pub lockups: u64,
@@ -40,6 +67,10 @@ impl Stats {
         self.isr_count = 0;
         self.isr_instrs_sum = 0;
         self.isr_instrs_max = 0;
+        self.isr_cycles_sum = 0;
+        self.isr_cycles_max = 0;
+        self.stage_sum = Default::default();
+        self.stage_max = Default::default();
         self.latency_max = 0;
         self.masked_max = 0;
         self.masked_since = None;
@@ -47,5 +78,28 @@ impl Stats {
 
     pub fn isr_mean(&self) -> f64 {
         self.isr_instrs_sum as f64 / self.isr_count.max(1) as f64
+    }
+
+    pub fn isr_cycles_mean(&self) -> f64 {
+        self.isr_cycles_sum as f64 / self.isr_count.max(1) as f64
+    }
+
+    /// Charge `instrs` and `cycles` to `stage` of the control interrupt under way.
+    pub fn charge(&mut self, stage: Stage, instrs: u64, cycles: u64) {
+        let s = &mut self.stage_now[stage as usize];
+        s.0 += instrs;
+        s.1 += cycles;
+    }
+
+    /// The control interrupt returned: its stages into the window's sums and maxima.
+    pub fn close_stages(&mut self) {
+        for k in 0..STAGE_COUNT {
+            let (i, c) = self.stage_now[k];
+            self.stage_sum[k].0 += i;
+            self.stage_sum[k].1 += c;
+            self.stage_max[k].0 = self.stage_max[k].0.max(i);
+            self.stage_max[k].1 = self.stage_max[k].1.max(c);
+        }
+        self.stage_now = Default::default();
     }
 }

@@ -83,6 +83,12 @@ impl Tim1 {
         };
     }
 
+    /// The PWM period (ticks) of the running counter: up to ARR and down again, (PSC + 1)
+    /// ticks per step; 0 before the counter started.
+    pub fn period_ticks(&self) -> u64 {
+        2 * self.arr as u64 * self.step
+    }
+
     pub fn moe(regs: &RegFile) -> bool {
         regs.bit(BDTR, BDTR_MOE)
     }
