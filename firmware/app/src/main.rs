@@ -254,7 +254,6 @@ mod app {
             board::WATCHDOG_TIMEOUT_US,
         ));
 
-        let adcs = Adcs::new(dp.ADC1, dp.ADC2, dp.ADC12_COMMON);
         let flash = calibration::Flash::new(dp.FLASH);
 
         telemetry::log_paths(&telemetry::path_names(&cfg));
@@ -265,6 +264,9 @@ mod app {
             board::SENSOR_PERIODS,
             board::POLE_PAIRS
         );
+        // Last: from here TRGO2 starts a conversion every period, and init runs masked;
+        // the logging above takes longer than a 40 kHz period.
+        let adcs = Adcs::new(dp.ADC1, dp.ADC2, dp.ADC12_COMMON);
         (
             Shared {
                 command: Command::OFF,

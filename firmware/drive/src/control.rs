@@ -456,9 +456,10 @@ impl<T: Trig> ControlPeriod<T> {
     }
 
     fn limit_current(&self, i_a: f32) -> f32 {
-        // min/max, not `clamp`: `clamp` has a panic path for bounds it cannot prove.
+        // min/max, not `clamp`: `clamp` has a panic path for bounds it cannot prove; and
+        // inline ones, not the `fminf`/`fmaxf` calls of `f32::min`/`max`.
         let m = self.cfg.motor.i_max_a;
-        i_a.max(-m).min(m)
+        mras::min_f32(mras::max_f32(i_a, -m), m)
     }
 
     /// Phase currents a, b (A). A channel at a rail is beyond the measurable current.

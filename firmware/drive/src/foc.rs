@@ -2,6 +2,8 @@
 //! with decoupling and back-EMF feed-forward, anti-windup) and space-vector PWM duties
 //! (min-max zero-sequence injection).
 
+use mras::{max_f32, min_f32};
+
 const SQRT3: f32 = 1.732_050_8;
 const INV_SQRT3: f32 = 0.577_350_26;
 
@@ -39,7 +41,8 @@ pub fn svpwm(v_alpha: f32, v_beta: f32, vdc_v: f32) -> ([f32; 3], bool) {
     let b = -0.5 * va + 0.5 * SQRT3 * vb;
     let c = -0.5 * va - 0.5 * SQRT3 * vb;
     // Min-max injection centres the three phase voltages in the DC link.
-    let offset = -0.5 * (a.max(b).max(c) + a.min(b).min(c));
+    // Inline compare-and-select (`f32::max`/`min` are `fmaxf`/`fminf` calls on the MCU).
+    let offset = -0.5 * (max_f32(max_f32(a, b), c) + min_f32(min_f32(a, b), c));
     let inv = 1.0 / vdc_v;
     let duty = [a, b, c].map(|v| ((v + offset) * inv + 0.5).clamp(0.0, 1.0));
     (duty, limited)

@@ -140,7 +140,7 @@ impl MotionLoop {
         let integral = self.integral + e_int * t_s;
         let unclamped = self.inertia_kg_m2 * (r.accel_rad_s2 + alpha_pd + gain_i * integral);
         // min/max, not `clamp`: no panic path for a limit the compiler cannot prove.
-        let torque = unclamped.max(-limit_nm).min(limit_nm);
+        let torque = mras::min_f32(mras::max_f32(unclamped, -limit_nm), limit_nm);
         // Integrate unless that winds further into the limit.
         if torque == unclamped || (unclamped > limit_nm) != (e_int > 0.0) {
             self.integral = integral;

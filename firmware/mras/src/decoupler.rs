@@ -99,8 +99,6 @@ pub(crate) struct Injection {
     h_coef: [Cplx; MAX_PATHS],
     h_order: [u8; MAX_PATHS],
     h_sign: [f32; MAX_PATHS],
-    /// h as f32: d/dθ of d_h·e^{j h θ} is j·h times the term.
-    h_f32: [f32; MAX_PATHS],
     h_len: usize,
     /// Where path `i`'s term lives: `u8::MAX` for offset, `u8::MAX - 1` for C/D, else
     /// its index among the harmonic terms.
@@ -121,7 +119,6 @@ impl Injection {
                     let j = inj.h_len;
                     inj.h_order[j] = h.unsigned_abs();
                     inj.h_sign[j] = if h < 0 { -1.0 } else { 1.0 };
-                    inj.h_f32[j] = h as f32;
                     inj.h_len += 1;
                     j as u8
                 }
@@ -143,43 +140,32 @@ impl Injection {
         }
     }
 
-    /// The decoupling vector added to the measured vector before the cross product.
+    /// The decoupling vector `D(θ)` (eq. 9, 16): offset + (C·cos θ + D·sin θ on X) +
+    /// Σ d_h·e^{j h θ}, given `pw[i] = e^{j i θ}`.
     ///
-    /// Evaluated at θ̂s + `lag_rad` to first order, `D(θ̂s) + lag·dD/dθ̂s`, where the
-    /// caller's lag is the slow part of ε (≈ θs - θ̂s): when the observer lags the
-    /// rotor (a load step the feedforward does not know, until its disturbance estimate
-    /// catches up) the correction still lands at the sensor's angle.
+    /// The front evaluates it at θ̂s plus the observer's lag (the slow part of ε, ≈ θs -
+    /// θ̂s): when the observer lags the rotor (a load step the feedforward does not know,
+    /// until its disturbance estimate catches up) the correction still lands at the
+    /// sensor's angle.
     #[inline(always)]
-    pub(crate) fn decoupling_vector(&self, pw: &Powers, lag_rad: f32) -> Cplx {
-        let (d, slope) = self.vector(pw);
-        d + slope.scale(lag_rad)
-    }
-
-    /// `D(θ̂s)`: offset + (C·cos θ̂s + D·sin θ̂s on X) + Σ d_h·e^{j h θ̂s}, and its
-    /// derivative dD/dθ̂s (for [`PathBank::decoupling_vector`]'s lag correction).
-    #[inline(always)]
-    fn vector(&self, pw: &Powers) -> (Cplx, Cplx) {
+    pub(crate) fn vector(&self, pw: &Powers) -> Cplx {
         let u = pw[1];
         let mut d = Cplx::new(
             self.offset.re + self.cd.re * u.re + self.cd.im * u.im,
             self.offset.im,
         );
-        let mut slope = Cplx::new(self.cd.im * u.re - self.cd.re * u.im, 0.0);
         let n = self.h_len.min(MAX_PATHS);
-        for (((c, &k), &sign), &h) in self
+        for ((c, &k), &sign) in self
             .h_coef
             .iter()
             .zip(&self.h_order)
             .zip(&self.h_sign)
-            .zip(&self.h_f32)
             .take(n)
         {
             let p = pw[k as usize & POWER_MASK];
-            let t = *c * Cplx::new(p.re, p.im * sign);
-            d += t;
-            slope += t.mul_j().scale(h);
+            d += *c * Cplx::new(p.re, p.im * sign);
         }
-        (d, slope)
+        d
     }
 }
 
@@ -705,24 +691,8 @@ mod tests {
         for (k, c) in kinds.iter().zip(&coefs) {
             expect += injection(*k, *c, &pw);
         }
-        let (got, slope) = inj.vector(&pw);
+        let got = inj.vector(&pw);
         assert!((got - expect).abs() < 1e-7, "{got:?} vs {expect:?}");
-        // The slope is the derivative: compare with a central difference.
-        let at = |th: f32| {
-            let u = Cplx::new(libm::cosf(th), libm::sinf(th));
-            let mut pw = [Cplx::ONE; 32];
-            for i in 1..32 {
-                pw[i] = pw[i - 1] * u;
-            }
-            let mut d = Cplx::ZERO;
-            for (k, c) in kinds.iter().zip(&coefs) {
-                d += injection(*k, *c, &pw);
-            }
-            d
-        };
-        let h = 1e-3;
-        let fd = (at(0.7 + h) - at(0.7 - h)).scale(0.5 / h);
-        assert!((slope - fd).abs() < 2e-4, "{slope:?} vs {fd:?}");
     }
 
     /// The angle error of `e^{jθ} + c_k e^{jkθ}` at θ, to first order, is Im(G e^{jmθ}):

@@ -35,4 +35,4 @@ pub use config::{
 pub use decoupler::{AdaptSample, InjectionUpdate, UPDATE_LATENCY_PERIODS};
 pub use health::{Fault, Faults};
 pub use tracker::{Estimate, Front, Tracker};
-pub use trig::{inv_sqrt_f32, sin_cos_f32, sqrt_f32, F32Trig, LibmTrig, Trig};
+pub use trig::{inv_sqrt_f32, max_f32, min_f32, sin_cos_f32, sqrt_f32, F32Trig, LibmTrig, Trig};

@@ -193,12 +193,16 @@ impl<T: Trig> Front<T> {
             return self.sample(x_raw, y_raw, torque_ff_nm);
         }
 
-        // Reference unit vector and its powers at the prior estimate θ̂s.
+        // Reference unit vector at the prior estimate θ̂s.
         let (s, c) = self.trig.sin_cos(self.obs.theta_e_rad);
-        self.update_powers(Cplx::new(c, s));
+        let u = Cplx::new(c, s);
+        // The decoupling vector is evaluated at the sensor's angle, θ̂s + lag: the powers
+        // are those of u turned by e^{j·lag} ≈ 1 - lag²/2 + j·lag (|lag| ≤ 0.2 rad).
+        let lag = self.lag_rad;
+        self.update_powers(u * Cplx::new(1.0 - 0.5 * lag * lag, lag));
 
         // Decoupled vector and the cross-product error, normalised by |Zd|.
-        let zd = z + self.inject.decoupling_vector(&self.pw, self.lag_rad);
+        let zd = z + self.inject.vector(&self.pw);
         let zd2 = zd.norm_sqr();
         if zd2 < 0.25 * self.amplitude2_band[0] {
             // Coefficients plus input cancel the vector: nothing to track on.
@@ -209,7 +213,7 @@ impl<T: Trig> Front<T> {
         let eps_e_rad = (zd.im * c - zd.re * s) * inv_zd;
         // The slow part of ε is the observer's lag behind the sensor angle (ε's harmonics
         // are the residual sensor error): low-passed and bounded, it places the next
-        // decoupling vector (`PathBank::decoupling_vector`).
+        // decoupling vector (`Injection::vector`).
         self.lag_rad = (self.lag_rad + (eps_e_rad - self.lag_rad) * self.lag_alpha)
             .clamp(-MAX_LAG_RAD, MAX_LAG_RAD);
         let cos_err = (zd.re * c + zd.im * s) * inv_zd;

@@ -211,7 +211,7 @@ mod vsqrt {
 /// `min`/`max` for finite values as plain comparisons: `f32::min` is a call to
 /// `fminf` on the MCU (NaN handling the hot path does not need: inputs are checked).
 #[inline]
-pub(crate) fn min_f32(a: f32, b: f32) -> f32 {
+pub fn min_f32(a: f32, b: f32) -> f32 {
     if a < b {
         a
     } else {
@@ -220,7 +220,7 @@ pub(crate) fn min_f32(a: f32, b: f32) -> f32 {
 }
 
 #[inline]
-pub(crate) fn max_f32(a: f32, b: f32) -> f32 {
+pub fn max_f32(a: f32, b: f32) -> f32 {
     if a > b {
         a
     } else {
