@@ -32,6 +32,19 @@ pub fn floor(x: f64) -> f64 {
     }
 }
 
+/// `mras::sim::wrap_pi` (to (-π, π]), the same operations with [`floor`] inlined.
+#[inline]
+pub fn wrap_pi(a: f64) -> f64 {
+    use std::f64::consts::{PI, TAU};
+    let mut r = a - TAU * floor(a / TAU);
+    if r > PI {
+        r -= TAU;
+    } else if r <= -PI {
+        r += TAU;
+    }
+    r
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -81,6 +94,17 @@ mod tests {
     fn round_is_the_library_round() {
         for x in cases() {
             assert_eq!(round_i64(x), x.round() as i64, "{x:e}");
+        }
+    }
+
+    #[test]
+    fn wrap_pi_is_the_cores() {
+        for x in cases() {
+            let (a, b) = (wrap_pi(x), mras::sim::wrap_pi(x));
+            assert!(
+                a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()),
+                "{x:e}: {a:e} vs {b:e}"
+            );
         }
     }
 

@@ -304,12 +304,16 @@ impl SensorSim {
             x += noise.0;
             y += noise.1;
         }
-        // The code of `v` unless `v` is within the guard band of a code boundary.
-        let band = GUARD * (1.0 + ax.abs() + ay.abs() + gain.abs() * fast.amplitude_sum) / lsb;
+        // The code of `v` unless `v` is within the guard band of a code boundary. Here
+        // v·(1/lsb) stands for v/lsb: below 2^20 they differ by less than 1e-9 of a
+        // code, inside the band's floor of 1e-6.
+        let inv_lsb = 1.0 / lsb;
+        let band =
+            GUARD * (1.0 + ax.abs() + ay.abs() + gain.abs() * fast.amplitude_sum) * inv_lsb + 1e-6;
         let clear = |v: f64| {
-            let z = v / lsb;
+            let z = v * inv_lsb;
             let q = crate::exact::round_i64(z);
-            (z.abs() < 1e12 && 0.5 - (z - q as f64).abs() > band)
+            (z.abs() < 1_048_576.0 && 0.5 - (z - q as f64).abs() > band)
                 .then(|| q.clamp(-half, half - 1) as i32)
         };
         if let (Some(qx), Some(qy)) = (clear(x), clear(y)) {
