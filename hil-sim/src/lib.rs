@@ -6,6 +6,7 @@ pub mod baselines;
 pub mod cli;
 pub mod commission;
 pub mod core_config;
+pub mod exact;
 pub(crate) mod pending;
 pub mod plant;
 pub mod plots;

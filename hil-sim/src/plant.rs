@@ -27,7 +27,7 @@ const SQRT3: f64 = 1.732_050_807_568_877_2;
 /// (sin δ, cos δ), by Taylor series for the small angles a substep or a PWM period
 /// turns through (error < 2e-12 for |δ| ≤ 0.3), else the library call. Saves most of the
 /// model's transcendental functions.
-fn sin_cos_small(d: f64) -> (f64, f64) {
+pub(crate) fn sin_cos_small(d: f64) -> (f64, f64) {
     if d.abs() > 0.3 {
         return d.sin_cos();
     }
@@ -41,7 +41,7 @@ fn sin_cos_small(d: f64) -> (f64, f64) {
 }
 
 /// Rotate the unit vector (sin a, cos a) by (sin d, cos d).
-fn rotate((s, c): (f64, f64), (sd, cd): (f64, f64)) -> (f64, f64) {
+pub(crate) fn rotate((s, c): (f64, f64), (sd, cd): (f64, f64)) -> (f64, f64) {
     (s * cd + c * sd, c * cd - s * sd)
 }
 
@@ -164,8 +164,12 @@ impl CurrentAdc {
     }
 
     fn counts(&self, amps: f64) -> u16 {
-        let c = (amps / self.amps_per_count).round() + self.zero_counts as f64;
-        c.clamp(0.0, self.max_counts as f64) as u16
+        if amps.is_nan() {
+            return 0;
+        }
+        let c = crate::exact::round_i64(amps / self.amps_per_count)
+            .saturating_add(self.zero_counts as i64);
+        c.clamp(0, self.max_counts as i64) as u16
     }
 }
 
@@ -335,15 +339,13 @@ impl Plant {
     /// The ADC conversions at the start of the period, and the truth at that instant.
     pub fn sample(&mut self) -> (drive::control::Sample, Truth) {
         let t = self.time_s();
-        let (x, y) = self.sensor.sample(t, self.theta_rm, self.omega_rm);
-        let mid = (1u32 << (self.sensor_bits - 1)) as f64;
-        let max = ((1u32 << self.sensor_bits) - 1) as f64;
-        let counts = |v: f32| ((v as f64 / self.sensor_count_size).round() + mid).clamp(0.0, max);
-        let (xc, yc) = (counts(x), counts(y));
+        // The sensor's converter codes: the counts less mid-scale (same count size).
+        let (qx, qy) = self.sensor.sample_codes(t, self.theta_rm, self.omega_rm);
+        let mid = 1i32 << (self.sensor_bits - 1);
         let (ia, ib) = self.current_counts();
         let sample = drive::control::Sample {
-            x: xc as u16,
-            y: yc as u16,
+            x: (qx + mid) as u16,
+            y: (qy + mid) as u16,
             ia,
             ib,
             overcurrent: self.tripped,
@@ -353,8 +355,8 @@ impl Plant {
             t_s: t,
             theta_rad: self.theta_rm,
             omega_rad_s: self.omega_rm,
-            x: ((xc - mid) * self.sensor_count_size) as f32,
-            y: ((yc - mid) * self.sensor_count_size) as f32,
+            x: (qx as f64 * self.sensor_count_size) as f32,
+            y: (qy as f64 * self.sensor_count_size) as f32,
         };
         (sample, truth)
     }
@@ -393,63 +395,70 @@ impl Plant {
     }
 
     fn integrate_period(&mut self, open: bool) {
-        let t = self.time_s();
         let m = &self.motor;
         let p = m.pole_pairs as f64;
         let mut open = open || (self.tripped && self.break_opens_bridge);
-        let c = &self.consts;
+        let c = self.consts;
         let h = c.h_s;
-        let load = self.load_torque_nm(t);
+        let load = if m.load_steps.is_empty() {
+            0.0
+        } else {
+            self.load_torque_nm(self.time_s())
+        };
+        // The state in locals for the substeps (same operations in the same order).
+        let (mut omega, mut theta) = (self.omega_rm, self.theta_rm);
+        let [mut ia, mut ib] = self.i_ab;
+        let [va, vb] = self.v_ab_applied;
         let mut torque = 0.0;
         // One exact sin/cos per period, then rotation by the substep's electrical angle at
         // the period's starting speed (the speed change within 50 µs moves the angle by
         // less than 1e-6 rad).
-        let mut th_mid = self.theta_rm + 0.5 * h * self.omega_rm;
+        let mut th_mid = theta + 0.5 * h * omega;
         let (mut se, mut ce) = (p * th_mid).sin_cos();
-        let turn = sin_cos_small(p * self.omega_rm * h);
+        let turn = sin_cos_small(p * omega * h);
         for n in 0..c.substeps {
             if n > 0 {
                 (se, ce) = rotate((se, ce), turn);
-                th_mid += self.omega_rm * h;
+                th_mid += omega * h;
             }
             // Back-EMF e_αβ = ωe·λ·(-sin θe, cos θe).
-            let we_flux = p * self.omega_rm * m.flux_wb;
-            let e = [-we_flux * se, we_flux * ce];
-            for (i, (v, e)) in self.i_ab.iter_mut().zip(self.v_ab_applied.iter().zip(e)) {
+            let we_flux = p * omega * m.flux_wb;
+            let (ea, eb) = (-we_flux * se, we_flux * ce);
+            if open {
                 // Bridge off: open windings (the freewheel transient is not modelled).
-                *i = if open {
-                    0.0
-                } else {
-                    (*i + c.h_over_l * (v - e)) * c.k_r
-                };
+                (ia, ib) = (0.0, 0.0);
+            } else {
+                ia = (ia + c.h_over_l * (va - ea)) * c.k_r;
+                ib = (ib + c.h_over_l * (vb - eb)) * c.k_r;
             }
-            let [ia, ib] = self.i_ab;
-            let peak = ia
-                .abs()
-                .max((0.5 * ia - 0.5 * SQRT3 * ib).abs())
-                .max((0.5 * ia + 0.5 * SQRT3 * ib).abs());
-            if peak > self.break_level_a {
+            // The over-current comparator on any phase (a NaN current does not trip it).
+            let level = self.break_level_a;
+            if ia.abs() > level
+                || (0.5 * ia - 0.5 * SQRT3 * ib).abs() > level
+                || (0.5 * ia + 0.5 * SQRT3 * ib).abs() > level
+            {
                 self.tripped = true;
                 open |= self.break_opens_bridge;
             }
             // T = 1.5·p·λ·(iβ cos θe - iα sin θe).
-            let te = c.kt * (self.i_ab[1] * ce - self.i_ab[0] * se);
+            let te = c.kt * (ib * ce - ia * se);
             let mut cog = 0.0;
             for cg in &m.cogging {
                 cog += cg.amplitude_nm * (cg.harmonic as f64 * th_mid + cg.phase_rad).sin();
             }
             // Coulomb friction, smoothed over ±1 mrad/s to keep the ODE well posed.
             let coulomb = if m.coulomb_nm > 0.0 {
-                m.coulomb_nm * (self.omega_rm / 1.0e-3).tanh()
+                m.coulomb_nm * (omega / 1.0e-3).tanh()
             } else {
                 0.0
             };
-            let fric = coulomb + m.viscous_nm_s_rad * self.omega_rm;
-            self.omega_rm += (te - fric - load - cog) * c.h_over_j;
-            self.theta_rm += self.omega_rm * h;
+            let fric = coulomb + m.viscous_nm_s_rad * omega;
+            omega += (te - fric - load - cog) * c.h_over_j;
+            theta += omega * h;
             torque += te;
         }
-        self.last_torque_nm = torque / self.consts.substeps as f64;
+        (self.omega_rm, self.theta_rm, self.i_ab) = (omega, theta, [ia, ib]);
+        self.last_torque_nm = torque / c.substeps as f64;
     }
 }
 

@@ -59,7 +59,7 @@ impl Reference {
     /// A state `(θ*, ω*, α*)` as the control period takes it (whole turns kept apart in
     /// f64).
     pub fn motion_ref((th, w, a): (f64, f64, f64)) -> MotionRef {
-        let turns = (th / TAU).floor();
+        let turns = crate::exact::floor(th / TAU);
         MotionRef {
             theta: Angle {
                 turns: turns as i32,

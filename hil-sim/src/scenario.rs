@@ -2,6 +2,7 @@
 //! scenario runs twice, the paper-literal law and ours, on the same drive and sensor.
 
 use crate::core_config::CoreConfigToml;
+use crate::exact::wrap_pi;
 use crate::plant::{Cogging, LoadStep, MotorParams, Plant};
 use crate::rig::{self, ControlParams, Reference, Rig, Step};
 use crate::sensor::{Drift, Mount, SensorParams, SensorSim};
@@ -9,7 +10,7 @@ use drive::commissioning::{Adaptation, Setpoint};
 use drive::control::ControlPeriod;
 use drive::motion::LoopMode;
 use drive::telemetry::Command;
-use mras::sim::{wrap_pi, Adc, SensorHarmonic, SensorModel, SpatialError};
+use mras::sim::{Adc, SensorHarmonic, SensorModel, SpatialError};
 use mras::{AdaptationLaw, Coefficients, Tracker};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::TAU;
