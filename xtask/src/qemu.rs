@@ -319,7 +319,7 @@ const STAGES: [(&str, &str); 13] = [
         "PathBank::step",
         "gates, block sums ε·e^{-jmθ̂} (correlation)",
     ),
-    ("decoupling_vector", "decoupling vector D(θ̂)"),
+    ("Injection::vector", "decoupling vector D(θ̂)"),
     (
         "ObserverState",
         "observer (Fig. 5) and its finiteness check",

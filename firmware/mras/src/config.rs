@@ -333,15 +333,6 @@ impl Config {
             .unwrap_or(&self.paths)
     }
 
-    /// Largest power of the reference unit vector the path bank needs.
-    pub(crate) fn max_order(&self) -> usize {
-        self.paths()
-            .iter()
-            .map(|p| (p.sequence().unsigned_abs()).max(p.error_harmonic()) as usize)
-            .max()
-            .unwrap_or(0)
-    }
-
     pub fn validate(&self) -> Result<(), ConfigError> {
         positive_finite(self.sample_period_s, "sample_period_s")?;
         if self.sensor_periods == 0 {

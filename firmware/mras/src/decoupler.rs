@@ -86,84 +86,108 @@ pub(crate) fn coef_delta(kind: PathKind, g: Cplx, scale: f32) -> Cplx {
     }
 }
 
-/// The decoupling vector's terms by kind (eq. 9, 16), `coef + coef_p` of each path,
-/// refreshed when a path updates: the per-sample sum is then straight-line code.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// The decoupling vector (eq. 9, 16) as two polynomials in the reference unit vector,
+/// `D(θ) = Σ_k pos[k]·u^k + Σ_k neg[k]·ū^k` (`u = e^{jθ}`), evaluated by Horner's scheme:
+/// one complex multiply-add per order, no table of powers. Each path's term goes to its
+/// order: the offset to `pos[0]`, d_h to `pos[h]` or `neg[|h|]`, and the X-only
+/// `C·cos θ + D·sin θ` to `pos[1] = (C - jD)/2` and `neg[1] = (C + jD)/2`.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Injection {
-    /// Offset path (zero if none).
-    offset: Cplx,
-    /// C + jD of the amplitude/quadrature path (zero if none).
-    cd: Cplx,
-    /// Harmonic paths: coefficient, |h|, and the sign of the power's imaginary part
-    /// (-1 for h < 0: `e^{j h θ} = conj(e^{j|h|θ})`).
-    h_coef: [Cplx; MAX_PATHS],
-    h_order: [u8; MAX_PATHS],
-    h_sign: [f32; MAX_PATHS],
-    h_len: usize,
-    /// Where path `i`'s term lives: `u8::MAX` for offset, `u8::MAX - 1` for C/D, else
-    /// its index among the harmonic terms.
-    slot_of: [u8; MAX_PATHS],
+    kinds: [PathKind; MAX_PATHS],
+    len: usize,
+    /// `coef + coef_p` of each path, as last set.
+    coef: [Cplx; MAX_PATHS],
+    pos: Powers,
+    neg: Powers,
+    pos_degree: usize,
+    neg_degree: usize,
 }
-
-const OFFSET_SLOT: u8 = u8::MAX;
-const CD_SLOT: u8 = u8::MAX - 1;
 
 impl Injection {
     pub(crate) fn new(paths: &[PathKind]) -> Self {
-        let mut inj = Self::default();
-        for (i, p) in paths.iter().enumerate() {
-            inj.slot_of[i] = match *p {
-                PathKind::Offset => OFFSET_SLOT,
-                PathKind::AmplitudeQuadrature => CD_SLOT,
-                PathKind::Harmonic(h) => {
-                    let j = inj.h_len;
-                    inj.h_order[j] = h.unsigned_abs();
-                    inj.h_sign[j] = if h < 0 { -1.0 } else { 1.0 };
-                    inj.h_len += 1;
-                    j as u8
-                }
-            };
+        let mut inj = Self {
+            kinds: [PathKind::Offset; MAX_PATHS],
+            len: paths.len().min(MAX_PATHS),
+            coef: [Cplx::ZERO; MAX_PATHS],
+            pos: [Cplx::ZERO; 32],
+            neg: [Cplx::ZERO; 32],
+            pos_degree: 0,
+            neg_degree: 0,
+        };
+        for (k, p) in inj.kinds.iter_mut().zip(paths) {
+            *k = *p;
+        }
+        for p in paths {
+            let h = p.sequence().unsigned_abs() as usize & POWER_MASK;
+            if p.sequence() >= 0 || *p == PathKind::AmplitudeQuadrature {
+                inj.pos_degree = inj.pos_degree.max(h);
+            }
+            if p.sequence() < 0 {
+                inj.neg_degree = inj.neg_degree.max(h);
+            }
         }
         inj
     }
 
+    /// Path `path`'s new term: the polynomial coefficients it feeds are summed again over
+    /// the paths sharing them (no running sums: nothing drifts over millions of updates).
     pub(crate) fn set(&mut self, path: usize, coef: Cplx) {
-        match self.slot_of.get(path).copied() {
-            Some(OFFSET_SLOT) => self.offset = coef,
-            Some(CD_SLOT) => self.cd = coef,
-            Some(j) => {
-                if let Some(c) = self.h_coef.get_mut(j as usize) {
-                    *c = coef;
-                }
+        let (Some(slot), Some(&kind)) = (self.coef.get_mut(path), self.kinds.get(path)) else {
+            return;
+        };
+        *slot = coef;
+        let order = kind.sequence().unsigned_abs() as usize & POWER_MASK;
+        match kind {
+            PathKind::AmplitudeQuadrature => {
+                self.pos[1] = self.sum_at(1, true);
+                self.neg[1] = self.sum_at(1, false);
             }
-            None => {}
+            _ if kind.sequence() >= 0 => self.pos[order] = self.sum_at(order, true),
+            _ => self.neg[order] = self.sum_at(order, false),
         }
     }
 
-    /// The decoupling vector `D(θ)` (eq. 9, 16): offset + (C·cos θ + D·sin θ on X) +
-    /// Σ d_h·e^{j h θ}, given `pw[i] = e^{j i θ}`.
-    ///
-    /// The front evaluates it at θ̂s plus the observer's lag (the slow part of ε, ≈ θs -
-    /// θ̂s): when the observer lags the rotor (a load step the feedforward does not know,
-    /// until its disturbance estimate catches up) the correction still lands at the
-    /// sensor's angle.
+    /// Σ of the paths' contributions to `pos[order]` (or `neg[order]`).
+    fn sum_at(&self, order: usize, positive: bool) -> Cplx {
+        let mut sum = Cplx::ZERO;
+        for (&kind, &c) in self.kinds.iter().zip(&self.coef).take(self.len) {
+            let k = kind.sequence();
+            sum += match kind {
+                PathKind::AmplitudeQuadrature if order == 1 => {
+                    if positive {
+                        c.conj().scale(0.5)
+                    } else {
+                        c.scale(0.5)
+                    }
+                }
+                PathKind::AmplitudeQuadrature => Cplx::ZERO,
+                _ if k.unsigned_abs() as usize == order && (k >= 0) == positive => c,
+                _ => Cplx::ZERO,
+            };
+        }
+        sum
+    }
+
+    /// `D(θ)` for `u = e^{jθ}`.
     #[inline(always)]
-    pub(crate) fn vector(&self, pw: &Powers) -> Cplx {
-        let u = pw[1];
-        let mut d = Cplx::new(
-            self.offset.re + self.cd.re * u.re + self.cd.im * u.im,
-            self.offset.im,
-        );
-        let n = self.h_len.min(MAX_PATHS);
-        for ((c, &k), &sign) in self
-            .h_coef
-            .iter()
-            .zip(&self.h_order)
-            .zip(&self.h_sign)
-            .take(n)
-        {
-            let p = pw[k as usize & POWER_MASK];
-            d += *c * Cplx::new(p.re, p.im * sign);
+    pub(crate) fn vector(&self, u: Cplx) -> Cplx {
+        // Plain countdowns with masked indices: an iterator's bounds arithmetic would
+        // double the loop's cost.
+        let mut k = self.pos_degree & POWER_MASK;
+        let mut d = self.pos[k];
+        while k > 0 {
+            k -= 1;
+            d = d * u + self.pos[k & POWER_MASK];
+        }
+        let mut k = self.neg_degree & POWER_MASK;
+        if k > 0 {
+            let v = u.conj();
+            let mut n = self.neg[k];
+            while k > 1 {
+                k -= 1;
+                n = n * v + self.neg[k & POWER_MASK];
+            }
+            d += n * v;
         }
         d
     }
@@ -503,7 +527,7 @@ impl PathBank {
     #[inline(always)]
     fn update_powers(&mut self, u: Cplx) {
         self.pw[1] = u;
-        if let Some(higher) = self.pw.get_mut(2..=self.max_m) {
+        if let Some(higher) = self.pw.get_mut(2..self.max_m + 1) {
             let mut p = u;
             for v in higher {
                 p = p * u;
@@ -691,7 +715,7 @@ mod tests {
         for (k, c) in kinds.iter().zip(&coefs) {
             expect += injection(*k, *c, &pw);
         }
-        let got = inj.vector(&pw);
+        let got = inj.vector(u);
         assert!((got - expect).abs() < 1e-7, "{got:?} vs {expect:?}");
     }
 

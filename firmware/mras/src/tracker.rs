@@ -6,7 +6,7 @@ use crate::adapter::Adapter;
 use crate::coefficients::{CoefficientsError, Convergence};
 use crate::complex::Cplx;
 use crate::config::{Config, ConfigError};
-use crate::decoupler::{AdaptSample, Injection, InjectionUpdate, Powers};
+use crate::decoupler::{AdaptSample, Injection, InjectionUpdate};
 use crate::health::{Fault, Faults};
 use crate::observer::{DiscreteGains, ObserverGains, ObserverState};
 use crate::trig::{inv_sqrt_f32, sin_cos_f32, F32Trig, Trig};
@@ -55,8 +55,6 @@ pub struct Front<T: Trig = F32Trig> {
     gains: ObserverGains,
     discrete: DiscreteGains,
     obs: ObserverState,
-    /// Powers of the reference unit vector, `pw[i] = e^{j i θ̂s}` (pw[0] = 1).
-    pw: Powers,
     /// `obs.periods` split into (sensor period within the turn, turns); refreshed only
     /// when the period count changes, to keep integer division out of most samples.
     mech: (i32, i32),
@@ -72,7 +70,6 @@ pub struct Front<T: Trig = F32Trig> {
     frozen: bool,
     faults: Faults,
     last: Estimate,
-    max_order: usize,
     cos_lock: f32,
     inv_n: f32,
     /// |Z|² limits of the health band (min², max²).
@@ -112,13 +109,11 @@ impl<T: Trig> Front<T> {
             discrete: DiscreteGains::new(&gains, cfg.sample_period_s, cfg.sensor_periods),
             gains,
             obs: ObserverState::default(),
-            pw: [Cplx::ONE; 32],
             mech: (0, 0),
             acquired: false,
             frozen: false,
             faults: Faults::default(),
             last: Estimate::default(),
-            max_order: cfg.max_order().min(31),
             cos_lock: sin_cos_f32(cfg.health.lock_threshold_rad).1,
             inv_n: 1.0 / cfg.sensor_periods as f32,
             lag_rad: 0.0,
@@ -156,10 +151,6 @@ impl<T: Trig> Front<T> {
     pub fn step(&mut self, x_raw: f32, y_raw: f32, torque_ff_nm: f32) -> Result<Estimate, Fault> {
         self.index = self.index.wrapping_add(1);
         self.handoff = None;
-        self.sample(x_raw, y_raw, torque_ff_nm)
-    }
-
-    fn sample(&mut self, x_raw: f32, y_raw: f32, torque_ff_nm: f32) -> Result<Estimate, Fault> {
         let inp = &self.cfg.input;
         // One comparison each rejects NaN, ±inf and railed values; which of them it was
         // is sorted out on the rejecting path only.
@@ -190,19 +181,18 @@ impl<T: Trig> Front<T> {
         if !self.acquired {
             // Once: start at the measured angle, then run this sample as any other.
             self.acquire(z);
-            return self.sample(x_raw, y_raw, torque_ff_nm);
         }
 
         // Reference unit vector at the prior estimate θ̂s.
         let (s, c) = self.trig.sin_cos(self.obs.theta_e_rad);
         let u = Cplx::new(c, s);
-        // The decoupling vector is evaluated at the sensor's angle, θ̂s + lag: the powers
-        // are those of u turned by e^{j·lag} ≈ 1 - lag²/2 + j·lag (|lag| ≤ 0.2 rad).
+        // The decoupling vector is evaluated at the sensor's angle, θ̂s + lag: at u turned
+        // by e^{j·lag} ≈ 1 - lag²/2 + j·lag (|lag| ≤ 0.2 rad).
         let lag = self.lag_rad;
-        self.update_powers(u * Cplx::new(1.0 - 0.5 * lag * lag, lag));
+        let u_sensor = u * Cplx::new(1.0 - 0.5 * lag * lag, lag);
 
         // Decoupled vector and the cross-product error, normalised by |Zd|.
-        let zd = z + self.inject.vector(&self.pw);
+        let zd = z + self.inject.vector(u_sensor);
         let zd2 = zd.norm_sqr();
         if zd2 < 0.25 * self.amplitude2_band[0] {
             // Coefficients plus input cancel the vector: nothing to track on.
@@ -264,20 +254,6 @@ impl<T: Trig> Front<T> {
             Err(Fault::LossOfLock)
         } else {
             Ok(est)
-        }
-    }
-
-    /// `pw[i] = u^i` up to the largest order the paths need, by complex multiplication
-    /// (kept in the tracker: no initialisation of the array per sample).
-    #[inline(always)]
-    fn update_powers(&mut self, u: Cplx) {
-        self.pw[1] = u;
-        if let Some(higher) = self.pw.get_mut(2..=self.max_order) {
-            let mut p = u;
-            for v in higher {
-                p = p * u;
-                *v = p;
-            }
         }
     }
 
