@@ -559,7 +559,6 @@ mod tests {
                     duties,
                     enable: true,
                     supervisor_due: false,
-                    handoff: None,
                 });
             }
             out.push((p.theta_rad(), p.i_ab));

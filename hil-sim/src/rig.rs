@@ -283,7 +283,6 @@ impl<T: Trig> Rig<T> {
                 duties: [0.5; 3],
                 enable: false,
                 supervisor_due: false,
-                handoff: None,
             },
         }
     }
@@ -350,7 +349,6 @@ impl<T: Trig> Rig<T> {
             self.missed_periods += 1;
             Output {
                 supervisor_due: false,
-                handoff: None,
                 ..self.last_output
             }
         } else {
@@ -366,7 +364,7 @@ impl<T: Trig> Rig<T> {
             }
             self.period.step(&sample, &self.command)
         };
-        if let Some(h) = &out.handoff {
+        if let (false, Some(h)) = (stalled, self.period.handoff()) {
             self.updates.extend(self.adaptation.step(h));
         }
         if out.supervisor_due {

@@ -311,7 +311,7 @@ mod app {
         }
         let out = l.period.step(&sample, &command);
         l.pwm.apply(&out);
-        if let Some(h) = out.handoff {
+        if let Some(&h) = l.period.handoff() {
             if l.handoff_tx.enqueue(h).is_err() {
                 l.period.note_handoff_dropped();
             }

@@ -1,7 +1,7 @@
 //! The MRAS adaptation's side of the drive: a task below the control period.
 //!
 //! The control period ([`crate::control::ControlPeriod::step`]) hands every accepted
-//! sample over ([`crate::control::Output::handoff`]); [`AdaptationTask::step`] turns them into
+//! sample over ([`crate::control::ControlPeriod::handoff`]); [`AdaptationTask::step`] turns them into
 //! the decoupling vector's updates, which go back through
 //! [`crate::control::ControlPeriod::apply`], in force a fixed latency after their sample
 //! ([`mras::UPDATE_LATENCY_PERIODS`]). The firmware queues both ways between its control

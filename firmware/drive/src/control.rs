@@ -6,7 +6,7 @@
 //! period. The firmware's control interrupt is "read registers, [`ControlPeriod::step`],
 //! write registers"; hil-sim calls the same function on its simulated ADC counts. The
 //! MRAS adaptation is not in it: each accepted sample is handed over
-//! ([`Output::handoff`]) to [`crate::adaptation::AdaptationTask`], which runs below the
+//! ([`ControlPeriod::handoff`]) to [`crate::adaptation::AdaptationTask`], which runs below the
 //! control period, and its updates come back through [`ControlPeriod::apply`].
 //!
 //! One latched safe state: a fault in any period (sensor, ADC range, over-current)
@@ -100,9 +100,6 @@ pub struct Output {
     pub enable: bool,
     /// Take a [`ControlPeriod::snapshot`] and run the supervisor.
     pub supervisor_due: bool,
-    /// This period's sample for the adaptation, if the core accepted it (flagged
-    /// [`AdaptSample::REPORT`] on supervisor periods).
-    pub handoff: Option<AdaptSample>,
 }
 
 /// The control period and its state.
@@ -273,6 +270,14 @@ impl<T: Trig> ControlPeriod<T> {
         self.reference = r;
     }
 
+    /// This period's sample for the adaptation, if the core accepted it (flagged
+    /// [`AdaptSample::REPORT`] on supervisor periods): the hardware layer hands a copy to
+    /// [`crate::adaptation::AdaptationTask`].
+    #[inline(always)]
+    pub fn handoff(&self) -> Option<&AdaptSample> {
+        self.tracker.handoff()
+    }
+
     /// The hardware layer could not hand this period's sample over (queue full).
     pub fn note_handoff_dropped(&mut self) {
         self.handoffs_dropped = self.handoffs_dropped.saturating_add(1);
@@ -344,12 +349,9 @@ impl<T: Trig> ControlPeriod<T> {
         if supervisor_due {
             self.until_supervisor = self.cfg.supervisor_divider;
         }
-        let handoff = self.tracker.take_handoff().map(|mut h| {
-            if supervisor_due {
-                h.flags |= AdaptSample::REPORT;
-            }
-            h
-        });
+        if supervisor_due {
+            self.tracker.mark_handoff(AdaptSample::REPORT);
+        }
         let (ia, ib) = currents.unwrap_or((0.0, 0.0));
         self.last_currents_a = (ia, ib);
         let sweeping = matches!(cmd.setpoint, Setpoint::Sweep { .. });
@@ -358,7 +360,7 @@ impl<T: Trig> ControlPeriod<T> {
         }
         self.sweeping = sweeping;
         if self.latched.is_some() || cmd.setpoint == Setpoint::Off {
-            return self.disarm(supervisor_due, handoff);
+            return self.disarm(supervisor_due);
         }
 
         let est = self.tracker.last_estimate();
@@ -438,11 +440,10 @@ impl<T: Trig> ControlPeriod<T> {
             duties,
             enable: true,
             supervisor_due,
-            handoff,
         }
     }
 
-    fn disarm(&mut self, supervisor_due: bool, handoff: Option<AdaptSample>) -> Output {
+    fn disarm(&mut self, supervisor_due: bool) -> Output {
         self.current.reset();
         self.speed.reset();
         self.application.reset();
@@ -451,7 +452,6 @@ impl<T: Trig> ControlPeriod<T> {
             duties: [0.5; 3],
             enable: false,
             supervisor_due,
-            handoff,
         }
     }
 

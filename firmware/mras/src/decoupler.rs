@@ -97,6 +97,9 @@ pub(crate) struct Injection {
     len: usize,
     /// `coef + coef_p` of each path, as last set.
     coef: [Cplx; MAX_PATHS],
+    /// The path's polynomial coefficients are its alone (the usual case): an update
+    /// writes them instead of summing over the paths (it runs in the control interrupt).
+    alone: [bool; MAX_PATHS],
     pos: Powers,
     neg: Powers,
     pos_degree: usize,
@@ -109,6 +112,7 @@ impl Injection {
             kinds: [PathKind::Offset; MAX_PATHS],
             len: paths.len().min(MAX_PATHS),
             coef: [Cplx::ZERO; MAX_PATHS],
+            alone: [true; MAX_PATHS],
             pos: [Cplx::ZERO; 32],
             neg: [Cplx::ZERO; 32],
             pos_degree: 0,
@@ -116,6 +120,23 @@ impl Injection {
         };
         for (k, p) in inj.kinds.iter_mut().zip(paths) {
             *k = *p;
+        }
+        // Orders a path feeds: (order, positive) pairs, two for C/D.
+        let feeds = |p: PathKind| -> [(usize, bool); 2] {
+            let k = p.sequence();
+            match p {
+                PathKind::AmplitudeQuadrature => [(1, true), (1, false)],
+                _ => [(k.unsigned_abs() as usize, k >= 0); 2],
+            }
+        };
+        for (i, p) in paths.iter().enumerate() {
+            let shared = paths
+                .iter()
+                .enumerate()
+                .any(|(j, q)| j != i && feeds(*p).iter().any(|f| feeds(*q).contains(f)));
+            if let Some(a) = inj.alone.get_mut(i) {
+                *a = !shared;
+            }
         }
         for p in paths {
             let h = p.sequence().unsigned_abs() as usize & POWER_MASK;
@@ -137,6 +158,17 @@ impl Injection {
         };
         *slot = coef;
         let order = kind.sequence().unsigned_abs() as usize & POWER_MASK;
+        if self.alone.get(path).copied().unwrap_or(false) {
+            match kind {
+                PathKind::AmplitudeQuadrature => {
+                    self.pos[1] = coef.conj().scale(0.5);
+                    self.neg[1] = coef.scale(0.5);
+                }
+                _ if kind.sequence() >= 0 => self.pos[order] = coef,
+                _ => self.neg[order] = coef,
+            }
+            return;
+        }
         match kind {
             PathKind::AmplitudeQuadrature => {
                 self.pos[1] = self.sum_at(1, true);
@@ -717,6 +749,34 @@ mod tests {
         }
         let got = inj.vector(u);
         assert!((got - expect).abs() < 1e-7, "{got:?} vs {expect:?}");
+    }
+
+    /// Paths sharing an order (h = -1 beside C/D, twice h = 3) sum into it.
+    #[test]
+    fn paths_sharing_an_order_add_up() {
+        let kinds = [
+            PathKind::AmplitudeQuadrature,
+            PathKind::Harmonic(-1),
+            PathKind::Harmonic(3),
+            PathKind::Harmonic(3),
+            PathKind::Harmonic(5),
+        ];
+        let mut inj = Injection::new(&kinds);
+        assert_eq!(inj.alone[..5], [false, false, false, false, true]);
+        let coefs: [Cplx; 5] = core::array::from_fn(|i| Cplx::new(0.02 * i as f32 + 0.01, 0.005));
+        for (i, c) in coefs.iter().enumerate() {
+            inj.set(i, *c);
+        }
+        let u = Cplx::new(libm::cosf(-1.1), libm::sinf(-1.1));
+        let mut pw = [Cplx::ONE; 32];
+        for i in 1..32 {
+            pw[i] = pw[i - 1] * u;
+        }
+        let expect = kinds
+            .iter()
+            .zip(&coefs)
+            .fold(Cplx::ZERO, |a, (k, c)| a + injection(*k, *c, &pw));
+        assert!((inj.vector(u) - expect).abs() < 1e-6);
     }
 
     /// The angle error of `e^{jθ} + c_k e^{jkθ}` at θ, to first order, is Im(G e^{jmθ}):

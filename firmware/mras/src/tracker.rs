@@ -62,10 +62,12 @@ pub struct Front<T: Trig = F32Trig> {
     inject: Injection,
     /// Periods stepped (wrapping): the clock of [`InjectionUpdate::apply_at`].
     index: u32,
-    /// This period's sample for the adaptation, if it was accepted.
-    handoff: Option<AdaptSample>,
-    /// |Z| of the acquisition, handed over with the first sample after it.
-    restart: Option<f32>,
+    /// The last accepted sample for the adaptation, and whether it is this period's.
+    handoff: AdaptSample,
+    handed: bool,
+    /// |Z| of an acquisition, handed over with the first sample after it (flag set).
+    restart: bool,
+    restart_amplitude: f32,
     acquired: bool,
     frozen: bool,
     faults: Faults,
@@ -104,8 +106,10 @@ impl<T: Trig> Front<T> {
         Ok(Self {
             inject: Injection::new(cfg.paths()),
             index: 0,
-            handoff: None,
-            restart: None,
+            handoff: AdaptSample::default(),
+            handed: false,
+            restart: false,
+            restart_amplitude: 0.0,
             discrete: DiscreteGains::new(&gains, cfg.sample_period_s, cfg.sensor_periods),
             gains,
             obs: ObserverState::default(),
@@ -147,10 +151,10 @@ impl<T: Trig> Front<T> {
     /// (so that it can re-acquire) but adaptation is suspended until [`Self::clear_faults`].
     ///
     /// An accepted sample (`Ok`, or `Err(LossOfLock)`) leaves its [`AdaptSample`] for
-    /// [`Self::take_handoff`]. Updates due by this period must have been applied first.
+    /// [`Self::handoff`]. Updates due by this period must have been applied first.
     pub fn step(&mut self, x_raw: f32, y_raw: f32, torque_ff_nm: f32) -> Result<Estimate, Fault> {
         self.index = self.index.wrapping_add(1);
-        self.handoff = None;
+        self.handed = false;
         let inp = &self.cfg.input;
         // One comparison each rejects NaN, ±inf and railed values; which of them it was
         // is sorted out on the rejecting path only.
@@ -226,12 +230,14 @@ impl<T: Trig> Front<T> {
         } else {
             AdaptSample::LOCKED
         } | if self.frozen { AdaptSample::FROZEN } else { 0 }
-            | if self.restart.is_some() {
+            | if self.restart {
                 AdaptSample::RESTART
             } else {
                 0
             };
-        self.handoff = Some(AdaptSample {
+        self.restart = false;
+        self.handed = true;
+        self.handoff = AdaptSample {
             index: self.index,
             eps_e_rad,
             u: Cplx::new(c, s),
@@ -239,9 +245,9 @@ impl<T: Trig> Front<T> {
             amplitude,
             disturbance_nm: o.disturbance_nm,
             torque_ff_nm,
-            restart_amplitude: self.restart.take().unwrap_or(0.0),
+            restart_amplitude: self.restart_amplitude,
             flags,
-        });
+        };
 
         let mut est = self.estimate_of(&self.obs, amplitude, eps_e_rad, false);
         est.decoupled = zd;
@@ -279,7 +285,8 @@ impl<T: Trig> Front<T> {
         };
         self.mech = (0, 0);
         self.lag_rad = 0.0;
-        self.restart = Some(z.abs());
+        self.restart = true;
+        self.restart_amplitude = z.abs();
         self.acquired = true;
     }
 
@@ -342,9 +349,17 @@ impl<T: Trig> Front<T> {
         self.faults = Faults::default();
     }
 
-    /// This period's sample for the adaptation (`None` if it was rejected).
-    pub fn take_handoff(&mut self) -> Option<AdaptSample> {
-        self.handoff.take()
+    /// This period's sample for the adaptation (`None` if it was rejected); read in
+    /// place, the caller copies it where it goes.
+    #[inline(always)]
+    pub fn handoff(&self) -> Option<&AdaptSample> {
+        self.handed.then_some(&self.handoff)
+    }
+
+    /// Add a flag (e.g. [`AdaptSample::REPORT`]) to this period's sample, if any.
+    #[inline(always)]
+    pub fn mark_handoff(&mut self, flag: u8) {
+        self.handoff.flags |= flag;
     }
 
     /// The period count of the last [`Self::step`].
@@ -415,7 +430,7 @@ impl<T: Trig> Tracker<T> {
         }
         let result = self.front.step(x_raw, y_raw, torque_ff_nm);
         // `adapting` stays that of the last accepted sample, as the estimate does.
-        if let Some(s) = self.front.take_handoff() {
+        if let Some(&s) = self.front.handoff() {
             let (adapting, update) = self.adapter.step(&s);
             self.adapting = adapting;
             if let Some(u) = update {

@@ -31,7 +31,7 @@ fn split_run(
             adapting: false,
             ..e
         });
-        to_task.extend(front.take_handoff());
+        to_task.extend(front.handoff().copied());
         if k % task_every == task_every - 1 {
             for s in to_task.drain(..) {
                 let (_, update) = adapter.step(&s);

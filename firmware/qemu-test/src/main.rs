@@ -98,7 +98,7 @@ fn main() -> ! {
                 mras_step_begin(2 * config as u32);
             }
             let r = front.step(x, y, tq);
-            let handoff = front.take_handoff();
+            let handoff = front.handoff().copied();
             if measure_front {
                 mras_step_end();
             }

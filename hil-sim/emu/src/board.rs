@@ -85,7 +85,6 @@ impl Board {
             duties: [0.0; 3],
             enable: false,
             supervisor_due: false,
-            handoff: None,
         }
     }
 
@@ -141,7 +140,6 @@ impl Board {
             duties,
             enable: on,
             supervisor_due: false,
-            handoff: None,
         });
         self.plant_at += n * self.period_ticks;
         self.last = self.plant.sample();
