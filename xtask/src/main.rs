@@ -32,8 +32,9 @@ cargo xtask <command>
   test-host     host tests only
   build-cross   release cross-build of the portable crates and the firmware, size report
   size          size report of the firmware (flash and static RAM against budgets)
-  isr-check     the release firmware's control interrupt reaches no f64 soft-float
-                routine, no panic path and no indirect call (disassembly scan)
+  isr-check     the release firmware's control interrupt and adaptation task reach no
+                f64 soft-float routine, no panic path and no indirect call (disassembly
+                scan)
   flash         build, flash and attach to the RTT stream (probe-rs, board attached)
   qemu          the core on an emulated Cortex-M4F: bit-exact against the host
   cycles        instructions and estimated cycles per core step (emulator trace)
