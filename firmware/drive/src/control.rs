@@ -348,8 +348,6 @@ impl<T: Trig> ControlPeriod<T> {
         let supervisor_due = self.until_supervisor == 0;
         if supervisor_due {
             self.until_supervisor = self.cfg.supervisor_divider;
-        }
-        if supervisor_due {
             self.tracker.mark_handoff(AdaptSample::REPORT);
         }
         let (ia, ib) = currents.unwrap_or((0.0, 0.0));
