@@ -51,6 +51,41 @@ pub struct Plan {
 pub const SPECTRUM_PHASE: usize = 0;
 
 impl Plan {
+    /// The phases as the results page's markdown table.
+    pub fn table(&self) -> String {
+        let rows = self.phases.iter().enumerate().map(|(i, p)| {
+            let what = match p.kind {
+                PhaseKind::Commissioning => format!(
+                    "from rest; trackers frozen until {} s, then adapting; the offline \
+                     calibration spin is its last {} revolutions",
+                    p.settle_s, self.calibration_revs
+                ),
+                PhaseKind::Drift => "sensor offsets and gain drift from the phase start".into(),
+                _ => p
+                    .load_steps
+                    .iter()
+                    .map(|(t, pu)| format!("load {:.0} % rated at +{t} s", pu * 100.0))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            };
+            let from = match i {
+                0 => "not scored".into(),
+                _ => format!("+{} s", p.settle_s),
+            };
+            let (speed, ramp) = (p.speed_rev_s, p.accel_rad_s2);
+            let cells = [format!("{speed:+} rev/s"), format!("{ramp} rad/s²")];
+            [
+                vec![p.name.into()],
+                cells.into(),
+                vec![format!("{} s", p.duration_s), from, what],
+            ]
+            .concat()
+        });
+        let head = "| phase | speed | ramp | duration | scored from | what else |\n\
+                    |---|---:|---:|---:|---:|---|";
+        super::page::table(head, rows)
+    }
+
     /// The published run: 4 s simulated per sensor. The other speed is +40 rev/s: the
     /// default 48 V motor's back-EMF reaches the inverter's voltage limit near 55 rev/s,
     /// where the speed loop winds up and the torque feedforward stops matching the

@@ -108,3 +108,61 @@ pub fn draw_sensor(seed: u64, index: usize) -> SensorCase {
         noise_seed,
     }
 }
+
+impl Distribution {
+    /// The ranges as the results page's markdown table.
+    pub fn table(&self) -> String {
+        let pct = |x: f64| format!("{:.0}", 100.0 * x);
+        let h = self.harmonic_orders.map(|h| h.to_string()).join(", ");
+        let (noise, adc) = (100.0 * self.noise_min, &self.adc);
+        let rows = [
+            [
+                "offsets Ax, Ay",
+                &format!("±{} % of the amplitude", pct(self.offset_max)),
+            ],
+            [
+                "amplitude imbalance i = (Bx1 - By1)/mean",
+                &format!(
+                    "±{} % (Bx1 = 1 + i/2, By1 = 1 - i/2)",
+                    pct(self.imbalance_max)
+                ),
+            ],
+            ["quadrature φx1", &format!("±{}°", self.quadrature_max_deg)],
+            [
+                "harmonics h",
+                &format!(
+                    "{h}, all present; Bxh and Byh each 0..{} %, phases φxh, φyh each 0..2π",
+                    pct(self.harmonic_max)
+                ),
+            ],
+            [
+                "noise σ per channel",
+                &format!(
+                    "{noise:.2} %..{:.1} % of the amplitude (log-uniform)",
+                    100.0 * self.noise_max
+                ),
+            ],
+            [
+                "ADC",
+                &format!("{} bits over ±{}", adc.bits, adc.full_scale),
+            ],
+            [
+                "X/Y sampling skew",
+                &format!("0..{:.0} µs (Y later)", self.skew_max_s * 1e6),
+            ],
+            [
+                "drift, drift phase only",
+                &format!(
+                    "dAx/dt, dAy/dt, gain each ±{} %/s",
+                    pct(self.drift_max_per_s)
+                ),
+            ],
+            [
+                "eccentricity",
+                "none (a mechanical error no method here could see)",
+            ],
+        ];
+        let rows = rows.map(|r| r.map(String::from).to_vec());
+        super::page::table("| parameter | range |\n|---|---|", rows)
+    }
+}

@@ -133,6 +133,10 @@ pub fn write_outputs(
     page: &Path,
     plots: &Path,
 ) -> Result<(), String> {
+    // The page first: a template that cannot be filled writes nothing.
+    let page_dir = page.parent().unwrap_or(Path::new(""));
+    let rel = plots.strip_prefix(page_dir).unwrap_or(plots);
+    let text = markdown(summary, plan, info, &rel.to_string_lossy())?;
     std::fs::create_dir_all(plots)
         .map_err(|e| format!("cannot create directory {}: {e}", plots.display()))?;
     write_plots(results, summary, plan, plots)?;
@@ -140,9 +144,7 @@ pub fn write_outputs(
         &plots.join("per_sensor.csv"),
         &per_sensor_csv(results, plan),
     )?;
-    let page_dir = page.parent().unwrap_or(Path::new(""));
-    let rel = plots.strip_prefix(page_dir).unwrap_or(plots);
-    write_file(page, &markdown(summary, plan, info, &rel.to_string_lossy()))
+    write_file(page, &text)
 }
 
 fn write_file(path: &Path, text: &str) -> Result<(), String> {
