@@ -1,7 +1,18 @@
 //! The board: NUCLEO-G474RE with an X-NUCLEO-IHM08M1-class three-phase inverter shield
 //! and a KMZ41/KMZ60-class analog sin/cos sensor. The one owner of the clock tree, the
-//! pin map and the electrical ratings. Verify the pin map against your shield's
-//! schematic before the first power-up (docs/hardware.md).
+//! pin map and the electrical ratings: [`setup`] brings them up and hands the app its
+//! peripherals. Verify the pin map against your shield's schematic before the first
+//! power-up (docs/hardware.md).
+
+use crate::calibration::Flash;
+use crate::pwm::Pwm;
+use stm32g4xx_hal::gpio::GpioExt;
+use stm32g4xx_hal::independent_watchdog::IndependentWatchdog;
+use stm32g4xx_hal::pwr::{PwrExt, VoltageScale};
+use stm32g4xx_hal::rcc::{
+    Config as RccConfig, PllConfig, PllMDiv, PllNMul, PllRDiv, PllSrc, RccExt,
+};
+use stm32g4xx_hal::stm32::{Peripherals, ADC1, ADC12_COMMON, ADC2, RCC};
 
 /// SYSCLK from HSI16 through the PLL: 16 MHz / M 4 × N 85 / R 2 = 170 MHz, range 1 boost
 /// (RM0440 §7.2.4, §6.1.5).
@@ -124,5 +135,136 @@ pub fn commissioning_params() -> drive::commissioning::Params {
     drive::commissioning::Params {
         align_current_a: 0.2 * I_MAX_A,
         ..drive::commissioning::Params::default()
+    }
+}
+
+/// The core's sine/cosine: the CORDIC, or the portable `F32Trig` (feature `cordic`).
+#[cfg(feature = "cordic")]
+pub type CoreTrig = crate::cordic::Trig;
+#[cfg(not(feature = "cordic"))]
+pub type CoreTrig = mras::F32Trig;
+
+/// What [`setup`] hands the app: the peripherals its tasks own, and why the last run
+/// ended.
+pub struct Board {
+    /// TIM1 with the bridge off (MOE = 0), its pins on AF6.
+    pub pwm: Pwm,
+    pub trig: CoreTrig,
+    pub flash: Flash,
+    /// Not started: the app starts it once init's work is done.
+    pub watchdog: IndependentWatchdog,
+    /// Not started: from the moment they are, TRGO2 starts a conversion every period,
+    /// so the app brings them up last ([`crate::adc::Adcs::new`]).
+    pub adc: (ADC1, ADC2, ADC12_COMMON),
+    /// The last reset was the independent watchdog's (RCC_CSR.IWDGRSTF, now cleared).
+    pub watchdog_reset: bool,
+}
+
+/// Clocks, pins and peripherals, in the order the safe state needs: the bridge's
+/// outputs are at their off level before their pins leave reset.
+pub fn setup(dp: Peripherals, cp: &mut cortex_m::Peripherals) -> Board {
+    // The cycle counter first: the ADC bring-up's timeouts (adc.rs) count its cycles.
+    cp.DCB.enable_trace();
+    cp.DWT.enable_cycle_counter();
+
+    // A debugger halt stops TIM1 (RM0440 DBGMCU_APB2FZR.DBG_TIM1_STOP); with the
+    // counter stopped the timer disables its outputs as if MOE were reset (TIM1
+    // "debug mode", OSSI = 1: off level), so a halted current loop never leaves the
+    // bridge switching on its last duties.
+    dp.DBGMCU
+        .apb2_fz()
+        .modify(|_, w| w.dbg_tim1_stop().set_bit());
+    // Debug builds only (DBGMCU_APB1FZR1.DBG_IWDG_STOP): the watchdog pauses while
+    // halted, so breakpoints do not reset the board. Release builds keep it counting.
+    #[cfg(debug_assertions)]
+    dp.DBGMCU
+        .apb1l_fz()
+        .modify(|_, w| w.dbg_iwdg_stop().set_bit());
+
+    {
+        // SAFETY: init-time clock enables through the PAC, before `dp.RCC` is
+        // constrained; nothing else runs.
+        let rcc = unsafe { &*RCC::ptr() };
+        // §7.4 (RCC_APB1ENR1): the PWR clock, which the HAL's `freeze` does not enable
+        // although it reads PWR_CR1.VOS and writes PWR_CR5.R1MODE (boost). Read back
+        // before the first PWR access (ST's "delay after an RCC peripheral clock
+        // enabling").
+        rcc.apb1enr1().modify(|_, w| w.pwren().set_bit());
+        let _ = rcc.apb1enr1().read();
+        // §7.4 (RCC_APB2ENR): the SYSCFG clock, read back before the CFGR2 write.
+        rcc.apb2enr().modify(|_, w| w.syscfgen().set_bit());
+        let _ = rcc.apb2enr().read();
+    }
+    // §10.2.8 SYSCFG_CFGR2.CLL: a core lockup (a fault in the HardFault handler, a
+    // bad stack) reaches TIM1's break input and clears MOE in hardware, where no
+    // software runs any more. Set once; only a reset clears it.
+    dp.SYSCFG.cfgr2().modify(|_, w| w.cll().set_bit());
+
+    // Clock tree (SYSCLK_HZ): HSI16 / 4 × 85 / 2, range 1 boost.
+    let pwr = dp
+        .PWR
+        .constrain()
+        .vos(VoltageScale::Range1 { enable_boost: true })
+        .freeze();
+    let pll = PllConfig {
+        mux: PllSrc::HSI,
+        m: PllMDiv::DIV_4,
+        n: PllNMul::MUL_85,
+        r: Some(PllRDiv::DIV_2),
+        q: None,
+        p: None,
+    };
+    let mut rcc = dp
+        .RCC
+        .constrain()
+        .freeze(RccConfig::pll().pll_cfg(pll).boost(true), pwr);
+
+    // TIM1 before its pins: outputs driven to their off level (OSSI = 1, MOE = 0)
+    // from the moment the pins become AF6, never floating (pwm.rs).
+    let pwm = Pwm::new(dp.TIM1);
+
+    // Pin map (`pins`): TIM1 outputs and break on AF6, sensor and currents analog.
+    let gpioa = dp.GPIOA.split(&mut rcc);
+    let gpiob = dp.GPIOB.split(&mut rcc);
+    let gpioc = dp.GPIOC.split(&mut rcc);
+    let break_pin = gpioa.pa6.into_alternate::<6>();
+    let _pwm_pins = (
+        gpioa.pa8.into_alternate::<6>(),
+        gpioa.pa9.into_alternate::<6>(),
+        gpioa.pa10.into_alternate::<6>(),
+        gpioa.pa7.into_alternate::<6>(),
+        gpiob.pb0.into_alternate::<6>(),
+        gpiob.pb1.into_alternate::<6>(),
+    );
+    let _analog = (
+        gpioa.pa0.into_analog(),
+        gpioa.pa1.into_analog(),
+        gpioc.pc0.into_analog(),
+        gpioc.pc1.into_analog(),
+    );
+    // A break may have latched while BKIN's pin was not yet on AF6 (a low input is
+    // active). 1 µs covers the break filter (8 timer clocks) after the pin switch;
+    // then clear it, unless the comparator holds the input active.
+    cortex_m::asm::delay(SYSCLK_HZ / 1_000_000);
+    pwm.clear_boot_break(break_pin.is_low());
+
+    #[cfg(feature = "cordic")]
+    let trig = crate::cordic::Cordic::new(dp.CORDIC);
+    #[cfg(not(feature = "cordic"))]
+    let trig = mras::F32Trig;
+
+    // Why did the last run end? (RM0440 §7.4.29 RCC_CSR.) Read, then clear the flags.
+    // SAFETY: read and clear of the reset flags during init.
+    let csr = unsafe { &*RCC::ptr() }.csr();
+    let watchdog_reset = csr.read().iwdgrstf().bit_is_set();
+    csr.modify(|_, w| w.rmvf().set_bit());
+
+    Board {
+        pwm,
+        trig,
+        flash: Flash::new(dp.FLASH),
+        watchdog: IndependentWatchdog::new(dp.IWDG),
+        adc: (dp.ADC1, dp.ADC2, dp.ADC12_COMMON),
+        watchdog_reset,
     }
 }

@@ -54,19 +54,10 @@ mod app {
     use drive::telemetry::{self, Command, Install, TelemetrySlot};
     use heapless::spsc::{Consumer, Producer, Queue};
     use mras::{AdaptSample, Front, InjectionUpdate};
-    use stm32g4xx_hal::gpio::GpioExt;
     use stm32g4xx_hal::independent_watchdog::IndependentWatchdog;
-    use stm32g4xx_hal::pwr::{PwrExt, VoltageScale};
-    use stm32g4xx_hal::rcc::{
-        Config as RccConfig, PllConfig, PllMDiv, PllNMul, PllRDiv, PllSrc, RccExt,
-    };
     use stm32g4xx_hal::stm32::Interrupt;
 
-    /// The core's sine/cosine: the CORDIC, or the portable `F32Trig` (feature `cordic`).
-    #[cfg(feature = "cordic")]
-    type CoreTrig = crate::cordic::Trig;
-    #[cfg(not(feature = "cordic"))]
-    type CoreTrig = mras::F32Trig;
+    use crate::board::CoreTrig;
 
     #[shared]
     struct Shared {
@@ -108,98 +99,10 @@ mod app {
         updates: Queue<InjectionUpdate, UPDATE_DEPTH> = Queue::new(),
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
-        let dp = cx.device;
         let mut cp = cx.core;
+        let hw = board::setup(cx.device, &mut cp);
+        let (pwm, trig) = (hw.pwm, hw.trig);
 
-        // The cycle counter first: the ADC bring-up's timeouts (adc.rs) count its cycles.
-        cp.DCB.enable_trace();
-        cp.DWT.enable_cycle_counter();
-
-        // A debugger halt stops TIM1 (RM0440 DBGMCU_APB2FZR.DBG_TIM1_STOP); with the
-        // counter stopped the timer disables its outputs as if MOE were reset (TIM1
-        // "debug mode", OSSI = 1: off level), so a halted current loop never leaves the
-        // bridge switching on its last duties.
-        dp.DBGMCU
-            .apb2_fz()
-            .modify(|_, w| w.dbg_tim1_stop().set_bit());
-        // Debug builds only (DBGMCU_APB1FZR1.DBG_IWDG_STOP): the watchdog pauses while
-        // halted, so breakpoints do not reset the board. Release builds keep it counting.
-        #[cfg(debug_assertions)]
-        dp.DBGMCU
-            .apb1l_fz()
-            .modify(|_, w| w.dbg_iwdg_stop().set_bit());
-
-        {
-            // SAFETY: init-time clock enables through the PAC, before `dp.RCC` is
-            // constrained; nothing else runs.
-            let rcc = unsafe { &*stm32g4xx_hal::stm32::RCC::ptr() };
-            // §7.4 (RCC_APB1ENR1): the PWR clock, which the HAL's `freeze` does not enable
-            // although it reads PWR_CR1.VOS and writes PWR_CR5.R1MODE (boost). Read back
-            // before the first PWR access (ST's "delay after an RCC peripheral clock
-            // enabling").
-            rcc.apb1enr1().modify(|_, w| w.pwren().set_bit());
-            let _ = rcc.apb1enr1().read();
-            // §7.4 (RCC_APB2ENR): the SYSCFG clock, read back before the CFGR2 write.
-            rcc.apb2enr().modify(|_, w| w.syscfgen().set_bit());
-            let _ = rcc.apb2enr().read();
-        }
-        // §10.2.8 SYSCFG_CFGR2.CLL: a core lockup (a fault in the HardFault handler, a
-        // bad stack) reaches TIM1's break input and clears MOE in hardware, where no
-        // software runs any more. Set once; only a reset clears it.
-        dp.SYSCFG.cfgr2().modify(|_, w| w.cll().set_bit());
-
-        // Clock tree (board::SYSCLK_HZ): HSI16 / 4 × 85 / 2, range 1 boost.
-        let pwr = dp
-            .PWR
-            .constrain()
-            .vos(VoltageScale::Range1 { enable_boost: true })
-            .freeze();
-        let pll = PllConfig {
-            mux: PllSrc::HSI,
-            m: PllMDiv::DIV_4,
-            n: PllNMul::MUL_85,
-            r: Some(PllRDiv::DIV_2),
-            q: None,
-            p: None,
-        };
-        let mut rcc = dp
-            .RCC
-            .constrain()
-            .freeze(RccConfig::pll().pll_cfg(pll).boost(true), pwr);
-
-        // TIM1 before its pins: outputs driven to their off level (OSSI = 1, MOE = 0)
-        // from the moment the pins become AF6, never floating (pwm.rs).
-        let pwm = Pwm::new(dp.TIM1);
-
-        // Pin map (board::pins): TIM1 outputs and break on AF6, sensor and currents analog.
-        let gpioa = dp.GPIOA.split(&mut rcc);
-        let gpiob = dp.GPIOB.split(&mut rcc);
-        let gpioc = dp.GPIOC.split(&mut rcc);
-        let break_pin = gpioa.pa6.into_alternate::<6>();
-        let _pwm_pins = (
-            gpioa.pa8.into_alternate::<6>(),
-            gpioa.pa9.into_alternate::<6>(),
-            gpioa.pa10.into_alternate::<6>(),
-            gpioa.pa7.into_alternate::<6>(),
-            gpiob.pb0.into_alternate::<6>(),
-            gpiob.pb1.into_alternate::<6>(),
-        );
-        let _analog = (
-            gpioa.pa0.into_analog(),
-            gpioa.pa1.into_analog(),
-            gpioc.pc0.into_analog(),
-            gpioc.pc1.into_analog(),
-        );
-        // A break may have latched while BKIN's pin was not yet on AF6 (a low input is
-        // active). 1 µs covers the break filter (8 timer clocks) after the pin switch;
-        // then clear it, unless the comparator holds the input active.
-        cortex_m::asm::delay(board::SYSCLK_HZ / 1_000_000);
-        pwm.clear_boot_break(break_pin.is_low());
-
-        #[cfg(feature = "cordic")]
-        let trig = crate::cordic::Cordic::new(dp.CORDIC);
-        #[cfg(not(feature = "cordic"))]
-        let trig = mras::F32Trig;
         let cfg = board::core_config();
         let tracker = match Front::with_trig(cfg, trig) {
             Ok(t) => t,
@@ -230,31 +133,21 @@ mod app {
             board::SUPERVISOR_DIVIDER,
         );
 
-        // Why did the last run end? (RM0440 §7.4.29 RCC_CSR; the fault record in RAM.)
-        // SAFETY: read and clear of the reset flags during init.
-        let csr = unsafe { (*stm32g4xx_hal::stm32::RCC::ptr()).csr().read() };
-        let watchdog_reset = csr.iwdgrstf().bit_is_set();
-        unsafe {
-            (*stm32g4xx_hal::stm32::RCC::ptr())
-                .csr()
-                .modify(|_, w| w.rmvf().set_bit())
-        };
+        // Why did the last run end? (The fault record in RAM, then the reset flags.)
         match fault_record::take() {
             Some(fault_record::Ended::HardFault { pc }) => {
                 defmt::error!("previous run ended in a HardFault at pc={=u32:#x}", pc);
                 supervisor.boot_fault(Cause::HardFault);
             }
             Some(fault_record::Ended::Panic) => supervisor.boot_fault(Cause::Panic),
-            None if watchdog_reset => supervisor.boot_fault(Cause::Watchdog),
+            None if hw.watchdog_reset => supervisor.boot_fault(Cause::Watchdog),
             None => {}
         }
 
-        let mut watchdog = IndependentWatchdog::new(dp.IWDG);
+        let mut watchdog = hw.watchdog;
         watchdog.start(stm32g4xx_hal::time::MicroSecond::from_ticks(
             board::WATCHDOG_TIMEOUT_US,
         ));
-
-        let flash = calibration::Flash::new(dp.FLASH);
 
         telemetry::log_paths(&telemetry::path_names(&cfg));
         defmt::info!(
@@ -266,7 +159,8 @@ mod app {
         );
         // Last: from here TRGO2 starts a conversion every period, and init runs masked;
         // the logging above takes longer than a 40 kHz period.
-        let adcs = Adcs::new(dp.ADC1, dp.ADC2, dp.ADC12_COMMON);
+        let (adc1, adc2, adc12) = hw.adc;
+        let adcs = Adcs::new(adc1, adc2, adc12);
         (
             Shared {
                 command: Command::OFF,
@@ -285,7 +179,7 @@ mod app {
                 updates_tx,
                 last_cycles: 0,
                 supervisor,
-                flash,
+                flash: hw.flash,
                 watchdog,
             },
         )
