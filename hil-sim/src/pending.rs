@@ -1,6 +1,7 @@
 //! Outputs that appear whole or not at all: written under a temporary name next to the
 //! destination and renamed into place on success (replay, rtt-log).
 
+use anyhow::{Context, Result};
 use std::fs::{self, File, OpenOptions};
 use std::path::{Path, PathBuf};
 
@@ -13,14 +14,14 @@ pub(crate) struct Pending {
 }
 
 impl Pending {
-    pub(crate) fn create(dest: &Path) -> Result<(Self, File), String> {
+    pub(crate) fn create(dest: &Path) -> Result<(Self, File)> {
         let dir = match dest.parent() {
             Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
             _ => PathBuf::from("."),
         };
         let file_name = dest
             .file_name()
-            .ok_or_else(|| format!("{}: not a file name", dest.display()))?;
+            .with_context(|| format!("{}: not a file name", dest.display()))?;
         let tmp = dir.join(format!(
             ".{}.{}.tmp",
             file_name.to_string_lossy(),
@@ -30,7 +31,7 @@ impl Pending {
             .write(true)
             .create_new(true)
             .open(&tmp)
-            .map_err(|e| format!("{}: cannot create {}: {e}", dest.display(), tmp.display()))?;
+            .with_context(|| format!("{}: cannot create {}", dest.display(), tmp.display()))?;
         Ok((
             Self {
                 tmp,
@@ -41,9 +42,9 @@ impl Pending {
         ))
     }
 
-    pub(crate) fn commit(mut self) -> Result<(), String> {
+    pub(crate) fn commit(mut self) -> Result<()> {
         fs::rename(&self.tmp, &self.dest)
-            .map_err(|e| format!("{}: cannot write: {e}", self.dest.display()))?;
+            .with_context(|| format!("{}: cannot write", self.dest.display()))?;
         self.committed = true;
         Ok(())
     }

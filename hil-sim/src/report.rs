@@ -4,6 +4,7 @@ use crate::plots::{self, Series};
 use crate::scenario::{
     path_name, NamedCoefficient, RunOutcome, RunSummary, Scenario, SPECTRUM_HARMONICS,
 };
+use anyhow::{Context, Result};
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -113,8 +114,8 @@ pub fn summary_text(
     s
 }
 
-fn write_csv(path: &Path, out: &RunOutcome) -> Result<(), String> {
-    let err = |e: csv::Error| format!("{}: {e}", path.display());
+fn write_csv(path: &Path, out: &RunOutcome) -> Result<()> {
+    let err = |e: csv::Error| anyhow::Error::new(e).context(path.display().to_string());
     let mut w = csv::Writer::from_path(path).map_err(err)?;
     let mut head: Vec<String> = [
         "t_s",
@@ -158,16 +159,16 @@ fn write_csv(path: &Path, out: &RunOutcome) -> Result<(), String> {
         }
         w.write_record(&rec).map_err(err)?;
     }
-    w.flush().map_err(|e| format!("{}: {e}", path.display()))
+    w.flush().with_context(|| path.display().to_string())
 }
 
 /// Write `timeseries.csv`, `summary.json` and the plots of one run into `dir`.
-pub fn write_run(dir: &Path, out: &RunOutcome, with_plots: bool) -> Result<(), String> {
-    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+pub fn write_run(dir: &Path, out: &RunOutcome, with_plots: bool) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| dir.display().to_string())?;
     write_csv(&dir.join("timeseries.csv"), out)?;
-    let json = serde_json::to_string_pretty(&out.summary).map_err(|e| e.to_string())?;
+    let json = serde_json::to_string_pretty(&out.summary)?;
     std::fs::write(dir.join("summary.json"), json)
-        .map_err(|e| format!("{}: {e}", dir.join("summary.json").display()))?;
+        .with_context(|| dir.join("summary.json").display().to_string())?;
     if !with_plots {
         return Ok(());
     }

@@ -256,8 +256,7 @@ impl PendingPlots {
     }
 
     fn chart(&mut self, stem: &str, title: &str, y_label: &str, series: &[Series]) -> Result<()> {
-        plots::line_chart(&self.tmp.join(stem), title, "time (s)", y_label, series)
-            .map_err(|e| anyhow!(e))?;
+        plots::line_chart(&self.tmp.join(stem), title, "time (s)", y_label, series)?;
         self.files.push(format!("{stem}.png"));
         self.files.push(format!("{stem}.svg"));
         Ok(())
@@ -315,7 +314,7 @@ fn write_csv(
     header: &[String],
     rows: impl Iterator<Item = Vec<String>>,
 ) -> Result<Pending> {
-    let (pending, file) = Pending::create(dest).map_err(|e| anyhow!(e))?;
+    let (pending, file) = Pending::create(dest)?;
     let name = dest.display().to_string();
     let mut w = csv::Writer::from_writer(BufWriter::new(file));
     w.write_record(header).with_context(|| name.clone())?;
@@ -458,11 +457,7 @@ fn render_plots(cap: &Capture, plots: &mut PendingPlots) -> Vec<String> {
     notes
 }
 
-pub fn run(a: &Args) -> Result<(), String> {
-    run_inner(a).map_err(|e| format!("{e:#}"))
-}
-
-fn run_inner(a: &Args) -> Result<()> {
+pub fn run(a: &Args) -> Result<()> {
     let cap = read_capture(a)?;
     let seg_paths: Vec<PathBuf> = (0..cap.segments.len())
         .map(|k| segment_path(&a.output, k))
@@ -493,7 +488,7 @@ fn run_inner(a: &Args) -> Result<()> {
         None => (None, Vec::new()),
     };
     for p in pending {
-        p.commit().map_err(|e| anyhow!(e))?;
+        p.commit()?;
     }
     let plot_files = match plots {
         Some(p) => p.commit()?,

@@ -5,6 +5,7 @@ use super::page::{main_table, markdown};
 use super::stats::{summarise, Summary};
 use super::{charts, run_suite, Method, Plan, SensorResult, SPECTRUM_HARMONICS, SPECTRUM_PHASE};
 use crate::pending::Pending;
+use anyhow::{bail, Context, Result};
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -64,14 +65,14 @@ impl RunInfo {
     }
 }
 
-pub fn run(a: &Args) -> Result<(), String> {
+pub fn run(a: &Args) -> Result<()> {
     let sensors = a.sensors.unwrap_or(if a.reduced {
         REDUCED_SENSORS
     } else {
         FULL_SENSORS
     });
     if !(1..=MAX_SENSORS).contains(&sensors) {
-        return Err(format!("--sensors {sensors}: must be in 1..={MAX_SENSORS}"));
+        bail!("--sensors {sensors}: must be in 1..={MAX_SENSORS}");
     }
     let page = a.out.clone().unwrap_or_else(|| {
         let root = workspace_root();
@@ -82,7 +83,7 @@ pub fn run(a: &Args) -> Result<(), String> {
         }
     });
     if page.file_name().is_none() || page.is_dir() {
-        return Err(format!("--out {}: must name a file", page.display()));
+        bail!("--out {}: must name a file", page.display());
     }
     let page_dir = page
         .parent()
@@ -92,7 +93,7 @@ pub fn run(a: &Args) -> Result<(), String> {
     let plots = a.plots.clone().unwrap_or_else(|| page_dir.join("results"));
     for dir in [&page_dir, &plots] {
         std::fs::create_dir_all(dir)
-            .map_err(|e| format!("cannot create directory {}: {e}", dir.display()))?;
+            .with_context(|| format!("cannot create directory {}", dir.display()))?;
     }
 
     let plan = Plan::full();
@@ -132,9 +133,9 @@ pub fn write_outputs(
     info: &RunInfo,
     page: &Path,
     plots: &Path,
-) -> Result<(), String> {
+) -> Result<()> {
     std::fs::create_dir_all(plots)
-        .map_err(|e| format!("cannot create directory {}: {e}", plots.display()))?;
+        .with_context(|| format!("cannot create directory {}", plots.display()))?;
     write_plots(results, summary, plan, plots)?;
     write_file(
         &plots.join("per_sensor.csv"),
@@ -145,10 +146,10 @@ pub fn write_outputs(
     write_file(page, &markdown(summary, plan, info, &rel.to_string_lossy()))
 }
 
-fn write_file(path: &Path, text: &str) -> Result<(), String> {
+fn write_file(path: &Path, text: &str) -> Result<()> {
     let (pending, mut f) = Pending::create(path)?;
     f.write_all(text.as_bytes())
-        .map_err(|e| format!("{}: cannot write: {e}", path.display()))?;
+        .with_context(|| format!("{}: cannot write", path.display()))?;
     drop(f);
     pending.commit()
 }
@@ -161,12 +162,7 @@ fn plotted() -> Vec<Method> {
         .collect()
 }
 
-fn write_plots(
-    results: &[SensorResult],
-    summary: &Summary,
-    plan: &Plan,
-    dir: &Path,
-) -> Result<(), String> {
+fn write_plots(results: &[SensorResult], summary: &Summary, plan: &Plan, dir: &Path) -> Result<()> {
     let methods = plotted();
     let cdf: Vec<(&str, Vec<f64>)> = methods
         .iter()
