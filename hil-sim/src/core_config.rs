@@ -149,7 +149,9 @@ impl TryFrom<String> for PathName {
     fn try_from(s: String) -> Result<Self, PathNameError> {
         let kind = match s.as_str() {
             "offset" => PathKind::Offset,
-            "amplitude-quadrature" => PathKind::AmplitudeQuadrature,
+            // The CSV columns and the firmware's stream spell it with an underscore; a
+            // name copied from there is the same path.
+            "amplitude-quadrature" | "amplitude_quadrature" => PathKind::AmplitudeQuadrature,
             _ => {
                 let Some(h) = s.strip_prefix('h').and_then(|n| n.parse::<i8>().ok()) else {
                     return Err(PathNameError::Unknown(s));
@@ -509,6 +511,18 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.starts_with("cfg.toml:2: field `law.gain_per_rad`"), "{e}");
+    }
+
+    #[test]
+    fn path_names_as_the_csv_columns_spell_them_are_accepted() {
+        let t = CoreConfigToml::from_toml_str(
+            "paths = [\"offset\", \"amplitude_quadrature\", \"h4\"]\n",
+            "p.toml",
+        )
+        .unwrap();
+        let want = ["offset", "amplitude-quadrature", "h4"]
+            .map(|s| PathName::try_from(s.to_string()).unwrap());
+        assert_eq!(t.paths.as_deref(), Some(&want[..]));
     }
 
     #[test]
