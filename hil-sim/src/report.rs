@@ -2,7 +2,7 @@
 
 use crate::plots::{self, Series};
 use crate::scenario::{
-    path_name, NamedCoefficient, RunOutcome, RunSummary, Scenario, SPECTRUM_HARMONICS,
+    path_name, NamedCoefficient, RunOutcome, RunSummary, Scenario, SPECTRUM_HARMONICS_OF_THETA_RM,
 };
 use anyhow::{Context, Result};
 use std::fmt::Write as _;
@@ -310,7 +310,7 @@ pub fn write_run(dir: &Path, out: &RunOutcome, with_plots: bool) -> Result<()> {
     )?;
 
     // Error spectrum by spatial harmonic.
-    let harmonics: Vec<u32> = (1..=SPECTRUM_HARMONICS).collect();
+    let harmonics: Vec<u32> = (1..=SPECTRUM_HARMONICS_OF_THETA_RM).collect();
     let mut groups: Vec<(&str, &[f64])> = vec![("raw sensor", &s.after.raw_spectrum_mrad)];
     if let Some(b) = &s.before {
         groups.push(("θ̂ before MRAS", &b.estimate_spectrum_mrad));

@@ -653,7 +653,10 @@ pub struct WindowStats {
     pub raw_by_angle: Vec<(f64, f64)>,
 }
 
-pub const SPECTRUM_HARMONICS: u32 = 16;
+/// Spatial harmonics k of the mechanical angle θrm in a run's error spectrum (summary,
+/// Table I): up to m = 8 of θs for the paper's N = 2 sensor. (The accuracy benchmark
+/// counts harmonics of θs instead: [`crate::accuracy::SPECTRUM_HARMONICS_OF_THETA_S`].)
+pub const SPECTRUM_HARMONICS_OF_THETA_RM: u32 = 16;
 
 /// Spatial and tracking error over a time window of a run.
 #[derive(Clone, Debug)]
@@ -693,7 +696,7 @@ impl Window {
 
     pub(crate) fn stats(&self) -> WindowStats {
         let spec = |e: &SpatialError<360>| {
-            (1..=SPECTRUM_HARMONICS)
+            (1..=SPECTRUM_HARMONICS_OF_THETA_RM)
                 .map(|k| e.harmonic_amplitude_rad(k) * 1e3)
                 .collect()
         };

@@ -58,8 +58,11 @@ pub const SENSOR_PERIODS: u16 = 2;
 /// mechanical: 13 bins per period of the highest error harmonic, m = 7, that the
 /// population produces; fewer bins would blur it, more would raise the noise residue).
 pub const BINS: usize = 90;
-/// Error harmonics m (of θs) reported in the spectrum of the first evaluated phase.
-pub const SPECTRUM_HARMONICS: usize = 8;
+/// Error harmonics m of the sensor angle θs reported in the spectrum of the first
+/// evaluated phase: the benchmark's sensors put their errors at m <= 7. (A scenario's
+/// spectrum counts harmonics of the mechanical angle instead:
+/// [`crate::scenario::SPECTRUM_HARMONICS_OF_THETA_RM`].)
+pub const SPECTRUM_HARMONICS_OF_THETA_S: usize = 8;
 
 /// A method compared, in table order (declared in the order of [`Method::ALL`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -133,7 +136,9 @@ impl Method {
         }
     }
 
-    /// Variants beyond the seven methods (LUT sizes, a smaller path bank).
+    /// Variants beyond the seven methods every table compares (raw, min-max, ellipse,
+    /// 256-bin LUT, paper, ours, oracle): other LUT sizes and the paper's smaller path
+    /// bank, which show how sensitive a result is to those choices.
     pub fn is_extra(self) -> bool {
         matches!(
             self,
@@ -188,9 +193,9 @@ pub struct SensorResult {
     pub skew_s: f64,
     /// Per evaluated phase, per method (in [`Method::ALL`] order).
     pub residuals: Vec<[Residual; Method::COUNT]>,
-    /// Amplitude of error harmonics m = 1..=[`SPECTRUM_HARMONICS`] of θs (rad,
+    /// Amplitude of error harmonics m = 1..=[`SPECTRUM_HARMONICS_OF_THETA_S`] of θs (rad,
     /// mechanical) in the first evaluated phase, per method: where a residual comes from.
-    pub spectrum_rad: [[f64; SPECTRUM_HARMONICS]; Method::COUNT],
+    pub spectrum_rad: [[f64; SPECTRUM_HARMONICS_OF_THETA_S]; Method::COUNT],
     /// Per tracker, in [`Method::MRAS`] order.
     pub mras: [TrackerOutcome; 3],
     /// Offline methods whose fit failed, with the reason.
@@ -285,7 +290,7 @@ impl Accumulator {
     }
 
     /// Harmonics m = 1.. of θs (mechanical radians); NaN unless every bin saw samples.
-    fn spectrum(&self) -> [f64; SPECTRUM_HARMONICS] {
+    fn spectrum(&self) -> [f64; SPECTRUM_HARMONICS_OF_THETA_S] {
         let full = self.error.filled_bins() == BINS;
         std::array::from_fn(|i| {
             if full {
@@ -466,7 +471,7 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult> {
     let mut offline: Fitted = Vec::new();
     let mut fit_failures = Vec::new();
     let mut residuals = Vec::new();
-    let mut spectrum_rad = [[f64::NAN; SPECTRUM_HARMONICS]; Method::COUNT];
+    let mut spectrum_rad = [[f64::NAN; SPECTRUM_HARMONICS_OF_THETA_S]; Method::COUNT];
     let mut record: Vec<(f32, f32, f64)> = Vec::new();
     // Rotor angle at the previous adapting sample, and the angle travelled since
     // adaptation started.

@@ -5,7 +5,7 @@ use super::report::{RunInfo, REDUCED_SENSORS};
 use super::stats::{Condition, Dist, Summary, TrackerStats};
 use super::{
     Method, PhaseKind, Plan, BINS, DISTRIBUTION, SAMPLE_PERIOD_S, SENSOR_PERIODS,
-    SPECTRUM_HARMONICS, SPECTRUM_PHASE,
+    SPECTRUM_HARMONICS_OF_THETA_S, SPECTRUM_PHASE,
 };
 use crate::plant::MotorParams;
 use mras::Config;
@@ -186,7 +186,10 @@ fn overview_table(s: &Summary, cell: impl Fn(&Condition, Method) -> String) -> S
 }
 
 /// Root-sum-square of the median harmonic amplitudes m in `range` (1-based).
-fn rss(spectrum: &[f64; SPECTRUM_HARMONICS], range: std::ops::RangeInclusive<usize>) -> f64 {
+fn rss(
+    spectrum: &[f64; SPECTRUM_HARMONICS_OF_THETA_S],
+    range: std::ops::RangeInclusive<usize>,
+) -> f64 {
     range
         .filter_map(|m| spectrum.get(m - 1))
         .map(|a| a * a)
@@ -276,7 +279,7 @@ pub(crate) fn markdown(s: &Summary, plan: &Plan, info: &RunInfo, plots: &str) ->
     let spec = |m: Method| &s.spectrum_median_rad[m.index()];
     let four = Method::OursPaperBank;
     let four_high = rss(spec(four), 5..=7);
-    let four_all = rss(spec(four), 1..=SPECTRUM_HARMONICS);
+    let four_all = rss(spec(four), 1..=SPECTRUM_HARMONICS_OF_THETA_S);
     let best_offline = [
         Method::MinMax,
         Method::Ellipse,
@@ -496,10 +499,14 @@ pub(crate) fn markdown(s: &Summary, plan: &Plan, info: &RunInfo, plots: &str) ->
          four paths m = 1..4.\n"
     );
     let _ = write!(p, "| method |");
-    for m in 1..=SPECTRUM_HARMONICS {
+    for m in 1..=SPECTRUM_HARMONICS_OF_THETA_S {
         let _ = write!(p, " m = {m} |");
     }
-    let _ = writeln!(p, "\n|---|{}", "---:|".repeat(SPECTRUM_HARMONICS));
+    let _ = writeln!(
+        p,
+        "\n|---|{}",
+        "---:|".repeat(SPECTRUM_HARMONICS_OF_THETA_S)
+    );
     for m in Method::ALL {
         let _ = write!(p, "| {} |", label(m));
         for a in spec(m) {

@@ -3,7 +3,9 @@
 
 use super::page::{main_table, markdown};
 use super::stats::{summarise, Summary};
-use super::{charts, run_suite, Method, Plan, SensorResult, SPECTRUM_HARMONICS, SPECTRUM_PHASE};
+use super::{
+    charts, run_suite, Method, Plan, SensorResult, SPECTRUM_HARMONICS_OF_THETA_S, SPECTRUM_PHASE,
+};
 use crate::pending::Pending;
 use anyhow::{bail, Context, Result};
 use std::fmt::Write as _;
@@ -154,7 +156,9 @@ fn write_file(path: &Path, text: &str) -> Result<()> {
     pending.commit()
 }
 
-/// The methods drawn in the plots: the seven and the 4-path variant.
+/// The methods drawn in the plots: the seven every table compares, and the 4-path
+/// variant (our law on the paper's four paths: against `paper` it isolates the law,
+/// against `ours` the path bank).
 fn plotted() -> Vec<Method> {
     Method::ALL
         .into_iter()
@@ -200,7 +204,7 @@ fn write_plots(results: &[SensorResult], summary: &Summary, plan: &Plan, dir: &P
         &categories,
         &bars,
     )?;
-    let harmonics: Vec<String> = (1..=SPECTRUM_HARMONICS)
+    let harmonics: Vec<String> = (1..=SPECTRUM_HARMONICS_OF_THETA_S)
         .map(|m| format!("m = {m}"))
         .collect();
     let harmonics: Vec<&str> = harmonics.iter().map(String::as_str).collect();
