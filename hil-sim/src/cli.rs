@@ -2,6 +2,7 @@
 
 use crate::report;
 use crate::scenario::{self, RunOutcome, Scenario, Variant};
+use anyhow::{anyhow, bail, Context, Result};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -56,7 +57,7 @@ fn write_streams(
     sc: &Scenario,
     dir: &std::path::Path,
     boots: &[&crate::power_up::Boot],
-) -> Result<(), String> {
+) -> Result<()> {
     let elf_path = a.elf.clone().unwrap_or_else(crate::stream::release_elf);
     let Ok(elf) = std::fs::read(&elf_path) else {
         println!(
@@ -65,14 +66,14 @@ fn write_streams(
         );
         return Ok(());
     };
-    let formats = crate::stream::Formats::from_elf(&elf)
-        .map_err(|e| format!("{}: {e:#}", elf_path.display()))?;
+    let formats =
+        crate::stream::Formats::from_elf(&elf).with_context(|| elf_path.display().to_string())?;
     let names = drive::telemetry::path_names(&sc.core_config(None)?);
     for (k, b) in boots.iter().enumerate() {
         let bytes = crate::stream::encode_streamed(&formats, &names, &b.streamed)
-            .map_err(|e| format!("{}: {e:#}", elf_path.display()))?;
+            .with_context(|| elf_path.display().to_string())?;
         let path = dir.join(format!("rtt-{}.defmt", k + 1));
-        std::fs::write(&path, bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+        std::fs::write(&path, bytes).with_context(|| path.display().to_string())?;
         println!(
             "  RTT stream of power-up {} in the firmware's format: {} (hil-sim rtt-log --input ...)",
             k + 1,
@@ -82,10 +83,10 @@ fn write_streams(
     Ok(())
 }
 
-pub fn scenario(a: &ScenarioArgs) -> Result<(), String> {
+pub fn scenario(a: &ScenarioArgs) -> Result<()> {
     if a.list || a.name.is_none() {
         for name in scenario::list() {
-            let desc = Scenario::load(&name).map_or_else(|e| e, |s| s.file.description);
+            let desc = Scenario::load(&name).map_or_else(|e| e.to_string(), |s| s.file.description);
             println!("{name:<16} {desc}");
         }
         return Ok(());
@@ -111,9 +112,9 @@ pub fn scenario(a: &ScenarioArgs) -> Result<(), String> {
             ],
         );
         print!("{text}");
-        std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
         std::fs::write(dir.join("summary.txt"), &text)
-            .map_err(|e| format!("{}: {e}", dir.display()))?;
+            .with_context(|| dir.display().to_string())?;
         println!("  output: {}", dir.join("summary.txt").display());
         write_streams(a, &sc, &dir, &[&first, &second])?;
         return Ok(());
@@ -136,7 +137,7 @@ pub fn scenario(a: &ScenarioArgs) -> Result<(), String> {
             .into_iter()
             .map(|h| {
                 h.join()
-                    .map_err(|_| "a simulation thread panicked".to_string())?
+                    .map_err(|_| anyhow!("a simulation thread panicked"))?
             })
             .collect::<Result<_, _>>()
     })?;
@@ -144,9 +145,8 @@ pub fn scenario(a: &ScenarioArgs) -> Result<(), String> {
     let reference = scenario::reference_coefficients(&sc)?;
     let text = report::summary_text(&sc, &summaries, reference.as_deref());
     print!("{text}");
-    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    std::fs::write(dir.join("summary.txt"), &text)
-        .map_err(|e| format!("{}: {e}", dir.display()))?;
+    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
+    std::fs::write(dir.join("summary.txt"), &text).with_context(|| dir.display().to_string())?;
     for o in &outcomes {
         report::write_run(&dir.join(o.summary.variant.label()), o, !a.no_plots)?;
     }
@@ -163,7 +163,7 @@ pub fn scenario(a: &ScenarioArgs) -> Result<(), String> {
     Ok(())
 }
 
-fn table1(sc: &Scenario, duration: f64) -> Result<(), String> {
+fn table1(sc: &Scenario, duration: f64) -> Result<()> {
     println!("scenario {}: {}", sc.file.name, sc.file.description);
     println!(
         "  {:<22} {:>9} {:>9}   largest spatial harmonics of the raw error (mrad)",
@@ -202,9 +202,9 @@ pub struct BenchArgs {
 /// Simulated seconds per wall second of the full drive model plus the core, one thread,
 /// everything a scenario run does but writing files (recording, error windows included).
 /// Best and median of `repeats` runs: shared machines vary their speed from run to run.
-pub fn bench(a: &BenchArgs) -> Result<(), String> {
+pub fn bench(a: &BenchArgs) -> Result<()> {
     if !(a.seconds > 0.0 && a.seconds <= 600.0) || a.repeats == 0 {
-        return Err("--seconds must be in (0, 600] and --repeats >= 1".into());
+        bail!("--seconds must be in (0, 600] and --repeats >= 1");
     }
     let sc = Scenario::load(&a.scenario)?;
     let mut walls = Vec::new();

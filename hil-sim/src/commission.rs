@@ -1,6 +1,8 @@
 //! Constant-speed self-commissioning with a summary a drive engineer can check.
 
+use crate::core_config::FieldError;
 use crate::Law;
+use anyhow::{bail, Context, Result};
 use mras::sim::{revs_to_reduction, wrap_pi, Adc, CommissioningRun, SensorModel, SpatialError};
 use mras::{PaperForm, Tracker};
 use rand::SeedableRng;
@@ -45,31 +47,31 @@ impl Default for Args {
     }
 }
 
-pub fn noise(seed: u64, std: f64) -> Result<impl FnMut() -> (f64, f64), String> {
+pub fn noise(seed: u64, std: f64) -> Result<impl FnMut() -> (f64, f64)> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let n = Normal::new(0.0, std).map_err(|e| format!("--noise-std {std}: {e}"))?;
+    let n = Normal::new(0.0, std).with_context(|| format!("--noise-std {std}"))?;
     Ok(move || (n.sample(&mut rng), n.sample(&mut rng)))
 }
 
-pub fn run(a: &Args) -> Result<(), String> {
+pub fn run(a: &Args) -> Result<()> {
     if !(a.speed_rev_s.abs() >= 0.5 && a.speed_rev_s.abs() <= 200.0) {
-        return Err(format!(
+        bail!(
             "--speed-rev-s {} out of range: |speed| must be in [0.5, 200] rev/s",
             a.speed_rev_s
-        ));
+        );
     }
     if !(a.noise_std.is_finite() && (0.0..=0.05).contains(&a.noise_std)) {
-        return Err(format!(
+        bail!(
             "--noise-std {} out of range: must be in [0, 0.05] (nominal amplitude 1)",
             a.noise_std
-        ));
+        );
     }
     if a.revs == 0 {
-        return Err("--revs must be at least 1".into());
+        bail!("--revs must be at least 1");
     }
     let sensor = SensorModel::extreme();
     let cfg = a.law.config();
-    let mut t = Tracker::new(cfg).map_err(|e| e.to_string())?;
+    let mut t = Tracker::new(cfg).map_err(FieldError::from)?;
     let ev = cfg.observer.eigenvalues_hz;
     println!(
         "hil-sim commission: kinematic drive, extreme sensor, N = {}",
@@ -183,7 +185,7 @@ pub fn run(a: &Args) -> Result<(), String> {
         }
     }
     if faults > 0 {
-        return Err(format!("{faults} samples faulted"));
+        bail!("{faults} samples faulted");
     }
     Ok(())
 }

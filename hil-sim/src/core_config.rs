@@ -20,6 +20,7 @@
 //!
 //! A complete example is `hil-sim/tests/data/core_config_full.toml`.
 
+use crate::input_error::InputError;
 use mras::{AdaptationLaw, Config, ConfigError, PathKind};
 use serde::Deserialize;
 
@@ -124,29 +125,43 @@ pub struct ConvergenceToml {
 #[serde(try_from = "String")]
 pub struct PathName(pub PathKind);
 
-impl TryFrom<String> for PathName {
-    type Error = String;
+/// What the TOML's path list expects, appended to every [`PathNameError`].
+const PATH_EXPECTED: &str =
+    "expected \"offset\", \"amplitude-quadrature\" or \"hN\" (N > 3 or N < 0, |N| <= 15)";
 
-    fn try_from(s: String) -> Result<Self, String> {
-        const EXPECTED: &str =
-            "expected \"offset\", \"amplitude-quadrature\" or \"hN\" (N > 3 or N < 0, |N| <= 15)";
+/// A `paths` entry that names no path of the core.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum PathNameError {
+    #[error("unknown path \"{0}\": {PATH_EXPECTED}")]
+    Unknown(String),
+    #[error(
+        "path \"{0}\": h = 0..3 is not a harmonic path (h = 2 is removed by \
+         \"offset\", h = 3 by \"amplitude-quadrature\"); {PATH_EXPECTED}"
+    )]
+    NotHarmonic(String),
+    #[error("path \"{0}\": |h| above 15; {PATH_EXPECTED}")]
+    TooHigh(String),
+}
+
+impl TryFrom<String> for PathName {
+    type Error = PathNameError;
+
+    fn try_from(s: String) -> Result<Self, PathNameError> {
         let kind = match s.as_str() {
             "offset" => PathKind::Offset,
-            "amplitude-quadrature" => PathKind::AmplitudeQuadrature,
+            // The CSV columns and the firmware's stream spell it with an underscore; a
+            // name copied from there is the same path.
+            "amplitude-quadrature" | "amplitude_quadrature" => PathKind::AmplitudeQuadrature,
             _ => {
-                let h: i8 = s
-                    .strip_prefix('h')
-                    .and_then(|n| n.parse().ok())
-                    .ok_or_else(|| format!("unknown path \"{s}\": {EXPECTED}"))?;
+                let Some(h) = s.strip_prefix('h').and_then(|n| n.parse::<i8>().ok()) else {
+                    return Err(PathNameError::Unknown(s));
+                };
                 // Checked here as well as by the core so the error carries the line.
                 if (0..=3).contains(&h) {
-                    return Err(format!(
-                        "path \"{s}\": h = 0..3 is not a harmonic path (h = 2 is removed by \
-                         \"offset\", h = 3 by \"amplitude-quadrature\"); {EXPECTED}"
-                    ));
+                    return Err(PathNameError::NotHarmonic(s));
                 }
                 if h.unsigned_abs() > mras::config::MAX_HARMONIC as u8 {
-                    return Err(format!("path \"{s}\": |h| above 15; {EXPECTED}"));
+                    return Err(PathNameError::TooHigh(s));
                 }
                 PathKind::Harmonic(h)
             }
@@ -165,7 +180,8 @@ pub fn path_toml_name(kind: PathKind) -> String {
 }
 
 /// A configuration field that is out of range, named as in the TOML (`law.gain_per_rad`).
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("invalid configuration `{field}`: {problem}")]
 pub struct FieldError {
     pub field: String,
     pub problem: String,
@@ -180,14 +196,20 @@ impl From<ConfigError> for FieldError {
     }
 }
 
-impl std::fmt::Display for FieldError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "invalid configuration `{}`: {}",
-            self.field, self.problem
-        )
-    }
+/// A core configuration file that does not parse or does not validate: the file, the
+/// line when one can be named, and what is wrong there.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum ConfigFileError {
+    /// The TOML does not parse into the schema (syntax, type, unknown key, bad path).
+    #[error(transparent)]
+    Parse(#[from] InputError),
+    /// The values parse but the core refuses them.
+    #[error("{origin}{}: {error}", .line.map(|l| format!(":{l}")).unwrap_or_default())]
+    Invalid {
+        origin: String,
+        line: Option<usize>,
+        error: FieldError,
+    },
 }
 
 fn set<T: Copy>(dst: &mut T, v: Option<T>) {
@@ -198,17 +220,16 @@ fn set<T: Copy>(dst: &mut T, v: Option<T>) {
 
 impl CoreConfigToml {
     /// Parse from TOML text; errors name `origin` (the file), the line and the field.
-    pub fn from_toml_str(text: &str, origin: &str) -> Result<Self, String> {
+    pub fn from_toml_str(text: &str, origin: &str) -> Result<Self, ConfigFileError> {
         toml::from_str(text).map_err(|e| {
-            let Some(span) = e.span() else {
-                return format!("{origin}: {}", e.message());
-            };
-            let line = line_at(text, span.start);
-            match key_on_line(text, line) {
+            let line = e.span().map(|span| line_at(text, span.start));
+            ConfigFileError::Parse(InputError {
+                file: origin.to_string(),
+                line: line.map(|l| l as u64),
                 // Unknown-field messages already say which key; the prefix adds its table.
-                Some(field) => format!("{origin}:{line}: field `{field}`: {}", e.message()),
-                None => format!("{origin}:{line}: {}", e.message()),
-            }
+                field: line.and_then(|l| key_on_line(text, l)),
+                problem: e.message().to_string(),
+            })
         })
     }
 
@@ -220,8 +241,8 @@ impl CoreConfigToml {
     }
 
     /// Build and validate the core configuration for a given control period.
-    pub fn to_config(&self, sample_period_s: f32) -> Result<mras::Config, String> {
-        self.build(sample_period_s).map_err(|e| e.to_string())
+    pub fn to_config(&self, sample_period_s: f32) -> Result<mras::Config, FieldError> {
+        self.build(sample_period_s)
     }
 
     /// As [`Self::to_config`], with errors located in the TOML `text` read from `origin`
@@ -231,11 +252,12 @@ impl CoreConfigToml {
         sample_period_s: f32,
         origin: &str,
         text: &str,
-    ) -> Result<mras::Config, String> {
+    ) -> Result<mras::Config, ConfigFileError> {
         self.build(sample_period_s)
-            .map_err(|e| match line_of_field(text, &e.field) {
-                Some(line) => format!("{origin}:{line}: {e}"),
-                None => format!("{origin}: {e}"),
+            .map_err(|error| ConfigFileError::Invalid {
+                origin: origin.to_string(),
+                line: line_of_field(text, &error.field),
+                error,
             })
     }
 
@@ -474,7 +496,9 @@ mod tests {
     #[test]
     fn unknown_field_names_it_its_table_and_line() {
         let text = "sensor_periods = 2\n\n[gates]\nmin_speed_rad_s = 1.0\nmin_speeed = 2.0\n";
-        let e = CoreConfigToml::from_toml_str(text, "cfg.toml").unwrap_err();
+        let e = CoreConfigToml::from_toml_str(text, "cfg.toml")
+            .unwrap_err()
+            .to_string();
         assert!(e.starts_with("cfg.toml:5: "), "{e}");
         assert!(e.contains("`gates.min_speeed`"), "{e}");
         assert!(e.contains("unknown field"), "{e}");
@@ -483,8 +507,22 @@ mod tests {
     #[test]
     fn wrong_type_names_the_field() {
         let text = "[law]\ngain_per_rad = \"fast\"\n";
-        let e = CoreConfigToml::from_toml_str(text, "cfg.toml").unwrap_err();
+        let e = CoreConfigToml::from_toml_str(text, "cfg.toml")
+            .unwrap_err()
+            .to_string();
         assert!(e.starts_with("cfg.toml:2: field `law.gain_per_rad`"), "{e}");
+    }
+
+    #[test]
+    fn path_names_as_the_csv_columns_spell_them_are_accepted() {
+        let t = CoreConfigToml::from_toml_str(
+            "paths = [\"offset\", \"amplitude_quadrature\", \"h4\"]\n",
+            "p.toml",
+        )
+        .unwrap();
+        let want = ["offset", "amplitude-quadrature", "h4"]
+            .map(|s| PathName::try_from(s.to_string()).unwrap());
+        assert_eq!(t.paths.as_deref(), Some(&want[..]));
     }
 
     #[test]
@@ -494,7 +532,9 @@ mod tests {
             ("\"hx\"", "unknown path"),
         ] {
             let text = format!("sensor_periods = 2\npaths = [\"offset\", {bad}]\n");
-            let e = CoreConfigToml::from_toml_str(&text, "cfg.toml").unwrap_err();
+            let e = CoreConfigToml::from_toml_str(&text, "cfg.toml")
+                .unwrap_err()
+                .to_string();
             assert!(e.starts_with("cfg.toml:2: field `paths`"), "{e}");
             assert!(e.contains(why), "{e}");
         }
@@ -504,9 +544,12 @@ mod tests {
     fn out_of_range_value_names_the_core_field_and_line() {
         let text = "[observer]\ninertia_kg_m2 = 1e-4\n\n[law]\ngain_per_rad = 0.5\n";
         let t = CoreConfigToml::from_toml_str(text, "cfg.toml").unwrap();
-        let e = t.to_config(50.0e-6).unwrap_err();
+        let e = t.to_config(50.0e-6).unwrap_err().to_string();
         assert!(e.contains("`law.gain_per_rad`"), "{e}");
-        let e = t.to_config_located(50.0e-6, "cfg.toml", text).unwrap_err();
+        let e = t
+            .to_config_located(50.0e-6, "cfg.toml", text)
+            .unwrap_err()
+            .to_string();
         assert!(
             e.starts_with("cfg.toml:5: invalid configuration `law.gain_per_rad`"),
             "{e}"
@@ -517,7 +560,10 @@ mod tests {
     fn paths_sharing_an_error_harmonic_point_at_paths() {
         let text = "# m = 3 twice\npaths = [\"h4\", \"h-2\"]\n";
         let t = CoreConfigToml::from_toml_str(text, "cfg.toml").unwrap();
-        let e = t.to_config_located(50.0e-6, "cfg.toml", text).unwrap_err();
+        let e = t
+            .to_config_located(50.0e-6, "cfg.toml", text)
+            .unwrap_err()
+            .to_string();
         assert!(
             e.starts_with("cfg.toml:2: invalid configuration `paths`"),
             "{e}"
@@ -528,7 +574,10 @@ mod tests {
     fn key_of_the_other_law_is_refused() {
         let text = "[law]\nkind = \"compensated\"\nk2 = 0.1\n";
         let t = CoreConfigToml::from_toml_str(text, "cfg.toml").unwrap();
-        let e = t.to_config_located(50.0e-6, "cfg.toml", text).unwrap_err();
+        let e = t
+            .to_config_located(50.0e-6, "cfg.toml", text)
+            .unwrap_err()
+            .to_string();
         assert!(
             e.starts_with("cfg.toml:3: invalid configuration `law.k2`"),
             "{e}"
@@ -538,7 +587,7 @@ mod tests {
     #[test]
     fn eigenvalue_too_fast_for_the_period_is_refused() {
         let t = CoreConfigToml::default();
-        let e = t.to_config(1.0e-3).unwrap_err();
+        let e = t.to_config(1.0e-3).unwrap_err().to_string();
         assert!(e.contains("`observer.eigenvalues_hz`"), "{e}");
     }
 }

@@ -60,7 +60,8 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("hil-sim: {e}");
+            // The whole chain: the file or flag, then what went wrong with it.
+            eprintln!("hil-sim: {e:#}");
             ExitCode::FAILURE
         }
     }

@@ -18,6 +18,7 @@
 //! open-loop run-up with a load step (`tests::substeps_converge`; closed loop, the
 //! controller corrects even that).
 
+use crate::input_error::InvalidParam;
 use crate::sensor::SensorSim;
 
 /// Electrical substeps per control period (see the module doc for the accuracy).
@@ -116,7 +117,7 @@ impl MotorParams {
         self.torque_constant_nm_a() * self.i_max_a
     }
 
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidParam> {
         let positive = [
             ("motor.pole_pairs", self.pole_pairs as f64),
             ("motor.r_ohm", self.r_ohm),
@@ -129,7 +130,11 @@ impl MotorParams {
         ];
         for (name, v) in positive {
             if !(v.is_finite() && v > 0.0) {
-                return Err(format!("`{name}` = {v}: must be finite and > 0"));
+                return Err(InvalidParam::OutOfRange {
+                    name,
+                    value: v,
+                    rule: "must be finite and > 0",
+                });
             }
         }
         for (name, v) in [
@@ -137,7 +142,11 @@ impl MotorParams {
             ("motor.viscous_nm_s_rad", self.viscous_nm_s_rad),
         ] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("`{name}` = {v}: must be finite and >= 0"));
+                return Err(InvalidParam::OutOfRange {
+                    name,
+                    value: v,
+                    rule: "must be finite and >= 0",
+                });
             }
         }
         Ok(())
@@ -248,19 +257,22 @@ impl Plant {
         sensor: SensorSim,
         sample_period_s: f64,
         theta0_rad: f64,
-    ) -> Result<Self, String> {
+    ) -> Result<Self, InvalidParam> {
         motor.validate()?;
-        let adc = sensor.params.adc.ok_or(
-            "`sensor.adc_bits` = 0: the drive reads ADC counts, give the converter's bits (1..=16)",
-        )?;
+        let adc = sensor.params.adc.ok_or(InvalidParam::OutOfRange {
+            name: "sensor.adc_bits",
+            value: 0.0,
+            rule: "the drive reads ADC counts, give the converter's bits (1..=16)",
+        })?;
         if !(1..=16).contains(&adc.bits) {
-            return Err(format!(
-                "`sensor.adc_bits` = {}: the drive's converter has 1..=16 bits",
-                adc.bits
-            ));
+            return Err(InvalidParam::OutOfRange {
+                name: "sensor.adc_bits",
+                value: adc.bits.into(),
+                rule: "the drive's converter has 1..=16 bits",
+            });
         }
         if !(theta0_rad.is_finite()) {
-            return Err("initial rotor angle must be finite".into());
+            return Err(InvalidParam::Rule("initial rotor angle must be finite"));
         }
         Ok(Self {
             consts: PlantConsts::new(&motor, sample_period_s, SUBSTEPS),

@@ -9,6 +9,7 @@
 //! a chart with 10⁶ samples per series would otherwise take seconds and produce a
 //! hundred-megabyte SVG, while a 1000-pixel-wide image cannot show more detail anyway.
 
+use anyhow::{anyhow, bail, Context, Result};
 use std::collections::HashSet;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -72,7 +73,7 @@ pub fn line_chart(
     x_label: &str,
     y_label: &str,
     series: &[Series],
-) -> Result<(), String> {
+) -> Result<()> {
     let prepared: Vec<PreparedSeries> = series
         .iter()
         .map(|s| PreparedSeries::new(s.label, decimate(s.points, MAX_DRAW_POINTS)))
@@ -102,7 +103,7 @@ pub fn line_chart(
 /// screen cell are drawn once, and each series is capped at [`MAX_DRAW_POINTS`] with a
 /// min/max envelope, which keeps the outline of 10⁶-sample recordings.
 /// Writes `<stem>.png` and `<stem>.svg`; errors if no series has a finite point.
-pub fn vector_image(stem: &Path, title: &str, series: &[Series]) -> Result<(), String> {
+pub fn vector_image(stem: &Path, title: &str, series: &[Series]) -> Result<()> {
     let bounds = data_bounds(
         series
             .iter()
@@ -147,20 +148,20 @@ pub fn spectrum_chart(
     y_label: &str,
     harmonics: &[u32],
     groups: &[(&str, &[f64])],
-) -> Result<(), String> {
+) -> Result<()> {
     if harmonics.is_empty() || groups.is_empty() {
-        return Err(format!(
+        bail!(
             "spectrum chart '{title}' ({}): no harmonics or no groups to draw",
             stem.display()
-        ));
+        );
     }
     if let Some((name, values)) = groups.iter().find(|(_, v)| v.len() != harmonics.len()) {
-        return Err(format!(
+        bail!(
             "spectrum chart '{title}' ({}): group '{name}' has {} values for {} harmonics",
             stem.display(),
             values.len(),
             harmonics.len()
-        ));
+        );
     }
     let positive = groups
         .iter()
@@ -298,8 +299,8 @@ fn pad(r: Range<f64>, frac: f64) -> Range<f64> {
     }
 }
 
-fn no_data_error(stem: &Path, title: &str) -> String {
-    format!(
+fn no_data_error(stem: &Path, title: &str) -> anyhow::Error {
+    anyhow!(
         "chart '{title}' ({}): no finite data points in any series",
         stem.display()
     )
@@ -422,24 +423,24 @@ fn choose_corner(samples: &[(f64, f64)], labels: &[&str], plot: (u32, u32)) -> S
 /// A chart that can draw itself on any plotters backend.
 trait Figure {
     fn size(&self) -> (u32, u32);
-    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String>;
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()>;
 }
 
 /// Draws `figure` into `<stem>.png` and `<stem>.svg`, creating the parent directory.
-fn render<F: Figure>(stem: &Path, figure: &F) -> Result<(), String> {
+fn render<F: Figure>(stem: &Path, figure: &F) -> Result<()> {
     ensure_font()?;
     if let Some(dir) = stem.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)
-            .map_err(|e| format!("cannot create directory {}: {e}", dir.display()))?;
+            .with_context(|| format!("cannot create directory {}", dir.display()))?;
     }
     let png = with_extension(stem, "png");
     {
         let root = BitMapBackend::new(&png, figure.size()).into_drawing_area();
         figure
             .draw(&root)
-            .map_err(|e| format!("cannot draw {}: {e}", png.display()))?;
+            .with_context(|| format!("cannot draw {}", png.display()))?;
         root.present()
-            .map_err(|e| format!("cannot write {}: {e}", png.display()))?;
+            .with_context(|| format!("cannot write {}", png.display()))?;
     }
     let svg = with_extension(stem, "svg");
     let mut text = String::new();
@@ -447,11 +448,11 @@ fn render<F: Figure>(stem: &Path, figure: &F) -> Result<(), String> {
         let root = SVGBackend::with_string(&mut text, figure.size()).into_drawing_area();
         figure
             .draw(&root)
-            .map_err(|e| format!("cannot draw {}: {e}", svg.display()))?;
+            .with_context(|| format!("cannot draw {}", svg.display()))?;
         root.present()
-            .map_err(|e| format!("cannot draw {}: {e}", svg.display()))?;
+            .with_context(|| format!("cannot draw {}", svg.display()))?;
     }
-    std::fs::write(&svg, text).map_err(|e| format!("cannot write {}: {e}", svg.display()))
+    std::fs::write(&svg, text).with_context(|| format!("cannot write {}", svg.display()))
 }
 
 /// Appends `.ext` (a stem like `run.1` must not lose its `.1` as `set_extension` would do).
@@ -463,7 +464,7 @@ fn with_extension(stem: &Path, ext: &str) -> PathBuf {
 }
 
 /// Registers DejaVu Sans once; with the `ab_glyph` feature plotters knows no system fonts.
-pub(crate) fn ensure_font() -> Result<(), String> {
+pub(crate) fn ensure_font() -> Result<()> {
     static REGISTERED: OnceLock<bool> = OnceLock::new();
     let ok = *REGISTERED.get_or_init(|| {
         let normal = register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok();
@@ -473,12 +474,13 @@ pub(crate) fn ensure_font() -> Result<(), String> {
     if ok {
         Ok(())
     } else {
-        Err("cannot load the bundled DejaVu Sans font".into())
+        Err(anyhow!("cannot load the bundled DejaVu Sans font"))
     }
 }
 
-fn err<E: std::fmt::Display>(e: E) -> String {
-    e.to_string()
+/// Plotters' errors as messages: the backends' error types carry no `'static` bound.
+fn err<E: std::fmt::Display>(e: E) -> anyhow::Error {
+    anyhow!("{e}")
 }
 
 /// Bold title. `FontDesc::style` would keep the regular glyphs (plotters loads the font data
@@ -513,7 +515,7 @@ fn draw_legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
     chart: &mut ChartContext<'a, DB, CT>,
     labelled: bool,
     position: &SeriesLabelPosition,
-) -> Result<(), String> {
+) -> Result<()> {
     if !labelled {
         return Ok(());
     }
@@ -542,7 +544,7 @@ impl Figure for LineFigure<'_> {
         LINE_SIZE
     }
 
-    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()> {
         root.fill(&WHITE).map_err(err)?;
         let m = LINE_MARGINS;
         let mut chart = ChartBuilder::on(root)
@@ -603,7 +605,7 @@ impl Figure for VectorFigure<'_> {
         VECTOR_SIZE
     }
 
-    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()> {
         root.fill(&WHITE).map_err(err)?;
         let m = VECTOR_MARGINS;
         // Lay out the chart so the plotting area is exactly square: equal aspect.
@@ -690,7 +692,7 @@ impl Figure for SpectrumFigure<'_> {
         SPECTRUM_SIZE
     }
 
-    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()> {
         root.fill(&WHITE).map_err(err)?;
         let m = SPECTRUM_MARGINS;
         let n = self.harmonics.len();
@@ -890,7 +892,8 @@ mod tests {
                 points: &nan,
             }],
         )
-        .unwrap_err();
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("Broken") && e.contains("bad"), "{e}");
         assert!(vector_image(
             &stem,
@@ -923,6 +926,7 @@ mod tests {
             }],
         )
         .unwrap_err();
+        let e = format!("{e:#}");
         assert!(e.contains("plain-file"), "{e}");
     }
 

@@ -6,6 +6,7 @@
 
 use crate::rig::{Rig, SimFlash, Step, Streamed};
 use crate::scenario::{NamedCoefficient, Probe, Scenario, Window, WindowStats};
+use anyhow::{anyhow, Result};
 use calib_record::{config_hash, Alignment, RamFlash};
 use drive::commissioning::{Cause, State};
 use drive::supervisor::Supervisor;
@@ -58,7 +59,7 @@ impl Boot {
 pub type Hook<'a> = &'a mut dyn FnMut(&mut Rig, &Step);
 
 /// The scenario's rig with the firmware's supervisor on `flash`.
-pub fn rig(sc: &Scenario, flash: SimFlash, seed: u64) -> Result<Rig, String> {
+pub fn rig(sc: &Scenario, flash: SimFlash, seed: u64) -> Result<Rig> {
     rig_with(sc, flash, seed, |_| {})
 }
 
@@ -68,11 +69,11 @@ pub fn rig_with(
     flash: SimFlash,
     seed: u64,
     adjust: impl FnOnce(&mut drive::control::DriveConfig),
-) -> Result<Rig, String> {
+) -> Result<Rig> {
     let f = &sc.file;
     let c = f
         .commissioning
-        .ok_or_else(|| format!("{}: no [commissioning] table", sc.origin))?;
+        .ok_or_else(|| anyhow!("{}: no [commissioning] table", sc.origin))?;
     let cfg = sc.core_config(None)?;
     let rig = sc.rig_with(cfg, seed, adjust)?;
     let d = rig.period.config();
@@ -89,7 +90,7 @@ pub fn boot(
     seed: u64,
     duration_s: f64,
     hook: Option<Hook>,
-) -> Result<(Boot, SimFlash), String> {
+) -> Result<(Boot, SimFlash)> {
     let mut rig = rig(sc, flash, seed)?;
     let boot = run_boot(&mut rig, sc, duration_s, hook);
     let flash = rig.into_flash().unwrap_or_default();
@@ -200,7 +201,7 @@ pub fn run_boot(rig: &mut Rig, sc: &Scenario, duration_s: f64, mut hook: Option<
 }
 
 /// Both power-ups: erased flash, then the flash the first one left.
-pub fn run(sc: &Scenario, duration_s: f64) -> Result<(Boot, Boot), String> {
+pub fn run(sc: &Scenario, duration_s: f64) -> Result<(Boot, Boot)> {
     let flash = SimFlash::new(RamFlash::default());
     let (first, flash) = boot(sc, flash, sc.file.seed, duration_s, None)?;
     let (second, _) = boot(sc, flash, sc.file.seed + 1, duration_s, None)?;

@@ -8,8 +8,10 @@
 //! when everything succeeded, so a failing run never leaves a partial OUT.csv behind nor
 //! destroys an existing one.
 
-use crate::core_config::{line_of_field, path_toml_name, CoreConfigToml};
+use crate::core_config::{line_of_field, path_toml_name, CoreConfigToml, FieldError};
+use crate::input_error::InputError;
 use crate::pending::Pending;
+use anyhow::{anyhow, bail, Context, Result};
 use mras::sim::{wrap_pi, SpatialError};
 use mras::{Config, Fault, PathKind, Tracker};
 use serde::Serialize;
@@ -71,12 +73,14 @@ impl Recording {
 }
 
 /// One required or optional column of the input.
-fn column(name: &str, headers: &csv::StringRecord, col: &str) -> Result<Option<usize>, String> {
+fn column(name: &str, headers: &csv::StringRecord, col: &str) -> Result<Option<usize>, InputError> {
     let mut found = headers.iter().enumerate().filter(|(_, h)| *h == col);
     let first = found.next().map(|(i, _)| i);
     if found.next().is_some() {
-        return Err(format!(
-            "{name}:1: column `{col}` appears twice in the header"
+        return Err(InputError::at(
+            name,
+            1,
+            format!("column `{col}` appears twice in the header"),
         ));
     }
     Ok(first)
@@ -91,26 +95,31 @@ fn field<T: std::str::FromStr + Copy>(
     idx: usize,
     col: &str,
     finite: fn(T) -> bool,
-) -> Result<T, String> {
+) -> Result<T, InputError> {
     let raw = rec.get(idx).unwrap_or("");
     if raw.is_empty() {
-        return Err(format!("{name}:{line}: field `{col}`: empty"));
+        return Err(InputError::field(name, line, col, "empty"));
     }
     let v: T = raw
         .parse()
-        .map_err(|_| format!("{name}:{line}: field `{col}`: not a number: {raw:?}"))?;
+        .map_err(|_| InputError::field(name, line, col, format!("not a number: {raw:?}")))?;
     if !finite(v) {
         let why = if raw.parse::<f64>().is_ok_and(f64::is_finite) {
             "beyond the f32 range"
         } else {
             "not finite"
         };
-        return Err(format!("{name}:{line}: field `{col}`: {why}: {raw:?}"));
+        return Err(InputError::field(
+            name,
+            line,
+            col,
+            format!("{why}: {raw:?}"),
+        ));
     }
     Ok(v)
 }
 
-fn csv_error(name: &str, e: csv::Error) -> String {
+fn csv_error(name: &str, e: csv::Error) -> InputError {
     let line = e.position().map(|p| p.line());
     let what = match e.kind() {
         csv::ErrorKind::UnequalLengths {
@@ -119,32 +128,38 @@ fn csv_error(name: &str, e: csv::Error) -> String {
         csv::ErrorKind::Utf8 { err, .. } => format!("not UTF-8 text ({err})"),
         _ => e.to_string(),
     };
-    match line {
-        Some(l) => format!("{name}:{l}: {what}"),
-        None => format!("{name}: {what}"),
+    InputError {
+        line,
+        ..InputError::new(name, what)
     }
 }
 
 /// Read and validate the whole input (nothing is written before this succeeds).
-fn read_recording(path: &Path) -> Result<Recording, String> {
+fn read_recording(path: &Path) -> Result<Recording> {
     let name = path.display().to_string();
-    let file = File::open(path).map_err(|e| format!("{name}: cannot open: {e}"))?;
+    let file = File::open(path).with_context(|| format!("{name}: cannot open"))?;
     let mut rdr = csv::ReaderBuilder::new()
         .has_headers(true)
         .trim(csv::Trim::All)
         .from_reader(file);
     let headers = rdr.headers().map_err(|e| csv_error(&name, e))?.clone();
     if headers.iter().all(str::is_empty) {
-        return Err(format!(
-            "{name}:1: empty file: expected a header naming t_s, x, y [, torque_nm, theta_rad]"
+        bail!(InputError::at(
+            &name,
+            1,
+            "empty file: expected a header naming t_s, x, y [, torque_nm, theta_rad]"
         ));
     }
-    let need = |col: &str| -> Result<usize, String> {
+    let need = |col: &str| -> Result<usize, InputError> {
         column(&name, &headers, col)?.ok_or_else(|| {
             let have: Vec<&str> = headers.iter().collect();
-            format!(
-                "{name}:1: missing column `{col}` (the header has: {})",
-                have.join(", ")
+            InputError::at(
+                &name,
+                1,
+                format!(
+                    "missing column `{col}` (the header has: {})",
+                    have.join(", ")
+                ),
             )
         })
     };
@@ -169,8 +184,11 @@ fn read_recording(path: &Path) -> Result<Recording, String> {
         let t: f64 = field(&name, line, &rec, i_t, "t_s", f64::is_finite)?;
         if let Some((tp, lp)) = prev {
             if t <= tp {
-                return Err(format!(
-                    "{name}:{line}: field `t_s`: not increasing ({t} after {tp} on line {lp})"
+                bail!(InputError::field(
+                    &name,
+                    line,
+                    "t_s",
+                    format!("not increasing ({t} after {tp} on line {lp})")
                 ));
             }
         }
@@ -193,9 +211,12 @@ fn read_recording(path: &Path) -> Result<Recording, String> {
         }
     }
     if r.rows() < 2 {
-        return Err(format!(
-            "{name}: {} data row(s): at least 2 are needed to derive the control period",
-            r.rows()
+        bail!(InputError::new(
+            &name,
+            format!(
+                "{} data row(s): at least 2 are needed to derive the control period",
+                r.rows()
+            )
         ));
     }
     Ok(r)
@@ -204,18 +225,21 @@ fn read_recording(path: &Path) -> Result<Recording, String> {
 /// The control period: the mean t_s step, computed as (t_last - t_first)/(n - 1) in f64
 /// (exact telescoping of the steps) and then rounded to the core's f32. Refused when any
 /// step is more than 10 % off: the core integrates with a fixed period.
-fn control_period_s(r: &Recording) -> Result<f64, String> {
+fn control_period_s(r: &Recording) -> Result<f64, InputError> {
     let n = r.rows();
     let mean = (r.t_s[n - 1] - r.t_s[0]) / (n - 1) as f64;
     for k in 1..n {
         let step = r.t_s[k] - r.t_s[k - 1];
         if (step - mean).abs() > MAX_PERIOD_DEVIATION * mean {
-            return Err(format!(
-                "{}:{}: field `t_s`: step {step} s is {:+.1} % off the mean period {mean} s \
-                 (limit ±10 %): the core needs a fixed control period (gap or jitter in the recording?)",
-                r.name,
+            return Err(InputError::field(
+                &r.name,
                 r.line[k],
-                (step / mean - 1.0) * 100.0
+                "t_s",
+                format!(
+                    "step {step} s is {:+.1} % off the mean period {mean} s (limit ±10 %): \
+                     the core needs a fixed control period (gap or jitter in the recording?)",
+                    (step / mean - 1.0) * 100.0
+                ),
             ));
         }
     }
@@ -237,7 +261,7 @@ fn control_period_s(r: &Recording) -> Result<f64, String> {
 /// `SensorModel::extreme()`: ~50x with per-channel gains, ~3 500x with one gain. The
 /// amplitude imbalance itself is the C/D path's job. Give `[input]` in a --config file
 /// to set per-channel gains (e.g. a known front-end gain mismatch).
-fn estimate_scaling(r: &Recording) -> Result<[f32; 4], String> {
+fn estimate_scaling(r: &Recording) -> Result<[f32; 4], InputError> {
     let mut offsets = [0.0f64; 2];
     let mut span_sum = 0.0;
     for (i, (col, v)) in [("x", &r.x), ("y", &r.y)].into_iter().enumerate() {
@@ -248,10 +272,12 @@ fn estimate_scaling(r: &Recording) -> Result<[f32; 4], String> {
             });
         let span = hi - lo;
         if !(span.is_finite() && span > 0.0 && ((2.0 / span) as f32).is_normal()) {
-            return Err(format!(
-                "{}: column `{col}` spans [{lo}, {hi}]: cannot estimate its scaling; give \
-                 [input] offset_{col} and gain_{col} in a --config file",
-                r.name
+            return Err(InputError::new(
+                &r.name,
+                format!(
+                    "column `{col}` spans [{lo}, {hi}]: cannot estimate its scaling; give \
+                     [input] offset_{col} and gain_{col} in a --config file"
+                ),
             ));
         }
         offsets[i] = 0.5 * (hi + lo);
@@ -263,11 +289,11 @@ fn estimate_scaling(r: &Recording) -> Result<[f32; 4], String> {
 
 /// The core configuration: `--config` (or the defaults), N from the file or the flag,
 /// input scaling from the file or estimated. Returns it and whether scaling was estimated.
-fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<(Config, bool), String> {
+fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<(Config, bool)> {
     let (mut toml_cfg, origin, text) = match &a.config {
         Some(p) => {
             let origin = p.display().to_string();
-            let text = fs::read_to_string(p).map_err(|e| format!("{origin}: cannot read: {e}"))?;
+            let text = fs::read_to_string(p).with_context(|| format!("{origin}: cannot read"))?;
             (CoreConfigToml::from_toml_str(&text, &origin)?, origin, text)
         }
         None => (
@@ -278,7 +304,7 @@ fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<(Config, bool)
     };
     if toml_cfg.sensor_periods.is_none() {
         if a.sensor_periods == 0 {
-            return Err("--sensor-periods must be at least 1".into());
+            bail!("--sensor-periods must be at least 1");
         }
         toml_cfg.sensor_periods = Some(a.sensor_periods);
     }
@@ -289,10 +315,7 @@ fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<(Config, bool)
         (i.offset_x, i.gain_x, i.offset_y, i.gain_y) = (Some(ox), Some(gx), Some(oy), Some(gy));
     }
     let cfg = toml_cfg.build(period_s as f32).map_err(|e| {
-        let at = match line_of_field(&text, &e.field) {
-            Some(line) => format!("{origin}:{line}"),
-            None => origin.clone(),
-        };
+        let line = line_of_field(&text, &e.field).map(|l| l as u64);
         let why = match e.field.as_str() {
             "observer.eigenvalues_hz" | "sample_period_s" => format!(
                 " (control period {:.3} µs derived from {}; set [observer] eigenvalues_hz \
@@ -305,7 +328,10 @@ fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<(Config, bool)
             }
             _ => String::new(),
         };
-        format!("{at}: {e}{why}")
+        InputError {
+            line,
+            ..InputError::new(&origin, format!("{e}{why}"))
+        }
     })?;
     Ok((cfg, estimated))
 }
@@ -518,7 +544,7 @@ fn put<W: std::io::Write>(
     w.write_field(buf.as_bytes())
 }
 
-pub fn run(a: &Args) -> Result<(), String> {
+pub fn run(a: &Args) -> Result<()> {
     let rec = read_recording(&a.input)?;
     let same_as_input = |p: &Path| match (fs::canonicalize(&a.input), fs::canonicalize(p)) {
         (Ok(i), Ok(o)) => i == o,
@@ -530,16 +556,16 @@ pub fn run(a: &Args) -> Result<(), String> {
     ] {
         if let Some(p) = p {
             if same_as_input(p) {
-                return Err(format!("{flag} {} would overwrite the input", p.display()));
+                bail!("{flag} {} would overwrite the input", p.display());
             }
         }
     }
     if a.report.as_ref().is_some_and(|r| *r == a.output) {
-        return Err("--report and --output name the same file".into());
+        bail!("--report and --output name the same file");
     }
     let period_s = control_period_s(&rec)?;
     let (cfg, estimated) = build_config(a, &rec, period_s)?;
-    let mut tracker = Tracker::new(cfg).map_err(|e| e.to_string())?;
+    let mut tracker = Tracker::new(cfg).map_err(FieldError::from)?;
     let paths: Vec<PathKind> = cfg.paths().to_vec();
     let rows = rec.rows();
     let has_theta = !rec.theta_rad.is_empty();
@@ -547,7 +573,7 @@ pub fn run(a: &Args) -> Result<(), String> {
 
     let (out_pending, out_file) = Pending::create(&a.output)?;
     let out_name = a.output.display().to_string();
-    let io_err = |e: csv::Error| format!("{out_name}: {e}");
+    let io_err = |e: csv::Error| anyhow!(e).context(out_name.clone());
     let mut w = csv::Writer::from_writer(BufWriter::new(out_file));
     let mut header = vec![
         "t_s".to_string(),
@@ -597,12 +623,12 @@ pub fn run(a: &Args) -> Result<(), String> {
     }
     let buffered = w
         .into_inner()
-        .map_err(|e| format!("{out_name}: {}", e.error()))?;
+        .map_err(|e| anyhow!("{out_name}: {}", e.error()))?;
     buffered
         .into_inner()
-        .map_err(|e| format!("{out_name}: {}", e.error()))?
+        .map_err(|e| anyhow!("{out_name}: {}", e.error()))?
         .sync_all()
-        .map_err(|e| format!("{out_name}: {e}"))?;
+        .with_context(|| out_name.clone())?;
 
     let spatial = has_theta.then(|| spatial_error(&rec, &cfg, window, &theta_hat_rad, &accepted));
     let conv = tracker.convergence();
@@ -657,12 +683,12 @@ pub fn run(a: &Args) -> Result<(), String> {
         Some(p) => {
             let (pending, f) = Pending::create(p)?;
             let name = p.display();
-            let json = serde_json::to_string_pretty(&report).map_err(|e| format!("{name}: {e}"))?;
+            let json = serde_json::to_string_pretty(&report).with_context(|| name.to_string())?;
             let mut f = BufWriter::new(f);
             f.write_all(json.as_bytes())
                 .and_then(|_| f.write_all(b"\n"))
                 .and_then(|_| f.flush())
-                .map_err(|e| format!("{name}: {e}"))?;
+                .with_context(|| name.to_string())?;
             Some(pending)
         }
         None => None,

@@ -2,8 +2,9 @@
 
 use crate::plots::{self, Series};
 use crate::scenario::{
-    path_name, NamedCoefficient, RunOutcome, RunSummary, Scenario, SPECTRUM_HARMONICS,
+    path_name, NamedCoefficient, RunOutcome, RunSummary, Scenario, SPECTRUM_HARMONICS_OF_THETA_RM,
 };
+use anyhow::{Context, Result};
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -113,8 +114,8 @@ pub fn summary_text(
     s
 }
 
-fn write_csv(path: &Path, out: &RunOutcome) -> Result<(), String> {
-    let err = |e: csv::Error| format!("{}: {e}", path.display());
+fn write_csv(path: &Path, out: &RunOutcome) -> Result<()> {
+    let err = |e: csv::Error| anyhow::Error::new(e).context(path.display().to_string());
     let mut w = csv::Writer::from_path(path).map_err(err)?;
     let mut head: Vec<String> = [
         "t_s",
@@ -158,16 +159,16 @@ fn write_csv(path: &Path, out: &RunOutcome) -> Result<(), String> {
         }
         w.write_record(&rec).map_err(err)?;
     }
-    w.flush().map_err(|e| format!("{}: {e}", path.display()))
+    w.flush().with_context(|| path.display().to_string())
 }
 
 /// Write `timeseries.csv`, `summary.json` and the plots of one run into `dir`.
-pub fn write_run(dir: &Path, out: &RunOutcome, with_plots: bool) -> Result<(), String> {
-    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+pub fn write_run(dir: &Path, out: &RunOutcome, with_plots: bool) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| dir.display().to_string())?;
     write_csv(&dir.join("timeseries.csv"), out)?;
-    let json = serde_json::to_string_pretty(&out.summary).map_err(|e| e.to_string())?;
+    let json = serde_json::to_string_pretty(&out.summary)?;
     std::fs::write(dir.join("summary.json"), json)
-        .map_err(|e| format!("{}: {e}", dir.join("summary.json").display()))?;
+        .with_context(|| dir.join("summary.json").display().to_string())?;
     if !with_plots {
         return Ok(());
     }
@@ -309,7 +310,7 @@ pub fn write_run(dir: &Path, out: &RunOutcome, with_plots: bool) -> Result<(), S
     )?;
 
     // Error spectrum by spatial harmonic.
-    let harmonics: Vec<u32> = (1..=SPECTRUM_HARMONICS).collect();
+    let harmonics: Vec<u32> = (1..=SPECTRUM_HARMONICS_OF_THETA_RM).collect();
     let mut groups: Vec<(&str, &[f64])> = vec![("raw sensor", &s.after.raw_spectrum_mrad)];
     if let Some(b) = &s.before {
         groups.push(("θ̂ before MRAS", &b.estimate_spectrum_mrad));

@@ -12,6 +12,7 @@
 //! the bank the code runs from, where the erase stalls everything.
 
 use crate::plant::{Plant, Truth};
+use anyhow::anyhow;
 use calib_record::{FlashSlots, RamFlash, RamFlashError, Slot};
 use drive::adaptation::AdaptationTask;
 use drive::control::{ControlPeriod, DriveConfig, MotorConfig, Output};
@@ -92,16 +93,16 @@ pub fn drive_config(
     control: &ControlParams,
     inertia_estimate_kg_m2: f64,
     sample_period_s: f64,
-) -> Result<DriveConfig, String> {
+) -> anyhow::Result<DriveConfig> {
     let m = &plant.motor;
     let (count_size, bits) = plant.sensor_adc();
     let sensor =
         drive::adc::ChannelScaling::from_count_size(count_size, bits).ok_or_else(|| {
-            format!("sensor ADC count size {count_size} at {bits} bits is not representable")
+            anyhow!("sensor ADC count size {count_size} at {bits} bits is not representable")
         })?;
     let c = &plant.current_adc;
     let pole_pairs = u16::try_from(m.pole_pairs)
-        .map_err(|_| format!("`motor.pole_pairs` = {}: too many", m.pole_pairs))?;
+        .map_err(|_| anyhow!("`motor.pole_pairs` = {}: too many", m.pole_pairs))?;
     let divider = (SUPERVISOR_PERIOD_S / sample_period_s).round().max(1.0) as u32;
     Ok(DriveConfig {
         control_period_s: sample_period_s as f32,

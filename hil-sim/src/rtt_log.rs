@@ -16,7 +16,7 @@
 //! frames are bad. Outputs are written under temporary names and renamed into place only
 //! when everything succeeded.
 
-use crate::pending::Pending;
+use crate::pending::{Pending, PendingDir};
 use crate::plots::{self, Series};
 use crate::stream::{self, Item, Line};
 use anyhow::{anyhow, bail, Context, Result};
@@ -234,54 +234,23 @@ fn add_event(cap: &mut Capture, l: &Line, paths_changed: bool) {
 }
 
 /// Plots rendered into a hidden directory inside DIR and moved into DIR on success, so a
-/// failing run leaves no half set of plots; dropped uncommitted, the directory goes.
-struct PendingPlots {
-    tmp: PathBuf,
-    dir: PathBuf,
-    files: Vec<String>,
-    committed: bool,
-}
+/// failing run leaves no half set of plots.
+struct PendingPlots(PendingDir);
 
 impl PendingPlots {
     fn create(dir: &Path) -> Result<Self> {
-        fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
-        let tmp = dir.join(format!(".rtt-log.{}.tmp", std::process::id()));
-        fs::create_dir(&tmp).with_context(|| format!("{}: cannot create", tmp.display()))?;
-        Ok(Self {
-            tmp,
-            dir: dir.to_path_buf(),
-            files: Vec::new(),
-            committed: false,
-        })
+        PendingDir::create(dir, "rtt-log").map(Self)
     }
 
     fn chart(&mut self, stem: &str, title: &str, y_label: &str, series: &[Series]) -> Result<()> {
-        plots::line_chart(&self.tmp.join(stem), title, "time (s)", y_label, series)
-            .map_err(|e| anyhow!(e))?;
-        self.files.push(format!("{stem}.png"));
-        self.files.push(format!("{stem}.svg"));
+        plots::line_chart(&self.0.tmp().join(stem), title, "time (s)", y_label, series)?;
+        self.0.add(format!("{stem}.png"));
+        self.0.add(format!("{stem}.svg"));
         Ok(())
     }
 
-    fn commit(mut self) -> Result<Vec<PathBuf>> {
-        let mut out = Vec::new();
-        for f in &self.files {
-            let dest = self.dir.join(f);
-            fs::rename(self.tmp.join(f), &dest)
-                .with_context(|| format!("{}: cannot write", dest.display()))?;
-            out.push(dest);
-        }
-        self.committed = true;
-        let _ = fs::remove_dir_all(&self.tmp);
-        Ok(out)
-    }
-}
-
-impl Drop for PendingPlots {
-    fn drop(&mut self) {
-        if !self.committed {
-            let _ = fs::remove_dir_all(&self.tmp);
-        }
+    fn commit(self) -> Result<Vec<PathBuf>> {
+        self.0.commit()
     }
 }
 
@@ -315,7 +284,7 @@ fn write_csv(
     header: &[String],
     rows: impl Iterator<Item = Vec<String>>,
 ) -> Result<Pending> {
-    let (pending, file) = Pending::create(dest).map_err(|e| anyhow!(e))?;
+    let (pending, file) = Pending::create(dest)?;
     let name = dest.display().to_string();
     let mut w = csv::Writer::from_writer(BufWriter::new(file));
     w.write_record(header).with_context(|| name.clone())?;
@@ -458,11 +427,7 @@ fn render_plots(cap: &Capture, plots: &mut PendingPlots) -> Vec<String> {
     notes
 }
 
-pub fn run(a: &Args) -> Result<(), String> {
-    run_inner(a).map_err(|e| format!("{e:#}"))
-}
-
-fn run_inner(a: &Args) -> Result<()> {
+pub fn run(a: &Args) -> Result<()> {
     let cap = read_capture(a)?;
     let seg_paths: Vec<PathBuf> = (0..cap.segments.len())
         .map(|k| segment_path(&a.output, k))
@@ -493,7 +458,7 @@ fn run_inner(a: &Args) -> Result<()> {
         None => (None, Vec::new()),
     };
     for p in pending {
-        p.commit().map_err(|e| anyhow!(e))?;
+        p.commit()?;
     }
     let plot_files = match plots {
         Some(p) => p.commit()?,

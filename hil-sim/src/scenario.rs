@@ -1,11 +1,13 @@
 //! Scenarios: one TOML file per case (`hil-sim/scenarios/`), run by name. A paper
 //! scenario runs twice, the paper-literal law and ours, on the same drive and sensor.
 
-use crate::core_config::CoreConfigToml;
+use crate::core_config::{CoreConfigToml, FieldError};
 use crate::exact::wrap_pi;
+use crate::input_error::{InputError, InvalidParam};
 use crate::plant::{Cogging, LoadStep, MotorParams, Plant};
 use crate::rig::{self, ControlParams, Reference, Rig, Step};
 use crate::sensor::{Drift, Mount, SensorParams, SensorSim};
+use anyhow::{anyhow, bail, Result};
 use drive::commissioning::{Adaptation, Setpoint};
 use drive::control::ControlPeriod;
 use drive::motion::LoopMode;
@@ -196,7 +198,7 @@ pub struct DriftToml {
 }
 
 impl SensorToml {
-    pub fn to_params(&self) -> Result<SensorParams, String> {
+    pub fn to_params(&self) -> Result<SensorParams> {
         let mut m = SensorModel::ideal(self.sensor_periods);
         m.ax = self.ax;
         m.ay = self.ay;
@@ -215,10 +217,10 @@ impl SensorToml {
                 },
             };
             if !m.push_harmonic(hm) {
-                return Err(format!(
+                bail!(
                     "`sensor.harmonics`: at most {} harmonics",
                     mras::sim::MAX_SENSOR_HARMONICS
-                ));
+                );
             }
         }
         let p = SensorParams {
@@ -305,7 +307,7 @@ pub struct LoadStepToml {
 }
 
 impl MotorToml {
-    pub fn to_params(&self) -> Result<MotorParams, String> {
+    pub fn to_params(&self) -> Result<MotorParams, InvalidParam> {
         let mut m = MotorParams {
             pole_pairs: self.pole_pairs,
             r_ohm: self.r_ohm,
@@ -377,15 +379,11 @@ fn default_accel() -> f64 {
 }
 
 impl ControlToml {
-    pub fn to_params(&self) -> Result<ControlParams, String> {
+    pub fn to_params(&self) -> Result<ControlParams> {
         let mode = match self.mode.as_str() {
             "position" => LoopMode::Position,
             "velocity" => LoopMode::Velocity,
-            other => {
-                return Err(format!(
-                    "`control.mode` = \"{other}\": must be \"position\" or \"velocity\""
-                ))
-            }
+            other => bail!("`control.mode` = \"{other}\": must be \"position\" or \"velocity\""),
         };
         let reference = match self.reference {
             ReferenceToml::Ramp {
@@ -393,7 +391,7 @@ impl ControlToml {
                 accel_rad_s2,
             } => {
                 if accel_rad_s2.is_nan() || accel_rad_s2 <= 0.0 {
-                    return Err("`control.reference.accel_rad_s2` must be > 0".into());
+                    bail!("`control.reference.accel_rad_s2` must be > 0");
                 }
                 Reference::Ramp {
                     speed_rev_s,
@@ -417,6 +415,26 @@ impl ControlToml {
     }
 }
 
+/// A scenario that cannot be loaded: the file is missing, does not parse (the line is
+/// named) or breaks a rule of the simulation (the parameter is named).
+#[derive(Debug, thiserror::Error)]
+pub enum ScenarioError {
+    #[error("cannot read scenario {}: {error} (available: {available})", .path.display())]
+    Read {
+        path: PathBuf,
+        error: std::io::Error,
+        /// The shipped scenarios, comma-separated: what the user probably meant.
+        available: String,
+    },
+    #[error(transparent)]
+    Parse(#[from] InputError),
+    #[error("{origin}: {error:#}")]
+    Invalid {
+        origin: String,
+        error: anyhow::Error,
+    },
+}
+
 /// A parsed, validated scenario.
 #[derive(Clone, Debug)]
 pub struct Scenario {
@@ -426,65 +444,64 @@ pub struct Scenario {
 
 impl Scenario {
     /// Load `name` from [`scenario_dir`], or a path to a `.toml` file.
-    pub fn load(name_or_path: &str) -> Result<Self, String> {
+    pub fn load(name_or_path: &str) -> Result<Self, ScenarioError> {
         let path = if name_or_path.ends_with(".toml") {
             PathBuf::from(name_or_path)
         } else {
             scenario_dir().join(format!("{name_or_path}.toml"))
         };
-        let text = std::fs::read_to_string(&path).map_err(|e| {
-            format!(
-                "cannot read scenario {}: {e} (available: {})",
-                path.display(),
-                list().join(", ")
-            )
-        })?;
+        let text = match std::fs::read_to_string(&path) {
+            Ok(t) => t,
+            Err(error) => {
+                return Err(ScenarioError::Read {
+                    path,
+                    error,
+                    available: list().join(", "),
+                })
+            }
+        };
         Self::parse(&text, &path.display().to_string())
     }
 
-    pub fn parse(text: &str, origin: &str) -> Result<Self, String> {
-        let file: ScenarioFile = toml::from_str(text).map_err(|e| {
-            let line = e
+    pub fn parse(text: &str, origin: &str) -> Result<Self, ScenarioError> {
+        let file: ScenarioFile = toml::from_str(text).map_err(|e| InputError {
+            line: e
                 .span()
-                .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1);
-            match line {
-                Some(l) => format!("{origin}:{l}: {}", e.message()),
-                None => format!("{origin}: {}", e.message()),
-            }
+                .map(|s| text[..s.start.min(text.len())].matches('\n').count() as u64 + 1),
+            ..InputError::new(origin, e.message())
         })?;
         let sc = Self {
             file,
             origin: origin.to_string(),
         };
-        sc.validate()?;
+        sc.validate().map_err(|error| ScenarioError::Invalid {
+            origin: origin.to_string(),
+            error,
+        })?;
         Ok(sc)
     }
 
-    fn validate(&self) -> Result<(), String> {
+    fn validate(&self) -> Result<()> {
         let f = &self.file;
-        let err = |m: String| format!("{}: {m}", self.origin);
         if !(f.duration_s > 0.0 && f.duration_s <= 600.0) {
-            return Err(err(format!(
-                "`duration_s` = {}: must be in (0, 600]",
-                f.duration_s
-            )));
+            bail!("`duration_s` = {}: must be in (0, 600]", f.duration_s);
         }
         if !(f.sample_rate_hz >= 1000.0 && f.sample_rate_hz <= 200_000.0) {
-            return Err(err(format!(
+            bail!(
                 "`sample_rate_hz` = {}: must be in [1 kHz, 200 kHz]",
                 f.sample_rate_hz
-            )));
+            );
         }
         if !(f.inertia_estimate_ratio > 0.05 && f.inertia_estimate_ratio < 20.0) {
-            return Err(err("`inertia_estimate_ratio` must be in (0.05, 20)".into()));
+            bail!("`inertia_estimate_ratio` must be in (0.05, 20)");
         }
-        f.sensor.to_params().map_err(err)?;
-        f.motor.to_params().map_err(err)?;
-        f.control.to_params().map_err(err)?;
-        let cfg = self.core_config(None).map_err(err)?;
-        self.rig(cfg, f.seed).map_err(err)?;
+        f.sensor.to_params()?;
+        f.motor.to_params()?;
+        f.control.to_params()?;
+        let cfg = self.core_config(None)?;
+        self.rig(cfg, f.seed)?;
         for c in &f.cases {
-            c.sensor.to_params().map_err(err)?;
+            c.sensor.to_params()?;
         }
         Ok(())
     }
@@ -495,7 +512,7 @@ impl Scenario {
 
     /// The core configuration: the `[core]` table, with Ĵ from the motor and the
     /// scenario's inertia ratio, and the law replaced by the paper's when asked.
-    pub fn core_config(&self, paper: Option<PaperToml>) -> Result<mras::Config, String> {
+    pub fn core_config(&self, paper: Option<PaperToml>) -> Result<mras::Config> {
         let f = &self.file;
         let mut cfg = f.core.to_config(self.sample_period_s() as f32)?;
         cfg.sensor_periods = f.sensor.sensor_periods;
@@ -506,7 +523,7 @@ impl Scenario {
                 k2: p.k2,
             };
         }
-        cfg.validate().map_err(|e| e.to_string())?;
+        cfg.validate().map_err(FieldError::from)?;
         Ok(cfg)
     }
 }
@@ -517,7 +534,7 @@ impl Scenario {
     /// The scenario's plant with the firmware's control period on it (no supervisor:
     /// the caller commands it), the core configured by `cfg`, sensor noise seeded by
     /// `seed`.
-    pub fn rig(&self, cfg: mras::Config, seed: u64) -> Result<Rig, String> {
+    pub fn rig(&self, cfg: mras::Config, seed: u64) -> Result<Rig> {
         self.rig_with(cfg, seed, |_| {})
     }
 
@@ -528,7 +545,7 @@ impl Scenario {
         cfg: mras::Config,
         seed: u64,
         adjust: impl FnOnce(&mut drive::control::DriveConfig),
-    ) -> Result<Rig, String> {
+    ) -> Result<Rig> {
         let f = &self.file;
         let t_s = self.sample_period_s();
         let motor = f.motor.to_params()?;
@@ -538,8 +555,8 @@ impl Scenario {
         let control = f.control.to_params()?;
         let mut dcfg = rig::drive_config(&plant, &control, j_hat, t_s)?;
         adjust(&mut dcfg);
-        let tracker = mras::Front::new(cfg).map_err(|e| e.to_string())?;
-        let period = ControlPeriod::new(dcfg, tracker).map_err(|e| e.to_string())?;
+        let tracker = mras::Front::new(cfg).map_err(FieldError::from)?;
+        let period = ControlPeriod::new(dcfg, tracker).map_err(FieldError::from)?;
         Ok(Rig::new(plant, period, Some(control.reference)))
     }
 }
@@ -636,7 +653,10 @@ pub struct WindowStats {
     pub raw_by_angle: Vec<(f64, f64)>,
 }
 
-pub const SPECTRUM_HARMONICS: u32 = 16;
+/// Spatial harmonics k of the mechanical angle θrm in a run's error spectrum (summary,
+/// Table I): up to m = 8 of θs for the paper's N = 2 sensor. (The accuracy benchmark
+/// counts harmonics of θs instead: [`crate::accuracy::SPECTRUM_HARMONICS_OF_THETA_S`].)
+pub const SPECTRUM_HARMONICS_OF_THETA_RM: u32 = 16;
 
 /// Spatial and tracking error over a time window of a run.
 #[derive(Clone, Debug)]
@@ -676,7 +696,7 @@ impl Window {
 
     pub(crate) fn stats(&self) -> WindowStats {
         let spec = |e: &SpatialError<360>| {
-            (1..=SPECTRUM_HARMONICS)
+            (1..=SPECTRUM_HARMONICS_OF_THETA_RM)
                 .map(|k| e.harmonic_amplitude_rad(k) * 1e3)
                 .collect()
         };
@@ -730,17 +750,12 @@ const MAX_ROWS: u64 = 20_000;
 pub use crate::replay::path_column_name as path_name;
 
 /// Run one variant for `duration_s`; `progress` prints to stderr every 10 %.
-pub fn run(
-    sc: &Scenario,
-    variant: Variant,
-    duration_s: f64,
-    progress: bool,
-) -> Result<RunOutcome, String> {
+pub fn run(sc: &Scenario, variant: Variant, duration_s: f64, progress: bool) -> Result<RunOutcome> {
     let f = &sc.file;
     let paper =
         match variant {
             Variant::Paper => Some(f.paper.ok_or_else(|| {
-                format!("{}: no [paper] table, so no paper-literal run", sc.origin)
+                anyhow!("{}: no [paper] table, so no paper-literal run", sc.origin)
             })?),
             Variant::Ours => None,
         };
@@ -840,7 +855,7 @@ pub fn run(
 /// §4), found by a noiseless kinematic commissioning at 20 rev/s, 40 revolutions.
 /// `None` when the sensor drifts or has errors the paths cannot represent exactly
 /// (eccentricity), or when that run does not settle.
-pub fn reference_coefficients(sc: &Scenario) -> Result<Option<Vec<NamedCoefficient>>, String> {
+pub fn reference_coefficients(sc: &Scenario) -> Result<Option<Vec<NamedCoefficient>>> {
     let f = &sc.file;
     let p = f.sensor.to_params()?;
     if p.eccentricity_rad != 0.0 || p.drift != Drift::default() {
@@ -849,7 +864,7 @@ pub fn reference_coefficients(sc: &Scenario) -> Result<Option<Vec<NamedCoefficie
     let mut cfg = sc.core_config(None)?;
     cfg.sample_period_s = 50e-6;
     cfg.observer.eigenvalues_hz = [100.0, 10.0, 1.0];
-    let mut t = Tracker::new(cfg).map_err(|e| e.to_string())?;
+    let mut t = Tracker::new(cfg).map_err(FieldError::from)?;
     let run = mras::sim::CommissioningRun {
         sensor: p.model,
         speed_rev_s: 20.0,
@@ -884,7 +899,7 @@ pub fn reference_coefficients(sc: &Scenario) -> Result<Option<Vec<NamedCoefficie
 pub type Table1Row = (String, u32, u32, Vec<f64>);
 
 /// Table I: each case's raw spatial error spectrum.
-pub fn run_table1(sc: &Scenario, duration_s: f64) -> Result<Vec<Table1Row>, String> {
+pub fn run_table1(sc: &Scenario, duration_s: f64) -> Result<Vec<Table1Row>> {
     let mut out = Vec::new();
     for case in &sc.file.cases {
         let mut file = sc.file.clone();

@@ -3,6 +3,7 @@
 //! of offsets and gain (temperature) and a mechanical once-per-revolution error
 //! (magnet eccentricity).
 
+use crate::input_error::InvalidParam;
 use mras::sim::{Adc, CompiledSensor, SensorModel, MAX_SENSOR_HARMONICS};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -56,37 +57,43 @@ impl SensorParams {
         }
     }
 
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidParam> {
+        let out_of_range = |name, value, rule| InvalidParam::OutOfRange { name, value, rule };
         if !(self.noise_std.is_finite() && (0.0..=0.1).contains(&self.noise_std)) {
-            return Err(format!(
-                "`sensor.noise_std` = {}: must be in [0, 0.1]",
-                self.noise_std
+            return Err(out_of_range(
+                "sensor.noise_std",
+                self.noise_std,
+                "must be in [0, 0.1]",
             ));
         }
         if !(self.skew_s.is_finite() && self.skew_s.abs() <= 1e-3) {
-            return Err(format!(
-                "`sensor.skew_s` = {}: must be within ±1 ms",
-                self.skew_s
+            return Err(out_of_range(
+                "sensor.skew_s",
+                self.skew_s,
+                "must be within ±1 ms",
             ));
         }
         if !(self.eccentricity_rad.is_finite() && self.eccentricity_rad.abs() < 0.5) {
-            return Err(format!(
-                "`sensor.eccentricity_rad` = {}: must be within ±0.5 rad",
-                self.eccentricity_rad
+            return Err(out_of_range(
+                "sensor.eccentricity_rad",
+                self.eccentricity_rad,
+                "must be within ±0.5 rad",
             ));
         }
         if !self.mount.offset_rad.is_finite() {
-            return Err("`sensor.mount_offset_deg` must be finite".into());
+            return Err(InvalidParam::Rule(
+                "`sensor.mount_offset_deg` must be finite",
+            ));
         }
         if let Some(adc) = self.adc {
             if !(8..=24).contains(&adc.bits) || adc.full_scale.is_nan() || adc.full_scale <= 0.0 {
-                return Err(
-                    "`sensor.adc_bits` must be 8..=24 and `sensor.adc_full_scale` > 0".into(),
-                );
+                return Err(InvalidParam::Rule(
+                    "`sensor.adc_bits` must be 8..=24 and `sensor.adc_full_scale` > 0",
+                ));
             }
         }
         if self.model.sensor_periods == 0 {
-            return Err("`sensor.sensor_periods` must be >= 1".into());
+            return Err(InvalidParam::Rule("`sensor.sensor_periods` must be >= 1"));
         }
         Ok(())
     }
@@ -205,10 +212,10 @@ impl FastModel {
 }
 
 impl SensorSim {
-    pub fn new(params: SensorParams, seed: u64) -> Result<Self, String> {
+    pub fn new(params: SensorParams, seed: u64) -> Result<Self, InvalidParam> {
         params.validate()?;
         let noise = if params.noise_std > 0.0 {
-            Some(Normal::new(0.0, params.noise_std).map_err(|e| e.to_string())?)
+            Some(Normal::new(0.0, params.noise_std)?)
         } else {
             None
         };
@@ -447,6 +454,7 @@ mod tests {
         p.noise_std = -1.0;
         assert!(SensorSim::new(p, 1)
             .unwrap_err()
+            .to_string()
             .contains("sensor.noise_std"));
     }
 }

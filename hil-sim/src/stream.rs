@@ -366,7 +366,7 @@ impl Formats {
             if key != name {
                 bail!("`{kind}`: parameter `{key}` where the schema has `{name}`");
             }
-            put(ty, v, &mut raw).with_context(|| format!("`{kind}` `{name}`"))?;
+            encode_param(ty, v, &mut raw).with_context(|| format!("`{kind}` `{name}`"))?;
         }
         let mut enc = defmt::Encoder::new();
         enc.start_frame(|b| out.extend_from_slice(b));
@@ -426,7 +426,7 @@ pub fn release_elf() -> PathBuf {
 
 /// A value in defmt's wire format for its parameter type (little-endian, str as a u32
 /// length and the bytes, bool as one byte).
-fn put(ty: &Type, v: &Value, raw: &mut Vec<u8>) -> Result<()> {
+fn encode_param(ty: &Type, v: &Value, raw: &mut Vec<u8>) -> Result<()> {
     match (ty, v) {
         (Type::U8, Value::Uint(x)) => raw.push(u8::try_from(*x)?),
         (Type::U16, Value::Uint(x)) => raw.extend(u16::try_from(*x)?.to_le_bytes()),

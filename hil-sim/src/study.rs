@@ -1,7 +1,9 @@
 //! Parameter studies whose tables go into docs/theory.md.
 
 use crate::commission::{INERTIA_KG_M2, SAMPLE_PERIOD_S};
+use crate::core_config::FieldError;
 use crate::Law;
+use anyhow::Result;
 use mras::sim::{revs_to_reduction, CommissioningRun, SensorModel};
 use mras::{AdaptationLaw, Config, Tracker};
 
@@ -22,7 +24,7 @@ pub struct SweepArgs {
 /// Revolutions to a 10x reduction of the extreme sensor's error (noiseless, no ADC, so
 /// that the figure measures the adaptation and nothing else); `None` if not reached.
 /// A loss of lock counts as not reached.
-pub fn revs_to_10x(cfg: Config, speed_rev_s: f64, revs: u32) -> Result<Option<usize>, String> {
+pub fn revs_to_10x(cfg: Config, speed_rev_s: f64, revs: u32) -> Result<Option<usize>> {
     let r = CommissioningRun {
         sensor: SensorModel::extreme(),
         speed_rev_s,
@@ -30,7 +32,7 @@ pub fn revs_to_10x(cfg: Config, speed_rev_s: f64, revs: u32) -> Result<Option<us
         inertia_kg_m2: INERTIA_KG_M2,
         adc: None,
     };
-    let mut t = Tracker::new(cfg).map_err(|e| e.to_string())?;
+    let mut t = Tracker::new(cfg).map_err(FieldError::from)?;
     let (mut per_rev, mut raw) = (Vec::new(), 0.0);
     r.run(
         &mut t,
@@ -53,7 +55,7 @@ fn cell(r: Option<usize>, revs: u32) -> String {
 
 pub const SPEEDS_REV_S: [f64; 5] = [2.0, 5.0, 20.0, 50.0, 100.0];
 
-pub fn compare_laws(a: &CompareArgs) -> Result<(), String> {
+pub fn compare_laws(a: &CompareArgs) -> Result<()> {
     println!("Revolutions to a 10x reduction of the extreme sensor's spatial error");
     println!(
         "(observer 100/10/1 Hz, 20 kHz, noiseless; `> {}`: not reached)\n",
@@ -74,7 +76,7 @@ pub fn compare_laws(a: &CompareArgs) -> Result<(), String> {
     Ok(())
 }
 
-pub fn gain_sweep(a: &SweepArgs) -> Result<(), String> {
+pub fn gain_sweep(a: &SweepArgs) -> Result<()> {
     let gains = [0.05, 0.1, 0.15, 0.2];
     println!(
         "Revolutions to 10x vs gain_per_rad (forward / reverse; `> {}`: not reached)\n",

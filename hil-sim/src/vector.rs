@@ -2,6 +2,8 @@
 //! through commissioning) and the host's trace of the same core over it.
 
 use crate::commission::{noise, ADC, INERTIA_KG_M2, SAMPLE_PERIOD_S};
+use crate::core_config::FieldError;
+use anyhow::{bail, Context, Result};
 use mras::sim::{encode_vector_record, write_trace_line, Kinematic, SensorModel, Trajectory};
 use mras::{Config, Tracker};
 use std::path::PathBuf;
@@ -21,9 +23,9 @@ pub struct Args {
     pub seed: u64,
 }
 
-pub fn run(a: &Args) -> Result<(), String> {
+pub fn run(a: &Args) -> Result<()> {
     if a.steps == 0 || a.steps > 20_000 {
-        return Err("--steps must be in 1..=20000 (the image embeds the vector)".into());
+        bail!("--steps must be in 1..=20000 (the image embeds the vector)");
     }
     let kin = Kinematic {
         sensor: SensorModel::extreme(),
@@ -37,7 +39,7 @@ pub fn run(a: &Args) -> Result<(), String> {
     };
     let mut vector = Vec::with_capacity(a.steps as usize * 12);
     let mut trace = String::new();
-    let mut tracker = Tracker::new(Config::default()).map_err(|e| e.to_string())?;
+    let mut tracker = Tracker::new(Config::default()).map_err(FieldError::from)?;
     // The driver feeds the live tracker; the trace is written from what it fed, so the
     // host trace is the core over exactly the recorded f32 values.
     kin.run(
@@ -53,9 +55,9 @@ pub fn run(a: &Args) -> Result<(), String> {
     let conv = tracker.convergence();
     for (p, d) in [(&a.vector, vector.as_slice()), (&a.trace, trace.as_bytes())] {
         if let Some(dir) = p.parent() {
-            std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+            std::fs::create_dir_all(dir).with_context(|| dir.display().to_string())?;
         }
-        std::fs::write(p, d).map_err(|e| format!("{}: {e}", p.display()))?;
+        std::fs::write(p, d).with_context(|| p.display().to_string())?;
     }
     println!(
         "qemu-vector: {} steps ({} bytes) to {}, host trace to {}; converged: {} after {} revolutions",

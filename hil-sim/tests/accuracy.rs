@@ -5,7 +5,7 @@ use hil_sim::accuracy::report::{self, RunInfo, REDUCED_SENSORS};
 use hil_sim::accuracy::stats::{summarise, Condition, Summary, TrackerStats};
 use hil_sim::accuracy::{
     draw_sensor, run_sensor, run_suite, Method, PhaseKind, Plan, DISTRIBUTION, SENSOR_PERIODS,
-    SPECTRUM_HARMONICS, SPECTRUM_PHASE,
+    SPECTRUM_HARMONICS_OF_THETA_S, SPECTRUM_PHASE,
 };
 use std::sync::OnceLock;
 
@@ -79,12 +79,12 @@ fn tracker(s: &Summary, m: Method) -> &TrackerStats {
         .expect("a tracker")
 }
 
-fn spectrum(s: &Summary, m: Method) -> &[f64; SPECTRUM_HARMONICS] {
+fn spectrum(s: &Summary, m: Method) -> &[f64; SPECTRUM_HARMONICS_OF_THETA_S] {
     &s.spectrum_median_rad[m.index()]
 }
 
 /// Root-sum-square of the median harmonic amplitudes m in `r` (1-based).
-fn rss(spec: &[f64; SPECTRUM_HARMONICS], r: std::ops::RangeInclusive<usize>) -> f64 {
+fn rss(spec: &[f64; SPECTRUM_HARMONICS_OF_THETA_S], r: std::ops::RangeInclusive<usize>) -> f64 {
     r.map(|m| spec[m - 1] * spec[m - 1]).sum::<f64>().sqrt()
 }
 

@@ -1,6 +1,7 @@
 //! The paper scenarios, reduced-length (`ci_duration_s`), with their figures asserted.
 
-use hil_sim::scenario::{self, RunOutcome, Scenario, Variant};
+use hil_sim::input_error::InputError;
+use hil_sim::scenario::{self, RunOutcome, Scenario, ScenarioError, Variant};
 
 fn run(name: &str, variant: Variant) -> RunOutcome {
     let sc = Scenario::load(name).unwrap();
@@ -96,14 +97,19 @@ fn every_shipped_scenario_parses() {
 fn malformed_scenarios_name_line_and_field() {
     let text = "name = \"x\"\ndescription = \"y\"\nduration_s = 1.0\nbogus = 3\n";
     let e = Scenario::parse(text, "x.toml").unwrap_err();
+    assert!(
+        matches!(&e, ScenarioError::Parse(InputError { line: Some(4), .. })),
+        "{e:?}"
+    );
+    let e = e.to_string();
     assert!(e.contains("x.toml:4") && e.contains("bogus"), "{e}");
     let text = "name = \"x\"\ndescription = \"y\"\nduration_s = -1.0\n[control]\nmode = \"position\"\nbandwidth_hz = 5.0\nreference = { kind = \"ramp\", speed_rev_s = 5.0 }\n";
-    let e = Scenario::parse(text, "x.toml").unwrap_err();
+    let e = Scenario::parse(text, "x.toml").unwrap_err().to_string();
     assert!(e.contains("duration_s"), "{e}");
     let text = "name = \"x\"\ndescription = \"y\"\nduration_s = 1.0\n[control]\nmode = \"torque\"\nbandwidth_hz = 5.0\nreference = { kind = \"ramp\", speed_rev_s = 5.0 }\n";
-    let e = Scenario::parse(text, "x.toml").unwrap_err();
+    let e = Scenario::parse(text, "x.toml").unwrap_err().to_string();
     assert!(e.contains("control.mode"), "{e}");
-    let e = Scenario::load("no-such-scenario").unwrap_err();
+    let e = Scenario::load("no-such-scenario").unwrap_err().to_string();
     assert!(e.contains("available: ") && e.contains("paper-fig9"), "{e}");
 }
 

@@ -16,6 +16,7 @@
 //!   proven here.
 
 use crate::{output_of, root, TARGET};
+use anyhow::{anyhow, Context, Result};
 use std::collections::{BTreeMap, HashMap, VecDeque};
 
 /// The control interrupt, and the adaptation task it hands every sample to (RTIC binds it
@@ -242,10 +243,10 @@ struct Findings {
     problems: Vec<String>,
 }
 
-fn scan(p: &Program, root_name: &str) -> Result<Findings, String> {
+fn scan(p: &Program, root_name: &str) -> Result<Findings> {
     let root_addr = p
         .by_name(root_name)
-        .ok_or_else(|| format!("no function `{root_name}` in the disassembly"))?;
+        .ok_or_else(|| anyhow!("no function `{root_name}` in the disassembly"))?;
     let mut parent: HashMap<u64, Option<u64>> = HashMap::from([(root_addr, None)]);
     let mut queue = VecDeque::from([root_addr]);
     let mut f = Findings::default();
@@ -372,9 +373,9 @@ fn scan(p: &Program, root_name: &str) -> Result<Findings, String> {
 }
 
 /// (address, bytes) of the ELF's sections that hold code or data.
-fn loaded_sections(elf: &[u8]) -> Result<Vec<(u64, Vec<u8>)>, String> {
+fn loaded_sections(elf: &[u8]) -> Result<Vec<(u64, Vec<u8>)>> {
     use object::{Object, ObjectSection};
-    let file = object::File::parse(elf).map_err(|e| e.to_string())?;
+    let file = object::File::parse(elf)?;
     Ok(file
         .sections()
         .filter(|s| s.address() != 0)
@@ -383,7 +384,7 @@ fn loaded_sections(elf: &[u8]) -> Result<Vec<(u64, Vec<u8>)>, String> {
 }
 
 /// Scan the release firmware; error (listing every problem) if any.
-pub fn check() -> Result<(), String> {
+pub fn check() -> Result<()> {
     crate::qemu::ensure("arm-none-eabi-objdump", "binutils-arm-none-eabi")?;
     let elf = root()
         .join("target")
@@ -395,10 +396,10 @@ pub fn check() -> Result<(), String> {
         "arm-none-eabi-objdump",
         &["-d", "--no-show-raw-insn", "-C", &elf],
     )
-    .ok_or_else(|| format!("arm-none-eabi-objdump -d {elf} failed (build the firmware first)"))?;
-    let data = std::fs::read(&elf).map_err(|e| format!("{elf}: {e}"))?;
+    .ok_or_else(|| anyhow!("arm-none-eabi-objdump -d {elf} failed (build the firmware first)"))?;
+    let data = std::fs::read(&elf).with_context(|| elf.clone())?;
     let mut program = Program::parse(&text);
-    program.memory = loaded_sections(&data).map_err(|e| format!("{elf}: {e}"))?;
+    program.memory = loaded_sections(&data).with_context(|| elf.clone())?;
     let mut failed = 0;
     for root in ROOTS {
         let f = scan(&program, root)?;
@@ -417,7 +418,7 @@ pub fn check() -> Result<(), String> {
     if failed == 0 {
         Ok(())
     } else {
-        Err(format!(
+        Err(anyhow!(
             "the control interrupt or the adaptation task reaches {failed} forbidden routine(s) or unprovable jump(s)"
         ))
     }

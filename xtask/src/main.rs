@@ -7,6 +7,7 @@ mod isr;
 mod qemu;
 mod regs;
 
+use anyhow::{anyhow, bail, Context, Result};
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 
@@ -81,12 +82,13 @@ fn main() -> ExitCode {
             print!("{HELP}");
             Ok(())
         }
-        Some(other) => Err(format!("unknown command `{other}`\n\n{HELP}")),
+        Some(other) => Err(anyhow!("unknown command `{other}`\n\n{HELP}")),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("xtask: {e}");
+            // The whole chain: what failed, then why.
+            eprintln!("xtask: {e:#}");
             ExitCode::FAILURE
         }
     }
@@ -106,16 +108,16 @@ pub(crate) fn cargo() -> Command {
 }
 
 /// Run a command, echoing it; error with its exit status.
-pub(crate) fn run(mut c: Command) -> Result<(), String> {
+pub(crate) fn run(mut c: Command) -> Result<()> {
     let shown = format!("{c:?}").replace('"', "");
     eprintln!("\n$ {shown}");
     let status = c
         .status()
-        .map_err(|e| format!("cannot start {shown}: {e}"))?;
+        .with_context(|| format!("cannot start {shown}"))?;
     if status.success() {
         Ok(())
     } else {
-        Err(format!("`{shown}` failed ({status})"))
+        Err(anyhow!("`{shown}` failed ({status})"))
     }
 }
 
@@ -127,7 +129,7 @@ pub(crate) fn output_of(program: &str, args: &[&str]) -> Option<String> {
 }
 
 /// Install the MCU target and the lint tools when missing.
-fn setup() -> Result<(), String> {
+fn setup() -> Result<()> {
     let installed = output_of("rustup", &["target", "list", "--installed"]).unwrap_or_default();
     if !installed.lines().any(|l| l.trim() == TARGET) {
         let mut c = Command::new("rustup");
@@ -144,7 +146,7 @@ fn setup() -> Result<(), String> {
     Ok(())
 }
 
-fn test_host() -> Result<(), String> {
+fn test_host() -> Result<()> {
     let mut c = cargo();
     c.args([
         "test",
@@ -176,7 +178,7 @@ pub(crate) fn cross_build(krate: &str) -> Command {
     c
 }
 
-fn build_cross() -> Result<(), String> {
+fn build_cross() -> Result<()> {
     for krate in CORE_CRATES.iter().chain([&FIRMWARE]) {
         run(cross_build(krate))?;
     }
@@ -184,7 +186,7 @@ fn build_cross() -> Result<(), String> {
 }
 
 /// Flash (ROM) and static RAM of the firmware ELF, from its allocated sections.
-fn size_report() -> Result<(), String> {
+fn size_report() -> Result<()> {
     use object::{Object, ObjectSection, SectionFlags, SectionKind};
     const SHF_ALLOC: u64 = 0x2;
     let elf = root()
@@ -192,8 +194,8 @@ fn size_report() -> Result<(), String> {
         .join(TARGET)
         .join("release")
         .join(FIRMWARE);
-    let data = std::fs::read(&elf).map_err(|e| format!("{}: {e}", elf.display()))?;
-    let file = object::File::parse(&*data).map_err(|e| format!("{}: {e}", elf.display()))?;
+    let data = std::fs::read(&elf).with_context(|| elf.display().to_string())?;
+    let file = object::File::parse(&*data).with_context(|| elf.display().to_string())?;
     let (mut flash, mut ram) = (0u64, 0u64);
     eprintln!("\nsize of {FIRMWARE} ({}):", elf.display());
     for s in file.sections() {
@@ -227,14 +229,14 @@ fn size_report() -> Result<(), String> {
         100.0 * ram as f64 / RAM_BUDGET_BYTES as f64
     );
     if flash > FLASH_BUDGET_BYTES || ram > RAM_BUDGET_BYTES {
-        return Err("firmware over its size budget".into());
+        bail!("firmware over its size budget");
     }
     Ok(())
 }
 
-fn flash() -> Result<(), String> {
+fn flash() -> Result<()> {
     if output_of("probe-rs", &["--version"]).is_none() {
-        return Err("probe-rs not found: `cargo install probe-rs-tools` (docs/hardware.md)".into());
+        bail!("probe-rs not found: `cargo install probe-rs-tools` (docs/hardware.md)");
     }
     // The runner in .cargo/config.toml flashes and attaches to the RTT stream.
     let mut c = cargo();
@@ -252,13 +254,13 @@ fn flash() -> Result<(), String> {
 
 /// What the emulator crate's build needs: Unicorn's C code (cmake) and bindgen
 /// (libclang).
-fn emu_setup() -> Result<(), String> {
+fn emu_setup() -> Result<()> {
     qemu::ensure("cmake", "cmake")?;
     qemu::ensure_package("libclang-dev")
 }
 
 /// The emulator (drive-emu, release) on the release firmware.
-fn emu(args: &[&str]) -> Result<(), String> {
+fn emu(args: &[&str]) -> Result<()> {
     setup()?;
     emu_setup()?;
     run(cross_build(FIRMWARE))?;
@@ -278,12 +280,12 @@ const PERF_BUILDS: [(&str, &[&str], &str); 2] = [
 /// commissioned to Run on the emulator and measured by stage; `report` regenerates
 /// that document's section. The default build is rebuilt last, so the release ELF
 /// other commands use stays the 20 kHz one.
-fn perf(report: Option<&str>) -> Result<(), String> {
+fn perf(report: Option<&str>) -> Result<()> {
     setup()?;
     emu_setup()?;
     qemu::ensure("arm-none-eabi-objdump", "binutils-arm-none-eabi")?;
     let dir = root().join("target").join("perf");
-    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
     let built = root()
         .join("target")
         .join(TARGET)
@@ -295,7 +297,7 @@ fn perf(report: Option<&str>) -> Result<(), String> {
         c.args(*features);
         run(c)?;
         let out = dir.join(name);
-        std::fs::copy(&built, &out).map_err(|e| format!("{}: {e}", out.display()))?;
+        std::fs::copy(&built, &out).with_context(|| out.display().to_string())?;
         builds.push(format!("{label}={}", out.display()));
     }
     builds.reverse();
@@ -310,7 +312,7 @@ fn perf(report: Option<&str>) -> Result<(), String> {
     run(c)
 }
 
-fn ci() -> Result<(), String> {
+fn ci() -> Result<()> {
     setup()?;
     emu_setup()?;
     regs::main(&["--check".to_string()])?;
@@ -353,7 +355,7 @@ fn ci() -> Result<(), String> {
     Ok(())
 }
 
-fn docs_tables() -> Result<(), String> {
+fn docs_tables() -> Result<()> {
     for sub in ["compare-laws", "gain-sweep"] {
         run(hil_sim(&[sub]))?;
     }
@@ -361,7 +363,7 @@ fn docs_tables() -> Result<(), String> {
 }
 
 /// The reduced variant runs in `ci` as `hil-sim/tests/accuracy.rs` (host tests).
-fn bench_accuracy(extra: &[String]) -> Result<(), String> {
+fn bench_accuracy(extra: &[String]) -> Result<()> {
     let mut args = vec!["bench-accuracy"];
     args.extend(extra.iter().map(String::as_str));
     run(hil_sim(&args))

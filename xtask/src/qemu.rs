@@ -9,6 +9,7 @@
 //! counted between the markers and weighted by Cortex-M4 cycle counts (TRM r0p1 §3.3).
 
 use crate::{cross_build, hil_sim, output_of, root, run, TARGET};
+use anyhow::{anyhow, bail, Context, Result};
 use m4_cycles::{insn_cycles, is_register_save, is_single_ldst, Insn};
 use std::collections::HashMap;
 use std::io::{BufRead, BufReader};
@@ -56,7 +57,7 @@ fn apt_install(package: &str, installed: impl Fn() -> bool) -> bool {
 }
 
 /// Install a Debian package that provides no command (a library) when missing.
-pub(crate) fn ensure_package(package: &str) -> Result<(), String> {
+pub(crate) fn ensure_package(package: &str) -> Result<()> {
     let installed = || {
         output_of("dpkg-query", &["-W", "-f=${Status}", package])
             .is_some_and(|s| s.contains("install ok installed"))
@@ -68,14 +69,14 @@ pub(crate) fn ensure_package(package: &str) -> Result<(), String> {
     if apt_install(package, installed) {
         Ok(())
     } else {
-        Err(format!(
+        Err(anyhow!(
             "`apt-get install {package}` failed: install it (root needed)"
         ))
     }
 }
 
 /// Install a Debian package when its command is missing (the machines here run as root).
-pub(crate) fn ensure(command: &str, package: &str) -> Result<(), String> {
+pub(crate) fn ensure(command: &str, package: &str) -> Result<()> {
     let installed = || output_of("which", &[command]).is_some();
     if installed() {
         return Ok(());
@@ -84,13 +85,13 @@ pub(crate) fn ensure(command: &str, package: &str) -> Result<(), String> {
     if apt_install(package, installed) {
         Ok(())
     } else {
-        Err(format!(
+        Err(anyhow!(
             "{command} not found and `apt-get install {package}` failed: install it (root needed)"
         ))
     }
 }
 
-fn vector() -> Result<(PathBuf, PathBuf), String> {
+fn vector() -> Result<(PathBuf, PathBuf)> {
     let (v, t) = (dir().join("vector.bin"), dir().join("host-trace.txt"));
     let mut c = hil_sim(&["qemu-vector"]);
     c.arg("--vector").arg(&v).arg("--trace").arg(&t);
@@ -99,7 +100,7 @@ fn vector() -> Result<(PathBuf, PathBuf), String> {
 }
 
 /// Build the image for `mode` ("trace" or "cycles") and copy it aside.
-fn image(vector: &PathBuf, mode: &str) -> Result<PathBuf, String> {
+fn image(vector: &PathBuf, mode: &str) -> Result<PathBuf> {
     let mut c = cross_build(IMAGE);
     c.env("MRAS_QEMU_VECTOR", vector)
         .env("MRAS_QEMU_MODE", mode);
@@ -110,7 +111,7 @@ fn image(vector: &PathBuf, mode: &str) -> Result<PathBuf, String> {
         .join("release")
         .join(IMAGE);
     let out = dir().join(format!("{IMAGE}-{mode}"));
-    std::fs::copy(&built, &out).map_err(|e| format!("{}: {e}", out.display()))?;
+    std::fs::copy(&built, &out).with_context(|| out.display().to_string())?;
     Ok(out)
 }
 
@@ -127,7 +128,7 @@ fn qemu(image: &PathBuf) -> Command {
     c
 }
 
-pub fn bit_exact() -> Result<(), String> {
+pub fn bit_exact() -> Result<()> {
     ensure("qemu-system-arm", "qemu-system-arm")?;
     let (v, host_trace) = vector()?;
     let img = image(&v, "trace")?;
@@ -138,20 +139,23 @@ pub fn bit_exact() -> Result<(), String> {
     let out = qemu(&img)
         .stderr(Stdio::inherit())
         .output()
-        .map_err(|e| format!("qemu-system-arm: {e}"))?;
+        .context("qemu-system-arm")?;
     if !out.status.success() {
-        return Err(format!("the emulated image failed ({})", out.status));
+        bail!("the emulated image failed ({})", out.status);
     }
     let target = String::from_utf8_lossy(&out.stdout);
-    std::fs::write(dir().join("target-trace.txt"), target.as_bytes()).map_err(|e| e.to_string())?;
-    let host = std::fs::read_to_string(&host_trace).map_err(|e| e.to_string())?;
+    let target_trace = dir().join("target-trace.txt");
+    std::fs::write(&target_trace, target.as_bytes())
+        .with_context(|| target_trace.display().to_string())?;
+    let host =
+        std::fs::read_to_string(&host_trace).with_context(|| host_trace.display().to_string())?;
     let (h, t): (Vec<&str>, Vec<&str>) = (host.lines().collect(), target.lines().collect());
     if let Some(i) = (0..h.len().max(t.len())).find(|&i| h.get(i) != t.get(i)) {
-        return Err(format!(
+        bail!(
             "not bit-exact at step {i}:\n  host   {}\n  target {}",
             h.get(i).unwrap_or(&"<missing>"),
             t.get(i).unwrap_or(&"<missing>")
-        ));
+        );
     }
     eprintln!(
         "xtask qemu: {} steps bit-exact between the host and the emulated Cortex-M4F (θ̂, ω̂, ε, |Z|, every coefficient)",
@@ -160,7 +164,7 @@ pub fn bit_exact() -> Result<(), String> {
     Ok(())
 }
 
-pub fn cycles() -> Result<(), String> {
+pub fn cycles() -> Result<()> {
     ensure("qemu-system-arm", "qemu-system-arm")?;
     let (v, _) = vector()?;
     let img = image(&v, "cycles")?;
@@ -174,8 +178,8 @@ pub fn cycles() -> Result<(), String> {
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
-        .map_err(|e| format!("qemu-system-arm: {e}"))?;
-    let stderr = child.stderr.take().ok_or("no trace")?;
+        .context("qemu-system-arm")?;
+    let stderr = child.stderr.take().ok_or_else(|| anyhow!("no trace"))?;
     // Per measured step: (instructions, cycles); per function: cycles of all steps.
     let mut steps: Vec<(u64, u64)> = Vec::new();
     let mut by_fn: Vec<HashMap<String, u64>> = vec![HashMap::new(); CONFIGS.len()];
@@ -192,7 +196,7 @@ pub fn cycles() -> Result<(), String> {
     let mut prev: Option<(u32, String)> = None;
     let mut after_ldst = false;
     for line in BufReader::new(stderr).lines() {
-        let line = line.map_err(|e| e.to_string())?;
+        let line = line.context("qemu-system-arm trace")?;
         // "Trace 0: 0x7f.. [00800400/08002090/00000010/ff000201] mras_step_begin"
         let Some(pc) = line
             .split('/')
@@ -236,13 +240,13 @@ pub fn cycles() -> Result<(), String> {
             prev = Some((pc, func));
         }
     }
-    let status = child.wait().map_err(|e| e.to_string())?;
+    let status = child.wait().context("qemu-system-arm")?;
     if !status.success() || steps.len() != STEPS_PER_CONFIG * CONFIGS.len() {
-        return Err(format!(
+        bail!(
             "instruction trace incomplete: {} of {} steps ({status})",
             steps.len(),
             STEPS_PER_CONFIG * CONFIGS.len()
-        ));
+        );
     }
     println!("The core on the emulated Cortex-M4F (thumbv7em-none-eabihf, release): `Front::step`");
     println!("runs in the control interrupt, `Adapter::step` in the adaptation task below it;");
@@ -279,8 +283,7 @@ pub fn cycles() -> Result<(), String> {
         .map(|(pc, (c, f))| format!("{pc:08x} {:.2} {f}\n", *c as f64 / STEPS_PER_CONFIG as f64))
         .collect();
     let profile_path = dir().join("cycles-by-address.txt");
-    std::fs::write(&profile_path, profile)
-        .map_err(|e| format!("{}: {e}", profile_path.display()))?;
+    std::fs::write(&profile_path, profile).with_context(|| profile_path.display().to_string())?;
     let total: u64 = stages.iter().map(|x| x.1).sum();
     for (name, c) in &stages {
         println!(
@@ -343,7 +346,7 @@ fn stages(
     image: &Path,
     insns: &HashMap<u32, Insn>,
     by_pc: &HashMap<u32, (u64, String)>,
-) -> Result<Vec<(&'static str, u64)>, String> {
+) -> Result<Vec<(&'static str, u64)>> {
     ensure("arm-none-eabi-addr2line", "binutils-arm-none-eabi")?;
     let pcs: Vec<u32> = by_pc.keys().copied().collect();
     let chains = m4_cycles::inlined_chains(image, &pcs)?;

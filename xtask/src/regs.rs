@@ -16,6 +16,7 @@
 //!
 //! `--check` regenerates in memory and fails if the committed file differs.
 
+use anyhow::{anyhow, bail, Context, Result};
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -51,14 +52,12 @@ const PERIPHERALS: &[&str] = &[
 ];
 
 /// `cargo xtask regs [--check]`.
-pub(crate) fn main(args: &[String]) -> Result<(), String> {
+pub(crate) fn main(args: &[String]) -> Result<()> {
     let check = match args {
         [] => false,
         [a] if a == "--check" => true,
         _ => {
-            return Err(format!(
-                "usage: cargo xtask regs [--check] (unexpected arguments {args:?})"
-            ))
+            bail!("usage: cargo xtask regs [--check] (unexpected arguments {args:?})")
         }
     };
     let dir = pac_dir()?;
@@ -76,7 +75,7 @@ pub(crate) fn main(args: &[String]) -> Result<(), String> {
     );
     if check {
         let committed = std::fs::read_to_string(&path).map_err(|e| {
-            format!(
+            anyhow!(
                 "{}: {e}; run `cargo xtask regs` and commit the file",
                 path.display()
             )
@@ -88,18 +87,18 @@ pub(crate) fn main(args: &[String]) -> Result<(), String> {
                 .position(|(a, b)| a != b)
                 .unwrap_or(committed.lines().count().min(table.text.lines().count()))
                 + 1;
-            return Err(format!(
+            bail!(
                 "{OUTPUT} differs from what the {PAC} {PAC_VERSION} PAC generates (first at line {line}): \
                  it was edited by hand or the generator changed; run `cargo xtask regs` and commit the result"
-            ));
+            );
         }
         eprintln!("xtask regs: {OUTPUT} is up to date ({summary})");
         return Ok(());
     }
     if let Some(parent) = path.parent() {
-        std::fs::create_dir_all(parent).map_err(|e| format!("{}: {e}", parent.display()))?;
+        std::fs::create_dir_all(parent).with_context(|| parent.display().to_string())?;
     }
-    std::fs::write(&path, &table.text).map_err(|e| format!("{}: {e}", path.display()))?;
+    std::fs::write(&path, &table.text).with_context(|| path.display().to_string())?;
     eprintln!("xtask regs: wrote {OUTPUT} ({summary})");
     // The generator emits rustfmt's layout itself (so `--check` needs no rustfmt); confirm it.
     match Command::new("rustfmt")
@@ -108,7 +107,7 @@ pub(crate) fn main(args: &[String]) -> Result<(), String> {
         .output()
     {
         Ok(out) if out.status.success() => Ok(()),
-        Ok(out) => Err(format!(
+        Ok(out) => Err(anyhow!(
             "the generator's layout is not rustfmt's (a bug in xtask/src/regs.rs):\n{}",
             String::from_utf8_lossy(&out.stdout)
         )),
@@ -120,25 +119,23 @@ pub(crate) fn main(args: &[String]) -> Result<(), String> {
 }
 
 /// `<stm32g4 0.16.0>/src/stm32g474`, from `cargo metadata`.
-fn pac_dir() -> Result<PathBuf, String> {
+fn pac_dir() -> Result<PathBuf> {
     let mut c = cargo();
     c.args(["metadata", "--format-version", "1", "--locked"]);
-    let out = c
-        .output()
-        .map_err(|e| format!("cannot start cargo metadata: {e}"))?;
+    let out = c.output().context("cannot start cargo metadata")?;
     if !out.status.success() {
-        return Err(format!(
+        bail!(
             "cargo metadata failed ({}):\n{}",
             out.status,
             String::from_utf8_lossy(&out.stderr)
-        ));
+        );
     }
-    let meta: serde_json::Value = serde_json::from_slice(&out.stdout)
-        .map_err(|e| format!("cargo metadata: invalid JSON: {e}"))?;
+    let meta: serde_json::Value =
+        serde_json::from_slice(&out.stdout).context("cargo metadata: invalid JSON")?;
     let packages = meta
         .get("packages")
         .and_then(|p| p.as_array())
-        .ok_or("cargo metadata: no \"packages\" array")?;
+        .ok_or_else(|| anyhow!("cargo metadata: no \"packages\" array"))?;
     let manifest = packages
         .iter()
         .find(|p| {
@@ -147,31 +144,31 @@ fn pac_dir() -> Result<PathBuf, String> {
         })
         .and_then(|p| p.get("manifest_path"))
         .and_then(|m| m.as_str())
-        .ok_or(format!(
-            "cargo metadata: no package {PAC} {PAC_VERSION} in the dependency graph"
-        ))?;
+        .ok_or_else(|| {
+            anyhow!("cargo metadata: no package {PAC} {PAC_VERSION} in the dependency graph")
+        })?;
     let dir = Path::new(manifest)
         .parent()
-        .ok_or(format!("{manifest}: no parent directory"))?
+        .ok_or_else(|| anyhow!("{manifest}: no parent directory"))?
         .join("src")
         .join(DEVICE);
     if !dir.join("mod.rs").is_file() {
-        return Err(format!("{}: no mod.rs", dir.display()));
+        bail!("{}: no mod.rs", dir.display());
     }
     Ok(dir)
 }
 
 /// The PAC's device directory, by path relative to it (a directory, or inline in tests).
 trait Files {
-    fn read(&self, rel: &str) -> Result<String, String>;
+    fn read(&self, rel: &str) -> Result<String>;
 }
 
 struct Dir(PathBuf);
 
 impl Files for Dir {
-    fn read(&self, rel: &str) -> Result<String, String> {
+    fn read(&self, rel: &str) -> Result<String> {
         let path = self.0.join(rel);
-        std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))
+        std::fs::read_to_string(&path).with_context(|| path.display().to_string())
     }
 }
 
@@ -196,7 +193,7 @@ struct RegOut {
     bits: RegBits,
 }
 
-fn generate(files: &dyn Files) -> Result<Table, String> {
+fn generate(files: &dyn Files) -> Result<Table> {
     let decls = parse_periph_decls(&files.read("mod.rs")?)?;
     let mut warnings = Vec::new();
     let mut periphs = Vec::new();
@@ -205,37 +202,38 @@ fn generate(files: &dyn Files) -> Result<Table, String> {
     for &name in PERIPHERALS {
         let (module, base) = decls
             .get(name)
-            .ok_or(format!("mod.rs: no `pub type {name} = crate::Periph<..>`"))?;
-        let ctx = |e: String| format!("{name} ({module}.rs): {e}");
-        let mut block = parse_block(&files.read(&format!("{module}.rs"))?, module).map_err(ctx)?;
-        resolve_foreign(files, &mut block).map_err(ctx)?;
+            .ok_or_else(|| anyhow!("mod.rs: no `pub type {name} = crate::Periph<..>`"))?;
+        let ctx = || format!("{name} ({module}.rs)");
+        let mut block =
+            parse_block(&files.read(&format!("{module}.rs"))?, module).with_context(ctx)?;
+        resolve_foreign(files, &mut block).with_context(ctx)?;
         // Parse every register file of the block once; the layout needs their widths.
         for r in block.reg_types.values() {
             let key = (r.module.clone(), r.file.clone());
             if let std::collections::hash_map::Entry::Vacant(slot) = reg_files.entry(key) {
                 let rel = format!("{}/{}.rs", r.module, r.file);
                 let text = files.read(&rel)?;
-                let parsed = parse_reg_file(&text, &r.spec).map_err(|e| format!("{rel}: {e}"))?;
+                let parsed = parse_reg_file(&text, &r.spec).with_context(|| rel.clone())?;
                 slot.insert(parsed);
             }
         }
-        let reg_file = |ty: &str| -> Result<(&RegRef, &RegFile), String> {
+        let reg_file = |ty: &str| -> Result<(&RegRef, &RegFile)> {
             let r = block
                 .reg_types
                 .get(ty)
-                .ok_or(format!("no `pub type {ty} = crate::Reg<..>`"))?;
+                .ok_or_else(|| anyhow!("no `pub type {ty} = crate::Reg<..>`"))?;
             let rf = reg_files
                 .get(&(r.module.clone(), r.file.clone()))
-                .ok_or(format!("{}/{}.rs not read", r.module, r.file))?;
+                .ok_or_else(|| anyhow!("{}/{}.rs not read", r.module, r.file))?;
             Ok((r, rf))
         };
         let size_of = |ty: &str| reg_file(ty).map(|(_, rf)| rf.ux_bits / 8);
-        let slots = layout(&block, &size_of).map_err(ctx)?;
+        let slots = layout(&block, &size_of).with_context(ctx)?;
         let mut end = 0u32;
         for slot in &slots {
             let mut views = Vec::new();
             for ty in &slot.views {
-                let (r, rf) = reg_file(ty).map_err(ctx)?;
+                let (r, rf) = reg_file(ty).with_context(ctx)?;
                 let what = format!("{name}.{}", ty);
                 let bits = reg_bits(files, &r.module, &r.file, rf, &what, &mut warnings)?;
                 views.push((ty.clone(), bits));
@@ -245,7 +243,7 @@ fn generate(files: &dyn Files) -> Result<Table, String> {
             end = end.max(slot.offset.saturating_add(bits.ux_bits / 8));
             let addr = base
                 .checked_add(slot.offset)
-                .ok_or(format!("{what}: address overflows"))?;
+                .ok_or_else(|| anyhow!("{what}: address overflows"))?;
             regs.push(RegOut {
                 addr,
                 periph: name.to_string(),
@@ -258,22 +256,26 @@ fn generate(files: &dyn Files) -> Result<Table, String> {
             base: *base,
             size: end
                 .checked_next_multiple_of(4)
-                .ok_or(format!("{name}: size overflows"))?,
+                .ok_or_else(|| anyhow!("{name}: size overflows"))?,
         });
     }
     periphs.sort_by_key(|p| p.base);
     for w in periphs.windows(2) {
         if u64::from(w[0].base) + u64::from(w[0].size) > u64::from(w[1].base) {
-            return Err(format!("{} and {} overlap", w[0].name, w[1].name));
+            bail!("{} and {} overlap", w[0].name, w[1].name);
         }
     }
     regs.sort_by_key(|r| r.addr);
     for w in regs.windows(2) {
         if w[0].addr == w[1].addr {
-            return Err(format!(
+            bail!(
                 "{}.{} and {}.{} share the address {:#010x}",
-                w[0].periph, w[0].name, w[1].periph, w[1].name, w[0].addr
-            ));
+                w[0].periph,
+                w[0].name,
+                w[1].periph,
+                w[1].name,
+                w[0].addr
+            );
         }
     }
     Ok(Table {
@@ -338,17 +340,26 @@ fn render(periphs: &[PeriphOut], regs: &[RegOut]) -> String {
 // Text helpers
 
 /// An integer literal: `0x2000_0000`, `16`.
-fn parse_int(s: &str) -> Result<u64, String> {
+/// An integer literal the generator cannot use.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+enum IntError {
+    #[error("not an integer literal: `{0}`")]
+    NotInteger(String),
+    #[error("`{0}` does not fit 32 bits")]
+    TooWide(String),
+}
+
+fn parse_int(s: &str) -> Result<u64, IntError> {
     let t = s.trim().replace('_', "");
     let r = match t.strip_prefix("0x") {
         Some(h) => u64::from_str_radix(h, 16),
         None => t.parse::<u64>(),
     };
-    r.map_err(|_| format!("not an integer literal: `{s}`"))
+    r.map_err(|_| IntError::NotInteger(s.to_string()))
 }
 
-fn parse_u32(s: &str) -> Result<u32, String> {
-    u32::try_from(parse_int(s)?).map_err(|_| format!("`{s}` does not fit 32 bits"))
+fn parse_u32(s: &str) -> Result<u32, IntError> {
+    u32::try_from(parse_int(s)?).map_err(|_| IntError::TooWide(s.to_string()))
 }
 
 /// Top-level statements starting with `prefix` (`pub type `, `pub use `), each on one line
@@ -458,7 +469,7 @@ fn balanced(s: &str, open: usize) -> Option<&str> {
 // mod.rs and the register blocks
 
 /// `pub type ADC1 = crate::Periph<adc1::RegisterBlock, 0x5000_0000>;` → ADC1 → (adc1, base).
-fn parse_periph_decls(mod_rs: &str) -> Result<BTreeMap<String, (String, u32)>, String> {
+fn parse_periph_decls(mod_rs: &str) -> Result<BTreeMap<String, (String, u32)>> {
     let mut out = BTreeMap::new();
     for st in statements(mod_rs, "pub type ") {
         let Some((lhs, rhs)) = st.split_once(" = ") else {
@@ -473,13 +484,13 @@ fn parse_periph_decls(mod_rs: &str) -> Result<BTreeMap<String, (String, u32)>, S
         let name = lhs.trim_start_matches("pub type ").trim();
         let (path, base) = inner
             .split_once(',')
-            .ok_or(format!("mod.rs: cannot read `{st}`"))?;
+            .ok_or_else(|| anyhow!("mod.rs: cannot read `{st}`"))?;
         let module = path
             .trim()
             .strip_suffix("::RegisterBlock")
             .filter(|m| !m.contains("::"))
-            .ok_or(format!("mod.rs: cannot read the module of `{st}`"))?;
-        let base = parse_u32(base).map_err(|e| format!("mod.rs: `{st}`: {e}"))?;
+            .ok_or_else(|| anyhow!("mod.rs: cannot read the module of `{st}`"))?;
+        let base = parse_u32(base).with_context(|| format!("mod.rs: `{st}`"))?;
         out.insert(name.to_string(), (module.to_string(), base));
     }
     Ok(out)
@@ -540,7 +551,7 @@ struct RegRef {
 }
 
 /// A module file's `pub type CR = crate::Reg<cr::CRrs>;` statements.
-fn parse_reg_types(text: &str, module: &str) -> Result<HashMap<String, RegRef>, String> {
+fn parse_reg_types(text: &str, module: &str) -> Result<HashMap<String, RegRef>> {
     let mut reg_types = HashMap::new();
     for st in statements(text, "pub type ") {
         let Some((lhs, rhs)) = st.split_once(" = ") else {
@@ -555,7 +566,7 @@ fn parse_reg_types(text: &str, module: &str) -> Result<HashMap<String, RegRef>, 
         let (file, spec) = inner
             .split_once("::")
             .filter(|(_, s)| !s.contains("::"))
-            .ok_or(format!("cannot read `{st}`"))?;
+            .ok_or_else(|| anyhow!("cannot read `{st}`"))?;
         let name = lhs.trim_start_matches("pub type ").trim();
         let r = RegRef {
             module: module.to_string(),
@@ -568,13 +579,15 @@ fn parse_reg_types(text: &str, module: &str) -> Result<HashMap<String, RegRef>, 
 }
 
 /// Add the register types a block takes from other modules to its `reg_types`.
-fn resolve_foreign(files: &dyn Files, block: &mut Block) -> Result<(), String> {
+fn resolve_foreign(files: &dyn Files, block: &mut Block) -> Result<()> {
     for (here, module, there) in std::mem::take(&mut block.foreign) {
         let other = parse_reg_types(&files.read(&format!("{module}.rs"))?, &module)
-            .map_err(|e| format!("{module}.rs: {e}"))?;
-        let r = other.get(&there).ok_or(format!(
+            .with_context(|| format!("{module}.rs"))?;
+        let r = other.get(&there).ok_or_else(|| {
+            anyhow!(
             "`pub use crate::{DEVICE}::{module}::{there}`: {module}.rs defines no register {there}"
-        ))?;
+        )
+        })?;
         block.reg_types.insert(here, r.clone());
     }
     Ok(())
@@ -589,9 +602,9 @@ struct Slot {
     views: Vec<String>,
 }
 
-fn parse_block(text: &str, module: &str) -> Result<Block, String> {
-    let struct_lines =
-        block(text, "pub struct RegisterBlock {").ok_or("no `pub struct RegisterBlock {`")?;
+fn parse_block(text: &str, module: &str) -> Result<Block> {
+    let struct_lines = block(text, "pub struct RegisterBlock {")
+        .ok_or_else(|| anyhow!("no `pub struct RegisterBlock {{`"))?;
     let mut fields = Vec::new();
     for line in struct_lines {
         let t = line.trim();
@@ -601,13 +614,13 @@ fn parse_block(text: &str, module: &str) -> Result<Block, String> {
         let (name, ty) = t
             .trim_end_matches(',')
             .split_once(':')
-            .ok_or(format!("RegisterBlock: cannot read the field `{t}`"))?;
+            .ok_or_else(|| anyhow!("RegisterBlock: cannot read the field `{t}`"))?;
         let ty = ty.trim();
         let fty = if let Some(arr) = ty.strip_prefix('[').and_then(|a| a.strip_suffix(']')) {
             let (elem, n) = arr
                 .split_once(';')
-                .ok_or(format!("RegisterBlock: cannot read the type `{ty}`"))?;
-            let n = parse_u32(n).map_err(|e| format!("RegisterBlock: `{t}`: {e}"))?;
+                .ok_or_else(|| anyhow!("RegisterBlock: cannot read the type `{ty}`"))?;
+            let n = parse_u32(n).with_context(|| format!("RegisterBlock: `{t}`"))?;
             match elem.trim() {
                 "u8" => FieldTy::Bytes(n),
                 e => FieldTy::Array(e.to_string(), n),
@@ -639,16 +652,17 @@ fn parse_block(text: &str, module: &str) -> Result<Block, String> {
                 let r = reg_types
                     .get(*n)
                     .cloned()
-                    .ok_or(format!("`{st}`: no register type {n} here"))?;
+                    .ok_or_else(|| anyhow!("`{st}`: no register type {n} here"))?;
                 reg_types.insert(here, r);
             }
             ["crate", d, m, n] if *d == DEVICE => {
                 foreign.push((here, m.to_string(), n.to_string()));
             }
-            _ => return Err(format!("cannot follow `{st}`")),
+            _ => bail!("cannot follow `{st}`"),
         }
     }
-    let impl_lines = block(text, "impl RegisterBlock {").ok_or("no `impl RegisterBlock {`")?;
+    let impl_lines =
+        block(text, "impl RegisterBlock {").ok_or_else(|| anyhow!("no `impl RegisterBlock {{`"))?;
     let mut accessors = Vec::new();
     for item in items(&impl_lines) {
         accessors.push(parse_accessor(&item)?);
@@ -661,23 +675,23 @@ fn parse_block(text: &str, module: &str) -> Result<Block, String> {
     })
 }
 
-fn parse_accessor(item: &Item) -> Result<Accessor, String> {
+fn parse_accessor(item: &Item) -> Result<Accessor> {
     let t = &item.text;
     let bad = || format!("RegisterBlock: cannot read the accessor `{t}`");
     let sig = t
         .strip_prefix("pub const fn ")
         .or_else(|| t.strip_prefix("pub fn "))
-        .ok_or_else(bad)?;
-    let name = sig.split('(').next().ok_or_else(bad)?.trim().to_string();
-    let (head, body) = sig.split_once('{').ok_or_else(bad)?;
+        .with_context(bad)?;
+    let name = sig.split('(').next().with_context(bad)?.trim().to_string();
+    let (head, body) = sig.split_once('{').with_context(bad)?;
     let ret = head
         .split_once("->")
-        .ok_or_else(bad)?
+        .with_context(bad)?
         .1
         .trim()
         .trim_start_matches('&')
         .to_string();
-    let body = body.trim().strip_suffix('}').ok_or_else(bad)?.trim();
+    let body = body.trim().strip_suffix('}').with_context(bad)?.trim();
     let body = if ret.starts_with("impl ") || body.contains(".iter()") {
         AccBody::Iter
     } else if let Some(f) = body.strip_prefix("&self.") {
@@ -688,24 +702,21 @@ fn parse_accessor(item: &Item) -> Result<Accessor, String> {
     } else if body.starts_with("unsafe {") && body.contains("core::ptr::from_ref(self)") {
         match body.find(".add(") {
             Some(i) => {
-                let n = balanced(body, i + 4).ok_or_else(bad)?;
-                AccBody::Cast(parse_u32(n).map_err(|e| format!("{}: {e}", bad()))?)
+                let n = balanced(body, i + 4).with_context(bad)?;
+                AccBody::Cast(parse_u32(n).with_context(bad)?)
             }
             None if body.contains(".cast::<u8>().cast()") => AccBody::Cast(0),
-            None => return Err(bad()),
+            None => bail!(bad()),
         }
     } else if let Some(call) = body.strip_prefix("self.") {
-        let (arr, rest) = call.split_once('(').ok_or_else(bad)?;
-        let idx = rest.strip_suffix(')').ok_or_else(bad)?;
-        AccBody::Element(
-            arr.to_string(),
-            parse_u32(idx).map_err(|e| format!("{}: {e}", bad()))?,
-        )
+        let (arr, rest) = call.split_once('(').with_context(bad)?;
+        let idx = rest.strip_suffix(')').with_context(bad)?;
+        AccBody::Element(arr.to_string(), parse_u32(idx).with_context(bad)?)
     } else {
-        return Err(format!(
+        bail!(
             "{} (a cluster or an accessor shape this generator does not know)",
             bad()
-        ));
+        );
     };
     let mut doc = None;
     if let Some(d) = item
@@ -737,10 +748,7 @@ fn alias_slot_name(field: &str) -> Option<&str> {
 
 /// The block's registers at their offsets: fields laid out in order (repr(C)), arrays
 /// expanded, alternate views grouped; every offset checked against the accessors' docs.
-fn layout(
-    block: &Block,
-    size_of: &dyn Fn(&str) -> Result<u32, String>,
-) -> Result<Vec<Slot>, String> {
+fn layout(block: &Block, size_of: &dyn Fn(&str) -> Result<u32>) -> Result<Vec<Slot>> {
     // field → (offset, element size, count, type)
     let mut placed: HashMap<&str, (u32, u32, u32, &str)> = HashMap::new();
     let mut alias_slots: Vec<(u32, u32, &str)> = Vec::new();
@@ -754,17 +762,17 @@ fn layout(
                 }
                 off = off
                     .checked_add(*n)
-                    .ok_or("RegisterBlock: offset overflows")?;
+                    .ok_or_else(|| anyhow!("RegisterBlock: offset overflows"))?;
                 continue;
             }
             FieldTy::Reg(t) => (t.as_str(), None),
             FieldTy::Array(t, n) => (t.as_str(), Some(*n)),
         };
         if !block.reg_types.contains_key(ty) {
-            return Err(format!(
+            bail!(
                 "RegisterBlock: the field `{name}: {ty}` is not a register (`pub type {ty} = \
                  crate::Reg<..>`): a cluster, which this generator does not handle"
-            ));
+            );
         }
         let size = size_of(ty)?.max(1);
         let n = count.unwrap_or(1);
@@ -773,7 +781,7 @@ fn layout(
             .checked_mul(size)
             .and_then(|o| Some((o, o.checked_add(n.checked_mul(size)?)?)));
         let Some((start, end)) = end else {
-            return Err("RegisterBlock: offset overflows".into());
+            bail!("RegisterBlock: offset overflows");
         };
         off = start;
         placed.insert(name, (off, size, n, ty));
@@ -794,22 +802,24 @@ fn layout(
     let mut views: BTreeMap<u32, Vec<String>> = BTreeMap::new();
     for acc in &block.accessors {
         let doc = || {
-            acc.doc.ok_or(format!(
-                "the accessor `{}` has no `///0x..` offset in its doc comment",
-                acc.name
-            ))
+            acc.doc.ok_or_else(|| {
+                anyhow!(
+                    "the accessor `{}` has no `///0x..` offset in its doc comment",
+                    acc.name
+                )
+            })
         };
         let mismatch = |doc: u32, code: u32| {
-            format!(
+            anyhow!(
                 "the accessor `{}`: its doc comment says offset {doc:#x}, the layout gives {code:#x}",
                 acc.name
             )
         };
         let find = |f: &str| {
-            placed.get(f).copied().ok_or(format!(
-                "the accessor `{}` names no register field `{f}`",
-                acc.name
-            ))
+            placed
+                .get(f)
+                .copied()
+                .ok_or_else(|| anyhow!("the accessor `{}` names no register field `{f}`", acc.name))
         };
         match &acc.body {
             AccBody::Iter => {}
@@ -820,10 +830,11 @@ fn layout(
                     return Err(mismatch(d, o));
                 }
                 if acc.ret != ty {
-                    return Err(format!(
+                    bail!(
                         "the accessor `{}` returns {} but `{f}` is {ty}",
-                        acc.name, acc.ret
-                    ));
+                        acc.name,
+                        acc.ret
+                    );
                 }
                 reached.push(f);
             }
@@ -834,18 +845,18 @@ fn layout(
                     return Err(mismatch(d, o));
                 }
                 if end != Some(o + n * size) {
-                    return Err(format!(
+                    bail!(
                         "the accessor `{}`: its doc comment's range ends at {end:x?}, the layout at {:#x}",
                         acc.name,
                         o + n * size
-                    ));
+                    );
                 }
                 reached.push(f);
             }
             AccBody::Element(f, i) => {
                 let (o, size, n, _) = find(f)?;
                 if *i >= n {
-                    return Err(format!("the accessor `{}`: index {i} of {n}", acc.name));
+                    bail!("the accessor `{}`: index {i} of {n}", acc.name);
                 }
                 let (d, _) = doc()?;
                 if d != o + i * size {
@@ -862,17 +873,18 @@ fn layout(
                     return Err(mismatch(d, *at));
                 }
                 if !block.reg_types.contains_key(&acc.ret) {
-                    return Err(format!(
+                    bail!(
                         "the accessor `{}` returns {}, not a register",
-                        acc.name, acc.ret
-                    ));
+                        acc.name,
+                        acc.ret
+                    );
                 }
                 let size = size_of(&acc.ret)?;
                 if !alias_slots.iter().any(|&(o, n, _)| o == *at && size <= n) {
-                    return Err(format!(
+                    bail!(
                         "the accessor `{}` views offset {at:#x}, where no `_reserved_N_name` slot of its size is",
                         acc.name
-                    ));
+                    );
                 }
                 views.entry(*at).or_default().push(acc.ret.clone());
             }
@@ -880,13 +892,13 @@ fn layout(
     }
     for (name, _) in &block.fields {
         if placed.contains_key(name.as_str()) && !reached.contains(&name.as_str()) {
-            return Err(format!("the register field `{name}` has no accessor"));
+            bail!("the register field `{name}` has no accessor");
         }
     }
     for (o, _, name) in alias_slots {
         let v = views
             .remove(&o)
-            .ok_or(format!("the slot of `{name}` at {o:#x} has no accessor"))?;
+            .ok_or_else(|| anyhow!("the slot of `{name}` at {o:#x} has no accessor"))?;
         slots.push(Slot {
             offset: o,
             name: name.to_uppercase(),
@@ -899,6 +911,14 @@ fn layout(
 
 // ---------------------------------------------------------------------------------------
 // Register files
+
+/// A writer type as the PAC defines it: one this generator knows, or the name of one it
+/// does not (kept for the table's note).
+#[derive(Debug, Clone, PartialEq)]
+enum WriterType {
+    Known(WriterKind),
+    Unknown(String),
+}
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum WriterKind {
@@ -913,7 +933,7 @@ enum WriterKind {
 enum TypeDef {
     /// `pub type ADEN_W<'a, REG> = crate::BitWriter1S<'a, REG, ADENW>;`: kind (or the
     /// unknown writer's name) and width.
-    Writer(Result<WriterKind, String>, u32),
+    Writer(WriterType, u32),
     /// `pub use X as Y;`, `pub use super::file::X;`, `pub use crate::<device>::m::file::X;`
     /// (module and file `None` for the same one).
     Use {
@@ -948,18 +968,18 @@ fn parse_types(text: &str) -> HashMap<String, TypeDef> {
                     .map(|(_, a)| a.trim_end_matches('>'))
                     .unwrap_or("");
                 match args.split(',').nth(2).map(parse_u32) {
-                    Some(Ok(w)) => TypeDef::Writer(Ok(WriterKind::Plain), w),
+                    Some(Ok(w)) => TypeDef::Writer(WriterType::Known(WriterKind::Plain), w),
                     _ => TypeDef::Other(rhs.to_string()),
                 }
             }
             Some(k) if k.starts_with("BitWriter") => {
                 let kind = match k {
-                    "BitWriter" => Ok(WriterKind::Plain),
-                    "BitWriter1S" => Ok(WriterKind::W1S),
-                    "BitWriter1C" => Ok(WriterKind::W1C),
-                    "BitWriter0C" => Ok(WriterKind::W0C),
-                    "BitWriter1T" => Ok(WriterKind::W1T),
-                    other => Err(other.to_string()),
+                    "BitWriter" => WriterType::Known(WriterKind::Plain),
+                    "BitWriter1S" => WriterType::Known(WriterKind::W1S),
+                    "BitWriter1C" => WriterType::Known(WriterKind::W1C),
+                    "BitWriter0C" => WriterType::Known(WriterKind::W0C),
+                    "BitWriter1T" => WriterType::Known(WriterKind::W1T),
+                    other => WriterType::Unknown(other.to_string()),
                 };
                 TypeDef::Writer(kind, 1)
             }
@@ -1005,21 +1025,31 @@ struct Method {
     /// The reader's or writer's type (`ADEN_W`).
     ty: String,
     /// `None`: a single field; `Some(count)` (or an error): a field array taking `n`.
-    array: Option<Result<u32, String>>,
+    array: Option<Result<u32, ArrayBoundError>>,
     /// The argument of `TY::new(..)` (for writers without the leading `self, `).
     arg: String,
 }
 
-fn parse_method(item: &Item, writer: bool) -> Result<Option<Method>, String> {
+/// A field array whose element count cannot be read: reported when the array is placed
+/// (a note in the table), not when the file is parsed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+enum ArrayBoundError {
+    #[error("the field array `{0}` has no `[(); N][n as usize]` bound")]
+    Missing(String),
+    #[error(transparent)]
+    Count(#[from] IntError),
+}
+
+fn parse_method(item: &Item, writer: bool) -> Result<Option<Method>> {
     let t = &item.text;
     let bad = || format!("cannot read the method `{t}`");
     let Some(sig) = t.strip_prefix("pub fn ") else {
         return Ok(None);
     };
     let name = sig.split('(').next().unwrap_or("").trim().to_string();
-    let params = balanced(sig, sig.find('(').ok_or_else(bad)?).ok_or_else(bad)?;
-    let (head, body) = sig.split_once('{').ok_or_else(bad)?;
-    let ret = head.split_once("->").ok_or_else(bad)?.1.trim();
+    let params = balanced(sig, sig.find('(').with_context(bad)?).with_context(bad)?;
+    let (head, body) = sig.split_once('{').with_context(bad)?;
+    let ret = head.split_once("->").with_context(bad)?.1.trim();
     if ret.starts_with("impl ") {
         return Ok(None); // the iterator over a field array
     }
@@ -1029,13 +1059,13 @@ fn parse_method(item: &Item, writer: bool) -> Result<Option<Method>, String> {
         return Ok(None); // not a field accessor
     };
     let mut arg = balanced(body, at + call.len() - 1)
-        .ok_or_else(bad)?
+        .with_context(bad)?
         .trim()
         .to_string();
     if writer {
         arg = arg
             .strip_prefix("self,")
-            .ok_or_else(bad)?
+            .with_context(bad)?
             .trim()
             .to_string();
     }
@@ -1043,10 +1073,8 @@ fn parse_method(item: &Item, writer: bool) -> Result<Option<Method>, String> {
         Some(
             body.split_once("[(); ")
                 .and_then(|(_, r)| r.split_once(']'))
-                .ok_or(format!(
-                    "the field array `{name}` has no `[(); N][n as usize]` bound"
-                ))
-                .and_then(|(n, _)| parse_u32(n)),
+                .ok_or_else(|| ArrayBoundError::Missing(name.clone()))
+                .and_then(|(n, _)| Ok(parse_u32(n)?)),
         )
     } else {
         None
@@ -1074,41 +1102,39 @@ struct RegFile {
 }
 
 /// `const NAME: uN = LIT;` among the lines.
-fn const_in(lines: &[&str], name: &str) -> Result<Option<u32>, String> {
+fn const_in(lines: &[&str], name: &str) -> Result<Option<u32>> {
     for l in lines {
         let t = l.trim();
         if let Some(rest) = t.strip_prefix(&format!("const {name}:")) {
             let v = rest
                 .split_once('=')
                 .map(|(_, v)| v.trim().trim_end_matches(';'))
-                .ok_or(format!("cannot read `{t}`"))?;
-            return parse_u32(v).map(Some);
+                .ok_or_else(|| anyhow!("cannot read `{t}`"))?;
+            return Ok(Some(parse_u32(v)?));
         }
     }
     Ok(None)
 }
 
-fn parse_reg_file(text: &str, spec: &str) -> Result<RegFile, String> {
+fn parse_reg_file(text: &str, spec: &str) -> Result<RegFile> {
     if !text
         .lines()
         .any(|l| l.trim() == format!("pub struct {spec};"))
     {
-        return Err(format!("no `pub struct {spec};`"));
+        bail!("no `pub struct {spec};`");
     }
     let spec_lines = block(text, &format!("impl crate::RegisterSpec for {spec} {{"))
-        .ok_or(format!("no `impl crate::RegisterSpec for {spec}`"))?;
+        .ok_or_else(|| anyhow!("no `impl crate::RegisterSpec for {spec}`"))?;
     let ux = spec_lines
         .iter()
         .find_map(|l| l.trim().strip_prefix("type Ux = "))
-        .ok_or(format!("{spec}: no `type Ux`"))?;
+        .ok_or_else(|| anyhow!("{spec}: no `type Ux`"))?;
     let ux_bits = match ux.trim_end_matches(';') {
         "u8" => 8,
         "u16" => 16,
         "u32" => 32,
         other => {
-            return Err(format!(
-                "{spec}: register width `{other}` (expected u8, u16 or u32)"
-            ))
+            bail!("{spec}: register width `{other}` (expected u8, u16 or u32)")
         }
     };
     let readable = text.lines().any(|l| {
@@ -1159,7 +1185,7 @@ enum Tok {
     Sym(&'static str),
 }
 
-fn tokenize(s: &str) -> Result<Vec<Tok>, String> {
+fn tokenize(s: &str) -> Result<Vec<Tok>> {
     let mut out = Vec::new();
     let b = s.as_bytes();
     let mut i = 0;
@@ -1182,7 +1208,7 @@ fn tokenize(s: &str) -> Result<Vec<Tok>, String> {
             let sym = ["(", ")", ">>", "&", "*", "+", "!=", "."]
                 .into_iter()
                 .find(|p| s[i..].starts_with(p))
-                .ok_or(format!("unexpected `{}` in `{s}`", &s[i..]))?;
+                .ok_or_else(|| anyhow!("unexpected `{}` in `{s}`", &s[i..]))?;
             out.push(Tok::Sym(sym));
             i += sym.len();
         }
@@ -1215,32 +1241,32 @@ impl Eval<'_> {
         t
     }
 
-    fn primary(&mut self) -> Result<Val, String> {
+    fn primary(&mut self) -> Result<Val> {
         match self.next() {
             Some(Tok::Num(v)) => Ok(Val::Int(v)),
             Some(Tok::Sym("(")) => {
                 let v = self.expr(0)?;
                 match self.next() {
                     Some(Tok::Sym(")")) => Ok(v),
-                    _ => Err("unbalanced parentheses".into()),
+                    _ => Err(anyhow!("unbalanced parentheses")),
                 }
             }
             Some(Tok::Ident(i)) if i == "n" => self
                 .n
                 .map(Val::Int)
-                .ok_or("`n` outside a field array".into()),
+                .ok_or_else(|| anyhow!("`n` outside a field array")),
             Some(Tok::Ident(i)) if i == "self" => match (self.next(), self.next()) {
                 (Some(Tok::Sym(".")), Some(Tok::Ident(b))) if b == "bits" => Ok(Val::Bits {
                     shift: 0,
                     mask: (1u64 << self.ux_bits) - 1,
                 }),
-                _ => Err("`self` not followed by `.bits`".into()),
+                _ => Err(anyhow!("`self` not followed by `.bits`")),
             },
-            t => Err(format!("unexpected {t:?}")),
+            t => Err(anyhow!("unexpected {t:?}")),
         }
     }
 
-    fn expr(&mut self, min: u8) -> Result<Val, String> {
+    fn expr(&mut self, min: u8) -> Result<Val> {
         let mut lhs = self.primary()?;
         loop {
             match self.peek() {
@@ -1248,7 +1274,7 @@ impl Eval<'_> {
                     self.pos += 1;
                     let ty = match self.next() {
                         Some(Tok::Ident(t)) => t,
-                        t => return Err(format!("`as` followed by {t:?}")),
+                        t => bail!("`as` followed by {t:?}"),
                     };
                     lhs = match (lhs, ty.as_str()) {
                         (Val::Int(v), _) => Val::Int(v),
@@ -1260,7 +1286,7 @@ impl Eval<'_> {
                                 mask: mask & m,
                             }
                         }
-                        _ => return Err(format!("`as {ty}` of the register's bits")),
+                        _ => bail!("`as {ty}` of the register's bits"),
                     };
                 }
                 Some(Tok::Sym(op)) if *op != "(" && *op != ")" && *op != "." => {
@@ -1286,8 +1312,8 @@ impl Eval<'_> {
     }
 }
 
-fn apply(op: &str, a: Val, b: Val) -> Result<Val, String> {
-    let overflow = || format!("overflow in `{a:?} {op} {b:?}`");
+fn apply(op: &str, a: Val, b: Val) -> Result<Val> {
+    let overflow = || anyhow!("overflow in `{a:?} {op} {b:?}`");
     Ok(match (op, a, b) {
         ("*", Val::Int(x), Val::Int(y)) => Val::Int(x.checked_mul(y).ok_or_else(overflow)?),
         ("+", Val::Int(x), Val::Int(y)) => Val::Int(x.checked_add(y).ok_or_else(overflow)?),
@@ -1301,11 +1327,11 @@ fn apply(op: &str, a: Val, b: Val) -> Result<Val, String> {
             mask: mask & m,
         },
         ("!=", bits @ Val::Bits { .. }, Val::Int(0)) => bits,
-        _ => return Err(format!("unsupported `{a:?} {op} {b:?}`")),
+        _ => bail!("unsupported `{a:?} {op} {b:?}`"),
     })
 }
 
-fn eval(expr: &str, n: Option<u64>, ux_bits: u32) -> Result<Val, String> {
+fn eval(expr: &str, n: Option<u64>, ux_bits: u32) -> Result<Val> {
     let toks = tokenize(expr)?;
     let mut e = Eval {
         toks: &toks,
@@ -1315,33 +1341,33 @@ fn eval(expr: &str, n: Option<u64>, ux_bits: u32) -> Result<Val, String> {
     };
     let v = e.expr(0)?;
     if e.pos != toks.len() {
-        return Err(format!("trailing tokens in `{expr}`"));
+        bail!("trailing tokens in `{expr}`");
     }
     Ok(v)
 }
 
 /// The register bits a reader expression reads.
-fn reader_mask(expr: &str, n: Option<u64>, ux_bits: u32) -> Result<u32, String> {
+fn reader_mask(expr: &str, n: Option<u64>, ux_bits: u32) -> Result<u32> {
     match eval(expr, n, ux_bits)? {
         Val::Bits { shift, mask } if shift < 64 => Ok(((mask << shift) & 0xffff_ffff) as u32),
-        v => Err(format!("`{expr}` is {v:?}, not the register's bits")),
+        v => Err(anyhow!("`{expr}` is {v:?}, not the register's bits")),
     }
 }
 
 /// The bit offset a writer expression gives.
-fn writer_offset(expr: &str, n: Option<u64>) -> Result<u32, String> {
+fn writer_offset(expr: &str, n: Option<u64>) -> Result<u32> {
     match eval(expr, n, 32)? {
         Val::Int(v) if v < 32 => Ok(v as u32),
-        v => Err(format!("`{expr}` is {v:?}, not a bit offset")),
+        v => Err(anyhow!("`{expr}` is {v:?}, not a bit offset")),
     }
 }
 
 /// Every element index of a method (`[None]` for a single field).
-fn indices(m: &Method) -> Result<Vec<Option<u64>>, String> {
+fn indices(m: &Method) -> Result<Vec<Option<u64>>> {
     match &m.array {
         None => Ok(vec![None]),
         Some(Ok(count)) => Ok((0..u64::from(*count)).map(Some).collect()),
-        Some(Err(e)) => Err(e.clone()),
+        Some(Err(e)) => Err(e.clone().into()),
     }
 }
 
@@ -1389,14 +1415,14 @@ fn resolve_writer(
     file: &str,
     types: &HashMap<String, TypeDef>,
     name: &str,
-) -> Result<(Result<WriterKind, String>, u32), String> {
+) -> Result<(WriterType, u32)> {
     let (mut module, mut file, mut name) = (module.to_string(), file.to_string(), name.to_string());
     let mut other: Option<HashMap<String, TypeDef>> = None;
     for _ in 0..8 {
         let tys = other.as_ref().unwrap_or(types);
-        let def = tys.get(&name).cloned().ok_or(format!(
-            "the writer type `{name}` is not defined in {module}/{file}.rs"
-        ))?;
+        let def = tys.get(&name).cloned().ok_or_else(|| {
+            anyhow!("the writer type `{name}` is not defined in {module}/{file}.rs")
+        })?;
         match def {
             TypeDef::Writer(kind, width) => return Ok((kind, width)),
             TypeDef::Use {
@@ -1412,13 +1438,11 @@ fn resolve_writer(
                 }
             }
             TypeDef::Other(rhs) => {
-                return Err(format!(
-                    "the writer type `{name}` is `{rhs}`, not a known writer"
-                ))
+                bail!("the writer type `{name}` is `{rhs}`, not a known writer")
             }
         }
     }
-    Err(format!("the writer type `{name}`: too many `pub use` hops"))
+    Err(anyhow!("the writer type `{name}`: too many `pub use` hops"))
 }
 
 /// One register file's bits; the ONE/ZERO_TO_MODIFY cross-check warns as `what`.
@@ -1429,7 +1453,7 @@ fn reg_bits(
     rf: &RegFile,
     what: &str,
     warnings: &mut Vec<String>,
-) -> Result<RegBits, String> {
+) -> Result<RegBits> {
     let mut b = RegBits {
         ux_bits: rf.ux_bits,
         readable: rf.readable,
@@ -1452,7 +1476,7 @@ fn reg_bits(
             Err(e) => note(
                 &mut b,
                 format!(
-                    "reader `{}` not placed ({e}); its bits are not called read-only",
+                    "reader `{}` not placed ({e:#}); its bits are not called read-only",
                     r.name
                 ),
             ),
@@ -1466,7 +1490,7 @@ fn reg_bits(
                     .map(|n| {
                         let off = writer_offset(&w.arg, n)?;
                         if width == 0 || u64::from(off) + u64::from(width) > u64::from(rf.ux_bits) {
-                            return Err(format!("{width} bits at {off}: beyond the register"));
+                            bail!("{width} bits at {off}: beyond the register");
                         }
                         Ok((((1u64 << width) - 1) << off) as u32)
                     })
@@ -1474,7 +1498,7 @@ fn reg_bits(
                 Ok((kind, masks.into_iter().fold(0, |a, m| a | m)))
             });
         match placed {
-            Ok((Ok(kind), m)) => {
+            Ok((WriterType::Known(kind), m)) => {
                 let slot = match kind {
                     WriterKind::Plain => &mut b.plain,
                     WriterKind::W1S => &mut b.w1s,
@@ -1484,7 +1508,7 @@ fn reg_bits(
                 };
                 *slot |= m;
             }
-            Ok((Err(unknown), m)) => {
+            Ok((WriterType::Unknown(unknown), m)) => {
                 b.plain |= m;
                 note(
                     &mut b,
@@ -1499,7 +1523,7 @@ fn reg_bits(
                 note(
                     &mut b,
                     format!(
-                        "writer `{}` not placed ({e}): treated as plain writable, no bit called read-only",
+                        "writer `{}` not placed ({e:#}): treated as plain writable, no bit called read-only",
                         w.name
                     ),
                 );
@@ -1527,23 +1551,23 @@ fn merge_views(
     what: &str,
     views: Vec<(String, RegBits)>,
     warnings: &mut Vec<String>,
-) -> Result<RegBits, String> {
+) -> Result<RegBits> {
     if views.len() == 1 {
         return views
             .into_iter()
             .next()
             .map(|(_, b)| b)
-            .ok_or(format!("{what}: no view"));
+            .ok_or_else(|| anyhow!("{what}: no view"));
     }
     let widest = views
         .iter()
         .map(|(_, b)| b.ux_bits)
         .max()
-        .ok_or(format!("{what}: no view"))?;
+        .ok_or_else(|| anyhow!("{what}: no view"))?;
     let (_, wide) = views
         .iter()
         .find(|(_, b)| b.ux_bits == widest)
-        .ok_or(format!("{what}: no view"))?;
+        .ok_or_else(|| anyhow!("{what}: no view"))?;
     let mut m = RegBits {
         ux_bits: widest,
         reset: wide.reset,
@@ -1561,11 +1585,11 @@ fn merge_views(
             (1u32 << b.ux_bits) - 1
         };
         if b.reset != wide.reset & low {
-            return Err(format!(
+            bail!(
                 "{what}: the view {name} resets to {} but the widest view to {}",
                 hex(b.reset),
                 hex(wide.reset)
-            ));
+            );
         }
         m.readable |= b.readable;
         m.writable |= b.writable;
@@ -1602,10 +1626,10 @@ mod tests {
     use super::*;
 
     impl Files for HashMap<&str, &str> {
-        fn read(&self, rel: &str) -> Result<String, String> {
+        fn read(&self, rel: &str) -> Result<String> {
             self.get(rel)
                 .map(|s| s.to_string())
-                .ok_or(format!("{rel}: not found"))
+                .ok_or_else(|| anyhow!("{rel}: not found"))
         }
     }
 
@@ -1684,7 +1708,7 @@ pub use crate::stm32g474::n::OTHER;
 pub use crate::stm32g474::n::other;
 "#;
 
-    fn sizes(ty: &str) -> Result<u32, String> {
+    fn sizes(ty: &str) -> Result<u32> {
         Ok(if ty == "HALF" { 2 } else { 4 })
     }
 
@@ -1736,7 +1760,9 @@ pub use crate::stm32g474::n::other;
     #[test]
     fn layout_fails_when_a_doc_offset_disagrees() {
         let wrong = BLOCK.replace("///0x04 - control register", "///0x08 - control register");
-        let e = layout(&parse_block(&wrong, "m").unwrap(), &sizes).unwrap_err();
+        let e = layout(&parse_block(&wrong, "m").unwrap(), &sizes)
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("`cr`") && e.contains("0x8") && e.contains("0x4"),
             "{e}"
@@ -1748,7 +1774,9 @@ pub use crate::stm32g474::n::other;
     #[test]
     fn a_cluster_fails_loudly() {
         let cluster = BLOCK.replace("    cr: CR,\n", "    cr: CR,\n    ch: CH,\n");
-        let e = layout(&parse_block(&cluster, "m").unwrap(), &sizes).unwrap_err();
+        let e = layout(&parse_block(&cluster, "m").unwrap(), &sizes)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("cluster"), "{e}");
     }
 
@@ -1946,47 +1974,50 @@ impl crate::Resettable for SRrs {
         let types = parse_types(here);
         assert_eq!(
             resolve_writer(&files, "gpiob", "moder", &types, "MODER_W").unwrap(),
-            (Ok(WriterKind::Plain), 2)
+            (WriterType::Known(WriterKind::Plain), 2)
         );
         assert_eq!(
             resolve_writer(&files, "gpiob", "afrh", &types, "AFRH_W").unwrap(),
-            (Ok(WriterKind::Plain), 4)
+            (WriterType::Known(WriterKind::Plain), 4)
         );
         assert!(resolve_writer(&files, "gpiob", "x", &types, "NOPE_W").is_err());
     }
 
     #[test]
     fn field_expressions() {
-        assert_eq!(reader_mask("(self.bits & 1) != 0", None, 32), Ok(1));
+        assert_eq!(reader_mask("(self.bits & 1) != 0", None, 32).ok(), Some(1));
         assert_eq!(
-            reader_mask("((self.bits >> 16) & 1) != 0", None, 32),
-            Ok(0x1_0000)
+            reader_mask("((self.bits >> 16) & 1) != 0", None, 32).ok(),
+            Some(0x1_0000)
         );
         assert_eq!(
-            reader_mask("((self.bits >> 8) & 0x0f) as u8", None, 32),
-            Ok(0xf00)
-        );
-        assert_eq!(reader_mask("self.bits & 0x0fff", None, 16), Ok(0xfff));
-        assert_eq!(reader_mask("self.bits", None, 16), Ok(0xffff));
-        assert_eq!(reader_mask("self.bits", None, 32), Ok(0xffff_ffff));
-        assert_eq!(
-            reader_mask("((self.bits >> 28) & 0xff) as u8", None, 32),
-            Ok(0xf000_0000)
+            reader_mask("((self.bits >> 8) & 0x0f) as u8", None, 32).ok(),
+            Some(0xf00)
         );
         assert_eq!(
-            reader_mask("((self.bits >> (n * 4 + 1)) & 3) as u8", Some(2), 32),
-            Ok(0b11 << 9)
+            reader_mask("self.bits & 0x0fff", None, 16).ok(),
+            Some(0xfff)
+        );
+        assert_eq!(reader_mask("self.bits", None, 16).ok(), Some(0xffff));
+        assert_eq!(reader_mask("self.bits", None, 32).ok(), Some(0xffff_ffff));
+        assert_eq!(
+            reader_mask("((self.bits >> 28) & 0xff) as u8", None, 32).ok(),
+            Some(0xf000_0000)
         );
         assert_eq!(
-            reader_mask("((self.bits >> n) & 1) != 0", Some(5), 32),
-            Ok(1 << 5)
+            reader_mask("((self.bits >> (n * 4 + 1)) & 3) as u8", Some(2), 32).ok(),
+            Some(0b11 << 9)
+        );
+        assert_eq!(
+            reader_mask("((self.bits >> n) & 1) != 0", Some(5), 32).ok(),
+            Some(1 << 5)
         );
         assert!(reader_mask("((self.bits >> n) & 1) != 0", None, 32).is_err());
         assert!(reader_mask("self.other", None, 32).is_err());
         assert!(reader_mask("(self.bits & 1", None, 32).is_err());
-        assert_eq!(writer_offset("n * 2 + 1", Some(3)), Ok(7));
-        assert_eq!(writer_offset("n + 8", Some(3)), Ok(11));
-        assert_eq!(writer_offset("31", None), Ok(31));
+        assert_eq!(writer_offset("n * 2 + 1", Some(3)).ok(), Some(7));
+        assert_eq!(writer_offset("n + 8", Some(3)).ok(), Some(11));
+        assert_eq!(writer_offset("31", None).ok(), Some(31));
         assert!(writer_offset("32", None).is_err());
         assert!(writer_offset("n << 1", Some(1)).is_err());
     }

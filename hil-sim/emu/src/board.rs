@@ -35,16 +35,16 @@ impl Board {
     /// The `commissioning` scenario's motor and distorted, arbitrarily mounted sensor on
     /// this board's amplifiers.
     pub fn commissioning(seed: u64) -> anyhow::Result<Self> {
-        let sc = Scenario::load("commissioning").map_err(anyhow::Error::msg)?;
-        let motor = sc.file.motor.to_params().map_err(anyhow::Error::msg)?;
+        let sc = Scenario::load("commissioning")?;
+        let motor = sc.file.motor.to_params()?;
         // The sensor amplifier: the scenario's converter (12 bits over ±1.5 units), so
         // that its worst sensor (amplitude 1.2, offsets 0.1, harmonics) stays in range.
-        let sp = sc.file.sensor.to_params().map_err(anyhow::Error::msg)?;
-        let sensor = hil_sim::sensor::SensorSim::new(sp, seed).map_err(anyhow::Error::msg)?;
+        let sp = sc.file.sensor.to_params()?;
+        let sensor = hil_sim::sensor::SensorSim::new(sp, seed)?;
         // Until the firmware starts TIM1 the plant only coasts at rest; its step is then
         // the period the firmware programmed (`advance_to`), so any PWM rate runs.
         let pwm_hz = 20_000.0;
-        let mut plant = Plant::new(motor, sensor, 1.0 / pwm_hz, 0.3).map_err(anyhow::Error::msg)?;
+        let mut plant = Plant::new(motor, sensor, 1.0 / pwm_hz, 0.3)?;
         plant.current_adc = CurrentAdc {
             amps_per_count: CURRENT_A_PER_COUNT,
             zero_counts: 2048,

@@ -260,7 +260,7 @@ fn power_up(elf: Option<PathBuf>, out: PathBuf) -> Result<()> {
             output: out.join(format!("power-up-{}.csv", i + 1)),
             plots: Some(out.join(format!("plots-{}", i + 1))),
         };
-        hil_sim::rtt_log::run(&args).map_err(anyhow::Error::msg)?;
+        hil_sim::rtt_log::run(&args)?;
     }
     println!(
         "  the RTT captures (raw defmt), their CSV, events and plots (rtt-log): {}/",

@@ -222,7 +222,7 @@ impl Profile {
         let insns: HashMap<u32, Insn> = m4_cycles::disassemble(path)
             .map_err(|e| anyhow!("{e} (install binutils-arm-none-eabi)"))?;
         let pcs: Vec<u32> = insns.keys().copied().collect();
-        let chains = m4_cycles::inlined_chains(path, &pcs).map_err(anyhow::Error::msg)?;
+        let chains = m4_cycles::inlined_chains(path, &pcs)?;
         Ok(Self::from_parts(&insns, &chains, handler))
     }
 

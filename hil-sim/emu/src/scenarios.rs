@@ -320,8 +320,7 @@ pub fn run(name: &str, elf: &[u8]) -> Result<Outcome> {
             broken.model = mras::sim::SensorModel::ideal(2);
             broken.model.bx1 = 0.0;
             broken.model.by1 = 0.0;
-            emu.m_mut().board.plant.sensor =
-                hil_sim::sensor::SensorSim::new(broken, 7).map_err(anyhow::Error::msg)?;
+            emu.m_mut().board.plant.sensor = hil_sim::sensor::SensorSim::new(broken, 7)?;
             // From the first sampling instant that sees the broken sensor.
             let t_break = emu.m().now;
             while emu.m().stats.last_trigger < t_break {

@@ -4,14 +4,15 @@
 //! `plots::spectrum_chart`.
 
 use crate::plots::{ensure_font, FONT, PALETTE};
+use anyhow::{anyhow, bail, Result};
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::path::Path;
 
 const SIZE: (u32, u32) = (1000, 620);
 
-fn err(path: &Path) -> impl Fn(String) -> String + '_ {
-    move |e| format!("cannot draw {}: {e}", path.display())
+fn err(path: &Path) -> impl Fn(String) -> anyhow::Error + '_ {
+    move |e| anyhow!("cannot draw {}: {e}", path.display())
 }
 
 /// Decades covering the positive finite values, with one decade of margin below.
@@ -41,10 +42,10 @@ pub fn cdf_chart(
     title: &str,
     x_label: &str,
     series: &[(&str, Vec<f64>)],
-) -> Result<(), String> {
+) -> Result<()> {
     ensure_font()?;
     let (lo, hi) = log_range(series.iter().flat_map(|s| s.1.iter().copied()))
-        .ok_or_else(|| format!("{}: no positive value to plot", path.display()))?;
+        .ok_or_else(|| anyhow!("{}: no positive value to plot", path.display()))?;
     let root = BitMapBackend::new(path, SIZE).into_drawing_area();
     let e = err(path);
     root.fill(&WHITE).map_err(|x| e(x.to_string()))?;
@@ -102,16 +103,16 @@ pub fn grouped_bars(
     y_label: &str,
     categories: &[&str],
     groups: &[(&str, Vec<f64>)],
-) -> Result<(), String> {
+) -> Result<()> {
     ensure_font()?;
     if groups.iter().any(|g| g.1.len() != categories.len()) {
-        return Err(format!(
+        bail!(
             "{}: a group's length differs from the categories",
             path.display()
-        ));
+        );
     }
     let (lo, _) = log_range(groups.iter().flat_map(|g| g.1.iter().copied()))
-        .ok_or_else(|| format!("{}: no positive value to plot", path.display()))?;
+        .ok_or_else(|| anyhow!("{}: no positive value to plot", path.display()))?;
     let top = groups
         .iter()
         .flat_map(|g| g.1.iter().copied())

@@ -31,10 +31,12 @@ pub mod report;
 pub mod stats;
 
 use crate::baselines::{constant_speed_reference, Corrector, Ellipse, Lut, MinMax, Raw};
+use crate::core_config::FieldError;
 use crate::plant::{Cogging, LoadStep, MotorParams, Plant};
 use crate::rig::{self, ControlParams, Rig};
 use crate::sensor::SensorSim;
 use crate::Law;
+use anyhow::{anyhow, bail, Context, Result};
 use drive::commissioning::{Adaptation, Setpoint};
 use drive::control::ControlPeriod;
 use drive::motion::LoopMode;
@@ -56,8 +58,11 @@ pub const SENSOR_PERIODS: u16 = 2;
 /// mechanical: 13 bins per period of the highest error harmonic, m = 7, that the
 /// population produces; fewer bins would blur it, more would raise the noise residue).
 pub const BINS: usize = 90;
-/// Error harmonics m (of θs) reported in the spectrum of the first evaluated phase.
-pub const SPECTRUM_HARMONICS: usize = 8;
+/// Error harmonics m of the sensor angle θs reported in the spectrum of the first
+/// evaluated phase: the benchmark's sensors put their errors at m <= 7. (A scenario's
+/// spectrum counts harmonics of the mechanical angle instead:
+/// [`crate::scenario::SPECTRUM_HARMONICS_OF_THETA_RM`].)
+pub const SPECTRUM_HARMONICS_OF_THETA_S: usize = 8;
 
 /// A method compared, in table order (declared in the order of [`Method::ALL`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -131,7 +136,9 @@ impl Method {
         }
     }
 
-    /// Variants beyond the seven methods (LUT sizes, a smaller path bank).
+    /// Variants beyond the seven methods every table compares (raw, min-max, ellipse,
+    /// 256-bin LUT, paper, ours, oracle): other LUT sizes and the paper's smaller path
+    /// bank, which show how sensitive a result is to those choices.
     pub fn is_extra(self) -> bool {
         matches!(
             self,
@@ -186,9 +193,9 @@ pub struct SensorResult {
     pub skew_s: f64,
     /// Per evaluated phase, per method (in [`Method::ALL`] order).
     pub residuals: Vec<[Residual; Method::COUNT]>,
-    /// Amplitude of error harmonics m = 1..=[`SPECTRUM_HARMONICS`] of θs (rad,
+    /// Amplitude of error harmonics m = 1..=[`SPECTRUM_HARMONICS_OF_THETA_S`] of θs (rad,
     /// mechanical) in the first evaluated phase, per method: where a residual comes from.
-    pub spectrum_rad: [[f64; SPECTRUM_HARMONICS]; Method::COUNT],
+    pub spectrum_rad: [[f64; SPECTRUM_HARMONICS_OF_THETA_S]; Method::COUNT],
     /// Per tracker, in [`Method::MRAS`] order.
     pub mras: [TrackerOutcome; 3],
     /// Offline methods whose fit failed, with the reason.
@@ -235,11 +242,11 @@ impl SensorResult {
 }
 
 /// The core configuration of a tracker method, with the drive's inertia as Ĵ.
-pub fn tracker_config(m: Method, j_kg_m2: f64) -> Result<Config, String> {
+pub fn tracker_config(m: Method, j_kg_m2: f64) -> Result<Config> {
     let mut cfg = match m {
         Method::Paper => Law::Paper.config(),
         Method::Ours | Method::OursPaperBank => Law::Ours.config(),
-        other => return Err(format!("{} is not a tracker", other.label())),
+        other => bail!("{} is not a tracker", other.label()),
     };
     cfg.sample_period_s = SAMPLE_PERIOD_S as f32;
     cfg.sensor_periods = SENSOR_PERIODS;
@@ -251,9 +258,9 @@ pub fn tracker_config(m: Method, j_kg_m2: f64) -> Result<Config, String> {
             PathKind::Harmonic(4),
             PathKind::Harmonic(5),
         ])
-        .map_err(|e| e.to_string())?;
+        .map_err(FieldError::from)?;
     }
-    cfg.validate().map_err(|e| e.to_string())?;
+    cfg.validate().map_err(FieldError::from)?;
     Ok(cfg)
 }
 
@@ -283,7 +290,7 @@ impl Accumulator {
     }
 
     /// Harmonics m = 1.. of θs (mechanical radians); NaN unless every bin saw samples.
-    fn spectrum(&self) -> [f64; SPECTRUM_HARMONICS] {
+    fn spectrum(&self) -> [f64; SPECTRUM_HARMONICS_OF_THETA_S] {
         let full = self.error.filled_bins() == BINS;
         std::array::from_fn(|i| {
             if full {
@@ -331,7 +338,7 @@ fn rig_result(s: &rig::Step) -> Result<Estimate, Fault> {
 /// The sensor from `start_s` on: the same sensor, its drift starting at `start_s` (the
 /// simulated sensor drifts from t = 0, so the model is shifted back by the drift up to
 /// `start_s`; a fresh noise stream, still seeded).
-fn drifting_sensor(case: &SensorCase, start_s: f64) -> Result<SensorSim, String> {
+fn drifting_sensor(case: &SensorCase, start_s: f64) -> Result<SensorSim> {
     let mut p = case.params.clone();
     let d = case.drift;
     p.model.ax -= d.ax_per_s * start_s;
@@ -340,7 +347,7 @@ fn drifting_sensor(case: &SensorCase, start_s: f64) -> Result<SensorSim, String>
     p.model.bx1 /= g;
     p.model.by1 /= g;
     p.drift = d;
-    SensorSim::new(p, case.noise_seed.wrapping_add(1))
+    Ok(SensorSim::new(p, case.noise_seed.wrapping_add(1))?)
 }
 
 /// Speed setpoint `t` after the start of a ramp from `from` to `to` (rad/s).
@@ -360,9 +367,8 @@ type Fitted = Vec<(Method, Box<dyn Corrector>)>;
 fn fit_offline(record: &[(f32, f32)]) -> (Fitted, Vec<(Method, String)>) {
     fn boxed<C: Corrector + 'static>(
         r: Result<C, crate::baselines::FitError>,
-    ) -> Result<Box<dyn Corrector>, String> {
-        r.map(|c| Box::new(c) as Box<dyn Corrector>)
-            .map_err(|e| e.to_string())
+    ) -> Result<Box<dyn Corrector>> {
+        Ok(Box::new(r?))
     }
     let reference = constant_speed_reference(record);
     let mut fits = vec![
@@ -373,7 +379,7 @@ fn fit_offline(record: &[(f32, f32)]) -> (Fitted, Vec<(Method, String)>) {
         let bins = m.lut_bins().unwrap_or(256);
         let lut = match &reference {
             Ok(r) => boxed(Lut::fit(record, r, bins)),
-            Err(e) => Err(format!("constant-speed reference: {e}")),
+            Err(e) => Err(anyhow!("constant-speed reference: {e}")),
         };
         fits.push((m, lut));
     }
@@ -382,7 +388,7 @@ fn fit_offline(record: &[(f32, f32)]) -> (Fitted, Vec<(Method, String)>) {
     for (m, r) in fits {
         match r {
             Ok(c) => fitted.push((m, c)),
-            Err(e) => failed.push((m, e)),
+            Err(e) => failed.push((m, format!("{e:#}"))),
         }
     }
     (fitted, failed)
@@ -406,7 +412,7 @@ impl TrackerRun {
 }
 
 /// Simulate one sensor through the plan and measure every method.
-pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult, String> {
+pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult> {
     plan.validate()?;
     let starts = plan.phase_starts_s();
     let mut motor = MotorParams::default();
@@ -445,12 +451,12 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult, String
     let dcfg = rig::drive_config(&plant, &control, j, SAMPLE_PERIOD_S)?;
     let period = ControlPeriod::new(
         dcfg,
-        Front::new(tracker_config(Method::Ours, j)?).map_err(|e| e.to_string())?,
+        Front::new(tracker_config(Method::Ours, j)?).map_err(FieldError::from)?,
     )
-    .map_err(|e| e.to_string())?;
+    .map_err(FieldError::from)?;
     let mut drive = Rig::new(plant, period, None);
-    let new_tracker = |m| -> Result<Tracker, String> {
-        Tracker::new(tracker_config(m, j)?).map_err(|e| e.to_string())
+    let new_tracker = |m| -> Result<Tracker> {
+        Ok(Tracker::new(tracker_config(m, j)?).map_err(FieldError::from)?)
     };
     let mut passengers = [
         new_tracker(Method::Paper)?,
@@ -465,7 +471,7 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult, String
     let mut offline: Fitted = Vec::new();
     let mut fit_failures = Vec::new();
     let mut residuals = Vec::new();
-    let mut spectrum_rad = [[f64::NAN; SPECTRUM_HARMONICS]; Method::COUNT];
+    let mut spectrum_rad = [[f64::NAN; SPECTRUM_HARMONICS_OF_THETA_S]; Method::COUNT];
     let mut record: Vec<(f32, f32, f64)> = Vec::new();
     // Rotor angle at the previous adapting sample, and the angle travelled since
     // adaptation started.
@@ -601,7 +607,7 @@ pub fn run_suite(
     sensors: usize,
     plan: &Plan,
     progress: bool,
-) -> Result<Vec<SensorResult>, String> {
+) -> Result<Vec<SensorResult>> {
     use rayon::prelude::*;
     use std::sync::atomic::{AtomicUsize, Ordering};
     plan.validate()?;
@@ -611,7 +617,7 @@ pub fn run_suite(
     (0..sensors)
         .into_par_iter()
         .map(|i| {
-            let r = run_sensor(&draw_sensor(seed, i), plan).map_err(|e| format!("sensor {i}: {e}"));
+            let r = run_sensor(&draw_sensor(seed, i), plan).with_context(|| format!("sensor {i}"));
             let n = done.fetch_add(1, Ordering::Relaxed) + 1;
             if progress && (n.is_multiple_of(step) || n == sensors) {
                 eprintln!(
@@ -687,12 +693,13 @@ mod tests {
         assert!(p
             .validate()
             .unwrap_err()
+            .to_string()
             .contains("calibration revolutions"));
         let mut p = Plan::full();
         p.phases.truncate(1);
         assert!(p.validate().is_err());
         let mut p = Plan::full();
         p.phases[2].settle_s = p.phases[2].duration_s;
-        assert!(p.validate().unwrap_err().contains("settle_s"));
+        assert!(p.validate().unwrap_err().to_string().contains("settle_s"));
     }
 }

@@ -5,10 +5,11 @@
 use super::report::RunInfo;
 use super::stats::{Condition, Dist, Summary};
 use super::{
-    Method, Plan, BINS, DISTRIBUTION, SAMPLE_PERIOD_S, SENSOR_PERIODS, SPECTRUM_HARMONICS,
-    SPECTRUM_PHASE,
+    Method, Plan, BINS, DISTRIBUTION, SAMPLE_PERIOD_S, SENSOR_PERIODS,
+    SPECTRUM_HARMONICS_OF_THETA_S, SPECTRUM_PHASE,
 };
 use crate::plant::MotorParams;
+use anyhow::{anyhow, Result};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
@@ -150,7 +151,7 @@ fn tables(s: &Summary, plan: &Plan) -> [(&'static str, String); 7] {
             c.name
         )
     });
-    let orders: Vec<String> = (1..=SPECTRUM_HARMONICS)
+    let orders: Vec<String> = (1..=SPECTRUM_HARMONICS_OF_THETA_S)
         .map(|k| format!("m = {k}"))
         .collect();
     let spectrum_head = format!(
@@ -231,7 +232,7 @@ fn values(s: &Summary, plan: &Plan, info: &RunInfo) -> BTreeMap<String, String> 
         }
         let power = |r: std::ops::Range<usize>| spec[r].iter().map(|a| a * a).sum::<f64>();
         // Rounded down ("at least"), so that a near-total does not read 100 %.
-        let share = (1e3 * power(4..7) / power(0..SPECTRUM_HARMONICS))
+        let share = (1e3 * power(4..7) / power(0..SPECTRUM_HARMONICS_OF_THETA_S))
             .floor()
             .min(999.0)
             / 10.0;
@@ -324,19 +325,14 @@ fn values(s: &Summary, plan: &Plan, info: &RunInfo) -> BTreeMap<String, String> 
 }
 
 /// The page: [`TEMPLATE`] filled, plots linked from `plots`.
-pub(crate) fn markdown(
-    s: &Summary,
-    plan: &Plan,
-    info: &RunInfo,
-    plots: &str,
-) -> Result<String, String> {
+pub(crate) fn markdown(s: &Summary, plan: &Plan, info: &RunInfo, plots: &str) -> Result<String> {
     let page = render(TEMPLATE, &values(s, plan, info))?;
     Ok(page.replace("](results/", &format!("]({plots}/")))
 }
 
 /// `template` with each `{{name}}` replaced by its value; an unknown name is an error
 /// that gives the template's line.
-pub fn render(template: &str, values: &BTreeMap<String, String>) -> Result<String, String> {
+pub fn render(template: &str, values: &BTreeMap<String, String>) -> Result<String> {
     let mut out = String::with_capacity(2 * template.len());
     let mut rest = template;
     while let Some(at) = rest.find("{{") {
@@ -344,13 +340,13 @@ pub fn render(template: &str, values: &BTreeMap<String, String>) -> Result<Strin
             .matches('\n')
             .count()
             + 1;
-        let end = rest[at..].find("}}").ok_or(format!(
-            "results template line {line}: `{{{{` without `}}}}`"
-        ))?;
+        let end = rest[at..]
+            .find("}}")
+            .ok_or_else(|| anyhow!("results template line {line}: `{{{{` without `}}}}`"))?;
         let name = &rest[at + 2..at + end];
-        let value = values.get(name).ok_or(format!(
-            "results template line {line}: no figure named `{name}`"
-        ))?;
+        let value = values
+            .get(name)
+            .ok_or_else(|| anyhow!("results template line {line}: no figure named `{name}`"))?;
         out += &rest[..at];
         out += value;
         rest = &rest[at + end + 2..];
@@ -366,8 +362,11 @@ mod tests {
     fn render_fills_and_names_the_line_of_an_unknown_figure() {
         let v = BTreeMap::from([("a.b".to_string(), "1.5x".to_string())]);
         assert_eq!(render("x {{a.b}} y", &v).unwrap(), "x 1.5x y");
-        let e = render("one\ntwo {{a.c}}", &v).unwrap_err();
+        let e = render("one\ntwo {{a.c}}", &v).unwrap_err().to_string();
         assert!(e.contains("line 2") && e.contains("`a.c`"), "{e}");
-        assert!(render("{{a.b", &v).unwrap_err().contains("line 1"));
+        assert!(render("{{a.b", &v)
+            .unwrap_err()
+            .to_string()
+            .contains("line 1"));
     }
 }

@@ -2,6 +2,24 @@
 
 use super::SAMPLE_PERIOD_S;
 
+/// A plan the run cannot execute: the rule it breaks.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum PlanError {
+    #[error("the plan has no phases")]
+    NoPhases,
+    #[error("the plan must start with a commissioning phase and evaluate after")]
+    Order,
+    #[error("phase `{0}`: need 0 <= settle_s < duration_s")]
+    Settle(&'static str),
+    #[error("phase `{0}`: bad speed or acceleration")]
+    Motion(&'static str),
+    #[error(
+        "{calibration_revs} calibration revolutions do not fit in the {revs:.1} revolutions \
+         of adaptation"
+    )]
+    CalibrationTooLong { calibration_revs: u32, revs: f64 },
+}
+
 /// What a phase does besides holding its speed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PhaseKind {
@@ -135,29 +153,26 @@ impl Plan {
     }
 
     /// Check the plan is one the run can execute.
-    pub fn validate(&self) -> Result<(), String> {
-        let first = self.phases.first().ok_or("the plan has no phases")?;
+    pub fn validate(&self) -> Result<(), PlanError> {
+        let first = self.phases.first().ok_or(PlanError::NoPhases)?;
         if first.kind != PhaseKind::Commissioning || self.phases.len() < 2 {
-            return Err("the plan must start with a commissioning phase and evaluate after".into());
+            return Err(PlanError::Order);
         }
         for p in &self.phases {
             if !(p.duration_s > 0.0 && (0.0..p.duration_s).contains(&p.settle_s)) {
-                return Err(format!(
-                    "phase `{}`: need 0 <= settle_s < duration_s",
-                    p.name
-                ));
+                return Err(PlanError::Settle(p.name));
             }
             if !(p.accel_rad_s2 > 0.0 && p.speed_rev_s.is_finite()) {
-                return Err(format!("phase `{}`: bad speed or acceleration", p.name));
+                return Err(PlanError::Motion(p.name));
             }
         }
         let c = first;
         let revs = (c.duration_s - c.settle_s) * c.speed_rev_s.abs();
         if (self.calibration_revs as f64) > revs - 0.5 {
-            return Err(format!(
-                "{} calibration revolutions do not fit in the {revs:.1} revolutions of adaptation",
-                self.calibration_revs
-            ));
+            return Err(PlanError::CalibrationTooLong {
+                calibration_revs: self.calibration_revs,
+                revs,
+            });
         }
         Ok(())
     }

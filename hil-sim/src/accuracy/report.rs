@@ -3,8 +3,11 @@
 
 use super::page::{main_table, markdown};
 use super::stats::{summarise, Summary};
-use super::{charts, run_suite, Method, Plan, SensorResult, SPECTRUM_HARMONICS, SPECTRUM_PHASE};
+use super::{
+    charts, run_suite, Method, Plan, SensorResult, SPECTRUM_HARMONICS_OF_THETA_S, SPECTRUM_PHASE,
+};
 use crate::pending::Pending;
+use anyhow::{bail, Context, Result};
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -64,14 +67,14 @@ impl RunInfo {
     }
 }
 
-pub fn run(a: &Args) -> Result<(), String> {
+pub fn run(a: &Args) -> Result<()> {
     let sensors = a.sensors.unwrap_or(if a.reduced {
         REDUCED_SENSORS
     } else {
         FULL_SENSORS
     });
     if !(1..=MAX_SENSORS).contains(&sensors) {
-        return Err(format!("--sensors {sensors}: must be in 1..={MAX_SENSORS}"));
+        bail!("--sensors {sensors}: must be in 1..={MAX_SENSORS}");
     }
     let page = a.out.clone().unwrap_or_else(|| {
         let root = workspace_root();
@@ -82,7 +85,7 @@ pub fn run(a: &Args) -> Result<(), String> {
         }
     });
     if page.file_name().is_none() || page.is_dir() {
-        return Err(format!("--out {}: must name a file", page.display()));
+        bail!("--out {}: must name a file", page.display());
     }
     let page_dir = page
         .parent()
@@ -92,7 +95,7 @@ pub fn run(a: &Args) -> Result<(), String> {
     let plots = a.plots.clone().unwrap_or_else(|| page_dir.join("results"));
     for dir in [&page_dir, &plots] {
         std::fs::create_dir_all(dir)
-            .map_err(|e| format!("cannot create directory {}: {e}", dir.display()))?;
+            .with_context(|| format!("cannot create directory {}", dir.display()))?;
     }
 
     let plan = Plan::full();
@@ -132,13 +135,13 @@ pub fn write_outputs(
     info: &RunInfo,
     page: &Path,
     plots: &Path,
-) -> Result<(), String> {
+) -> Result<()> {
     // The page first: a template that cannot be filled writes nothing.
     let page_dir = page.parent().unwrap_or(Path::new(""));
     let rel = plots.strip_prefix(page_dir).unwrap_or(plots);
     let text = markdown(summary, plan, info, &rel.to_string_lossy())?;
     std::fs::create_dir_all(plots)
-        .map_err(|e| format!("cannot create directory {}: {e}", plots.display()))?;
+        .with_context(|| format!("cannot create directory {}", plots.display()))?;
     write_plots(results, summary, plan, plots)?;
     write_file(
         &plots.join("per_sensor.csv"),
@@ -147,15 +150,17 @@ pub fn write_outputs(
     write_file(page, &text)
 }
 
-fn write_file(path: &Path, text: &str) -> Result<(), String> {
+fn write_file(path: &Path, text: &str) -> Result<()> {
     let (pending, mut f) = Pending::create(path)?;
     f.write_all(text.as_bytes())
-        .map_err(|e| format!("{}: cannot write: {e}", path.display()))?;
+        .with_context(|| format!("{}: cannot write", path.display()))?;
     drop(f);
     pending.commit()
 }
 
-/// The methods drawn in the plots: the seven and the 4-path variant.
+/// The methods drawn in the plots: the seven every table compares, and the 4-path
+/// variant (our law on the paper's four paths: against `paper` it isolates the law,
+/// against `ours` the path bank).
 fn plotted() -> Vec<Method> {
     Method::ALL
         .into_iter()
@@ -163,12 +168,7 @@ fn plotted() -> Vec<Method> {
         .collect()
 }
 
-fn write_plots(
-    results: &[SensorResult],
-    summary: &Summary,
-    plan: &Plan,
-    dir: &Path,
-) -> Result<(), String> {
+fn write_plots(results: &[SensorResult], summary: &Summary, plan: &Plan, dir: &Path) -> Result<()> {
     let methods = plotted();
     let cdf: Vec<(&str, Vec<f64>)> = methods
         .iter()
@@ -206,7 +206,7 @@ fn write_plots(
         &categories,
         &bars,
     )?;
-    let harmonics: Vec<String> = (1..=SPECTRUM_HARMONICS)
+    let harmonics: Vec<String> = (1..=SPECTRUM_HARMONICS_OF_THETA_S)
         .map(|m| format!("m = {m}"))
         .collect();
     let harmonics: Vec<&str> = harmonics.iter().map(String::as_str).collect();

@@ -1,6 +1,6 @@
 //! Aggregation over sensors: median, 95th percentile and worst case per method.
 
-use super::{Method, Plan, Residual, SensorResult, SPECTRUM_HARMONICS, SPECTRUM_PHASE};
+use super::{Method, Plan, Residual, SensorResult, SPECTRUM_HARMONICS_OF_THETA_S, SPECTRUM_PHASE};
 
 /// Order statistics of one metric over the sensors that have it.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -109,7 +109,7 @@ pub struct Summary {
     pub fit_failures: Vec<usize>,
     /// Per method: median over sensors of the amplitude of error harmonic m = 1.. in
     /// the spectrum phase (rad, mechanical).
-    pub spectrum_median_rad: Vec<[f64; SPECTRUM_HARMONICS]>,
+    pub spectrum_median_rad: Vec<[f64; SPECTRUM_HARMONICS_OF_THETA_S]>,
 }
 
 pub fn summarise(results: &[SensorResult], plan: &Plan) -> Summary {

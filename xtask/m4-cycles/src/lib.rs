@@ -8,8 +8,37 @@
 
 use std::collections::HashMap;
 use std::io::Write;
-use std::path::Path;
-use std::process::{Command, Stdio};
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitStatus, Stdio};
+
+/// A binutils command that could not run or failed. A leaf error: the I/O error's text
+/// is part of the message, so it is not repeated as a source.
+#[derive(Debug, thiserror::Error)]
+pub enum ToolError {
+    /// The command could not be started or talked to (not installed, broken pipe).
+    #[error("{command}: {error}")]
+    Run {
+        command: &'static str,
+        error: std::io::Error,
+    },
+    /// objdump refused the image.
+    #[error("arm-none-eabi-objdump -d {}: {stderr}", .image.display())]
+    Disassemble { image: PathBuf, stderr: String },
+    /// addr2line exited with an error.
+    #[error("arm-none-eabi-addr2line failed ({0})")]
+    Addr2line(ExitStatus),
+    #[error("addr2line: no stdin")]
+    NoStdin,
+    #[error("addr2line: writer panicked")]
+    WriterPanicked,
+}
+
+const OBJDUMP: &str = "arm-none-eabi-objdump";
+const ADDR2LINE: &str = "arm-none-eabi-addr2line";
+
+fn run_error(command: &'static str) -> impl FnOnce(std::io::Error) -> ToolError {
+    move |error| ToolError::Run { command, error }
+}
 
 /// One disassembled instruction.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -21,18 +50,17 @@ pub struct Insn {
 }
 
 /// Every instruction of `image` by address (`arm-none-eabi-objdump -d`).
-pub fn disassemble(image: &Path) -> Result<HashMap<u32, Insn>, String> {
-    let out = Command::new("arm-none-eabi-objdump")
+pub fn disassemble(image: &Path) -> Result<HashMap<u32, Insn>, ToolError> {
+    let out = Command::new(OBJDUMP)
         .arg("-d")
         .arg(image)
         .output()
-        .map_err(|e| format!("arm-none-eabi-objdump: {e}"))?;
+        .map_err(run_error(OBJDUMP))?;
     if !out.status.success() {
-        return Err(format!(
-            "arm-none-eabi-objdump -d {}: {}",
-            image.display(),
-            String::from_utf8_lossy(&out.stderr)
-        ));
+        return Err(ToolError::Disassemble {
+            image: image.to_path_buf(),
+            stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+        });
     }
     Ok(parse_objdump(&String::from_utf8_lossy(&out.stdout)))
 }
@@ -181,29 +209,27 @@ pub struct Frame {
 
 /// The inlined call chain of each address, innermost frame first
 /// (`arm-none-eabi-addr2line -a -f -i -C`; addresses on stdin, so any number fits).
-pub fn inlined_chains(image: &Path, pcs: &[u32]) -> Result<HashMap<u32, Vec<Frame>>, String> {
-    let mut child = Command::new("arm-none-eabi-addr2line")
+pub fn inlined_chains(image: &Path, pcs: &[u32]) -> Result<HashMap<u32, Vec<Frame>>, ToolError> {
+    let mut child = Command::new(ADDR2LINE)
         .arg("-e")
         .arg(image)
         .args(["-a", "-f", "-i", "-C"])
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .spawn()
-        .map_err(|e| format!("arm-none-eabi-addr2line: {e}"))?;
+        .map_err(run_error(ADDR2LINE))?;
     let input: String = pcs.iter().map(|pc| format!("{pc:#x}\n")).collect();
-    let mut stdin = child.stdin.take().ok_or("addr2line: no stdin")?;
+    let mut stdin = child.stdin.take().ok_or(ToolError::NoStdin)?;
     // Written from a thread: addr2line answers as it reads, and a full stdout pipe
     // would otherwise block both sides.
     let writer = std::thread::spawn(move || stdin.write_all(input.as_bytes()));
-    let out = child
-        .wait_with_output()
-        .map_err(|e| format!("arm-none-eabi-addr2line: {e}"))?;
+    let out = child.wait_with_output().map_err(run_error(ADDR2LINE))?;
     writer
         .join()
-        .map_err(|_| "addr2line: writer panicked")?
-        .map_err(|e| format!("arm-none-eabi-addr2line: {e}"))?;
+        .map_err(|_| ToolError::WriterPanicked)?
+        .map_err(run_error(ADDR2LINE))?;
     if !out.status.success() {
-        return Err(format!("arm-none-eabi-addr2line failed ({})", out.status));
+        return Err(ToolError::Addr2line(out.status));
     }
     Ok(parse_chains(&String::from_utf8_lossy(&out.stdout)))
 }
