@@ -122,7 +122,10 @@ fn replay_of_a_recording_that_starts_at_speed_adapts() {
             e["corrected"]["pk_pk_mrad"]
         );
         let revs = rep["convergence"]["revs_adapted"].as_u64().unwrap();
-        assert!(revs >= 18, "{speed_rev_s} rev/s: {revs} revolutions adapted");
+        assert!(
+            revs >= 18,
+            "{speed_rev_s} rev/s: {revs} revolutions adapted"
+        );
         let raw = e["raw"]["pk_pk_rad"].as_f64().unwrap();
         let first_100x = (0..20)
             .find(|&r| raw / revolution_pk_pk(&text, &theta_hat, speed_rev_s, r) >= 100.0)

@@ -435,9 +435,9 @@ impl<T: Trig> Front<T> {
         let t = p.im / p.re;
         let t2 = t * t;
         let advance_rad = t * (1.0 - t2 * (1.0 / 3.0 - t2 * 0.2));
-        if a.count > 0
-            && !(libm::fabsf(advance_rad - a.last_advance_rad) <= MAX_ADVANCE_CHANGE_RAD)
-        {
+        // Written so that a NaN also counts as a jump.
+        let smooth = libm::fabsf(advance_rad - a.last_advance_rad) <= MAX_ADVANCE_CHANGE_RAD;
+        if a.count > 0 && !smooth {
             // Not a sensor turning smoothly: measure again from here, and restart the
             // observer at the end whatever it does meanwhile.
             a.reseed = true;
@@ -458,9 +458,9 @@ impl<T: Trig> Front<T> {
         let a = &self.acq;
         let advance_rad = a.advance_rad + wrap_pi_f32(th - raw) - start_corr_rad;
         let omega_rad_s = advance_rad / a.count as f32 * a.per_sample_to_rad_s;
-        let restart = a.reseed
-            || (a.speed_check
-                && !(libm::fabsf(omega_rad_s - self.obs.omega_rad_s) <= a.speed_tol_rad_s));
+        // Written so that a NaN speed also restarts.
+        let pulled_in = libm::fabsf(omega_rad_s - self.obs.omega_rad_s) <= a.speed_tol_rad_s;
+        let restart = a.reseed || (a.speed_check && !pulled_in);
         if restart {
             self.reseed(z, th, omega_rad_s);
             self.start_window(z, false);

@@ -109,7 +109,10 @@ fn flying_start_locks_and_converges_at_any_speed() {
             let mut locked_at = None;
             for k in 0..100 {
                 let (r, _) = s.step(Feed::Sensor);
-                assert!(r.is_ok(), "{speed_rev_s} rev/s, θ0 {theta0_rad}: sample {k}: {r:?}");
+                assert!(
+                    r.is_ok(),
+                    "{speed_rev_s} rev/s, θ0 {theta0_rad}: sample {k}: {r:?}"
+                );
                 if s.tracker.is_locked() && locked_at.is_none() {
                     locked_at = Some(k);
                 }
@@ -122,7 +125,10 @@ fn flying_start_locks_and_converges_at_any_speed() {
             let mut reached = None;
             for rev in 1..=20 {
                 let (e, raw, lost) = s.revolution();
-                assert_eq!(lost, 0, "{speed_rev_s} rev/s: lock lost in revolution {rev}");
+                assert_eq!(
+                    lost, 0,
+                    "{speed_rev_s} rev/s: lock lost in revolution {rev}"
+                );
                 best = best.min(e);
                 if raw / e >= 100.0 && reached.is_none() {
                     reached = Some(rev);
@@ -159,7 +165,10 @@ fn dropout_at_speed_reacquires_within_a_revolution() {
                 s.revolution();
             }
             let (e, raw, _) = s.revolution();
-            assert!(raw / e > 100.0, "{speed_rev_s}: not converged before the dropout");
+            assert!(
+                raw / e > 100.0,
+                "{speed_rev_s}: not converged before the dropout"
+            );
             let coefs = s.tracker.coefficients();
             let dropout = (5.0e-3 / T_S) as u64;
             for _ in 0..dropout {
@@ -173,8 +182,7 @@ fn dropout_at_speed_reacquires_within_a_revolution() {
             let mut back = None;
             for k in 0..per_rev {
                 let _ = s.step(Feed::Sensor);
-                if back.is_none() && s.tracker.is_locked() && s.tracker.last_estimate().adapting
-                {
+                if back.is_none() && s.tracker.is_locked() && s.tracker.last_estimate().adapting {
                     back = Some(k);
                 }
             }
@@ -186,7 +194,10 @@ fn dropout_at_speed_reacquires_within_a_revolution() {
             // The garbage may have moved the coefficients a little before the loss was
             // seen, never far.
             for ((_, a), (_, b)) in coefs.iter().zip(s.tracker.coefficients().iter()) {
-                assert!((a - b).abs() < 0.02, "{speed_rev_s} rev/s, {what}: {a:?} → {b:?}");
+                assert!(
+                    (a - b).abs() < 0.02,
+                    "{speed_rev_s} rev/s, {what}: {a:?} → {b:?}"
+                );
             }
             assert!(back <= 100, "{speed_rev_s} rev/s, {what}: {back} samples");
             // The observer's transient from its restart decays over the next revolution.
