@@ -200,6 +200,24 @@ impl Injection {
         sum
     }
 
+    /// `D(θ)` as [`Self::vector`] (not bit for bit), as a plain power series: compact
+    /// code for the rare callers (lock acquisition), not another copy of the fast form.
+    #[inline(never)]
+    pub(crate) fn vector_compact(&self, u: Cplx) -> Cplx {
+        let v = u.conj();
+        let (mut d, mut p, mut q) = (self.pos[0], u, v);
+        let top = self.pos_degree.max(self.neg_degree) & POWER_MASK;
+        let mut k = 1;
+        // An opaque bound: no unrolling (code size over speed here).
+        while k <= core::hint::black_box(top) {
+            d = d + self.pos[k & POWER_MASK] * p + self.neg[k & POWER_MASK] * q;
+            p = p * u;
+            q = q * v;
+            k += 1;
+        }
+        d
+    }
+
     /// `D(θ)` for `u = e^{jθ}`.
     #[inline(always)]
     pub(crate) fn vector(&self, u: Cplx) -> Cplx {

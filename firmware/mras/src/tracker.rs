@@ -164,12 +164,15 @@ impl<T: Trig> Front<T> {
             cfg.observer.inertia_kg_m2,
         );
         let n = cfg.sensor_periods as f32;
-        let fastest_rad_s = gains.lambda_rad_s.iter().fold(0.0f32, |a, &l| a.max(l));
+        let [l1, l2, l3] = gains.lambda_rad_s;
+        let fastest_rad_s = l1.max(l2).max(l3);
         // ≥ 8 samples, so that a window spans several phase advances even with a
         // fast observer; ≤ 1000, so that it stays short on a slow one.
-        let window = libm::ceilf(1.0 / (fastest_rad_s * cfg.sample_period_s)).clamp(8.0, 1000.0);
+        let window = ((1.0 / (fastest_rad_s * cfg.sample_period_s)) as u16)
+            .saturating_add(1)
+            .clamp(8, 1000);
         let acq = Acquisition {
-            window: window as u16,
+            window,
             advance_rad: 0.0,
             count: 0,
             prev: Cplx::ZERO,
@@ -404,12 +407,14 @@ impl<T: Trig> Front<T> {
     /// steps from the raw angle `raw`): what θ̂ would be, locked, with the coefficients in
     /// force. Equal to `raw` while they are zero.
     fn decoupled_angle(&self, z: Cplx, raw: f32) -> f32 {
-        let mut th = raw;
-        for _ in 0..2 {
-            let (s, c) = self.trig.sin_cos(th);
-            th = angle_of(z + self.inject.vector(Cplx::new(c, s)));
-        }
-        th
+        self.decoupled_step(z, self.decoupled_step(z, raw))
+    }
+
+    /// One fixed-point step: the angle of `z + D(th)`. Out of line: code size.
+    #[inline(never)]
+    fn decoupled_step(&self, z: Cplx, th: f32) -> f32 {
+        let (s, c) = self.trig.sin_cos(th);
+        angle_of(z + self.inject.vector_compact(Cplx::new(c, s)))
     }
 
     /// A sample while not locked: the first good one starts the observer at rest at the
@@ -764,6 +769,7 @@ impl<T: Trig> Tracker<T> {
 }
 
 /// The angle of `z` in [0, 2π).
+#[inline(never)]
 fn angle_of(z: Cplx) -> f32 {
     let mut th = libm::atan2f(z.im, z.re);
     if th < 0.0 {
