@@ -107,10 +107,10 @@ struct Acquisition {
     /// The previous accepted sample of the window (`ZERO`: none, after a refused one:
     /// the measurement starts again there).
     prev: Cplx,
-    /// The measurement's first sample. The measured advance is that of the raw vector;
-    /// moving both ends onto the decoupled vector at the window's end removes the sensor
-    /// error the coefficients already know.
-    first: Cplx,
+    /// At the measurement's first sample, the decoupled vector's angle less the raw
+    /// one. The measured advance is that of the raw vector; moving both ends onto the
+    /// decoupled vector removes the sensor error the coefficients already know.
+    start_corr_rad: f32,
     /// The last phase advance: a sensor turning at any plausible speed changes it by far
     /// less than [`MAX_ADVANCE_CHANGE_RAD`] from one sample to the next.
     last_advance_rad: f32,
@@ -176,7 +176,7 @@ impl<T: Trig> Front<T> {
             advance_rad: 0.0,
             count: 0,
             prev: Cplx::ZERO,
-            first: Cplx::ZERO,
+            start_corr_rad: 0.0,
             last_advance_rad: 0.0,
             reseed: false,
             speed_check: false,
@@ -397,24 +397,35 @@ impl<T: Trig> Front<T> {
 
     /// The speed measurement starts at `z`.
     fn measure_from(&mut self, z: Cplx) {
+        let c = self.decoupled_correction(z, angle_of(z));
+        self.measure_from_corrected(z, c);
+    }
+
+    /// The speed measurement starts at `z`, whose decoupled angle less its raw one is
+    /// `corr_rad`.
+    fn measure_from_corrected(&mut self, z: Cplx, corr_rad: f32) {
         self.acq.advance_rad = 0.0;
         self.acq.count = 0;
         self.acq.prev = z;
-        self.acq.first = z;
+        self.acq.start_corr_rad = corr_rad;
     }
 
-    /// The angle of the decoupled vector `z + D(θ)` at its own angle (two fixed-point
-    /// steps from the raw angle `raw`): what θ̂ would be, locked, with the coefficients in
-    /// force. Equal to `raw` while they are zero.
-    fn decoupled_angle(&self, z: Cplx, raw: f32) -> f32 {
-        self.decoupled_step(z, self.decoupled_step(z, raw))
+    /// The angle of the decoupled vector `z + D(θ)` at its own angle, less the raw angle
+    /// `raw` of `z` (two fixed-point steps from `raw`): where θ̂ would be, locked, with
+    /// the coefficients in force. 0 while they are zero.
+    fn decoupled_correction(&self, z: Cplx, raw: f32) -> f32 {
+        self.decoupled_step(z, raw, self.decoupled_step(z, raw, 0.0))
     }
 
-    /// One fixed-point step: the angle of `z + D(th)`. Out of line: code size.
+    /// One fixed-point step from the correction `c`: the angle of `z + D(raw + c)` less
+    /// `raw`, by the small angle it is turned from `raw + c` (no atan2: it is small).
+    /// Out of line: code size.
     #[inline(never)]
-    fn decoupled_step(&self, z: Cplx, th: f32) -> f32 {
-        let (s, c) = self.trig.sin_cos(th);
-        angle_of(z + self.inject.vector_compact(Cplx::new(c, s)))
+    fn decoupled_step(&self, z: Cplx, raw: f32, c: f32) -> f32 {
+        let (s, co) = self.trig.sin_cos(raw + c);
+        let u = Cplx::new(co, s);
+        let w = (z + self.inject.vector_compact(u)) * u.conj();
+        c + atan_series(w.im / w.re)
     }
 
     /// A sample while not locked: the first good one starts the observer at rest at the
@@ -434,12 +445,10 @@ impl<T: Trig> Front<T> {
             self.measure_from(z);
             return;
         }
-        // tan of the advance from the previous sample, and its arctangent by series
-        // (|t| ≤ 0.5: error < 1e-4 rad; 0.5 rad per sample is 800 rev/s at 20 kHz, N = 2).
+        // The advance from the previous sample (0.5 rad per sample is 800 rev/s at
+        // 20 kHz, N = 2).
         let p = z * a.prev.conj();
-        let t = p.im / p.re;
-        let t2 = t * t;
-        let advance_rad = t * (1.0 - t2 * (1.0 / 3.0 - t2 * 0.2));
+        let advance_rad = atan_series(p.im / p.re);
         // Written so that a NaN also counts as a jump.
         let smooth = libm::fabsf(advance_rad - a.last_advance_rad) <= MAX_ADVANCE_CHANGE_RAD;
         if a.count > 0 && !smooth {
@@ -456,19 +465,18 @@ impl<T: Trig> Front<T> {
         if a.count < a.window {
             return;
         }
-        let (first, raw0) = (a.first, angle_of(a.first));
-        let start_corr_rad = wrap_pi_f32(self.decoupled_angle(first, raw0) - raw0);
         let raw = angle_of(z);
-        let th = self.decoupled_angle(z, raw);
+        let corr_rad = self.decoupled_correction(z, raw);
         let a = &self.acq;
-        let advance_rad = a.advance_rad + wrap_pi_f32(th - raw) - start_corr_rad;
+        let advance_rad = a.advance_rad + corr_rad - a.start_corr_rad;
         let omega_rad_s = advance_rad / a.count as f32 * a.per_sample_to_rad_s;
         // Written so that a NaN speed also restarts.
         let pulled_in = libm::fabsf(omega_rad_s - self.obs.omega_rad_s) <= a.speed_tol_rad_s;
         let restart = a.reseed || (a.speed_check && !pulled_in);
         if restart {
-            self.reseed(z, th, omega_rad_s);
-            self.start_window(z, false);
+            self.reseed(z, angle_of_rad(raw + corr_rad), omega_rad_s);
+            self.start_window(Cplx::ZERO, false);
+            self.measure_from_corrected(z, corr_rad);
         } else {
             self.acq_left = 0;
         }
@@ -781,14 +789,20 @@ fn angle_of(z: Cplx) -> f32 {
     th
 }
 
-/// `x` wrapped to (-π, π] (x within a few turns).
-fn wrap_pi_f32(x: f32) -> f32 {
-    let mut x = x;
-    if x > PI {
-        x -= TAU;
+/// `x` (within a turn of [0, 2π)) wrapped into [0, 2π).
+fn angle_of_rad(x: f32) -> f32 {
+    let x = if x < 0.0 { x + TAU } else { x };
+    if x >= TAU {
+        x - TAU
+    } else {
+        x
     }
-    if x <= -PI {
-        x += TAU;
-    }
-    x
+}
+
+/// arctan(t) by its series to t⁵: error < 1e-4 rad for |t| ≤ 0.5 (and far less for the
+/// small angles it is used on).
+#[inline(always)]
+fn atan_series(t: f32) -> f32 {
+    let t2 = t * t;
+    t * (1.0 - t2 * (1.0 / 3.0 - t2 * 0.2))
 }
