@@ -231,8 +231,9 @@ impl<T: Trig> Front<T> {
     /// One control period: raw ADC values and the torque feedforward T* (N·m).
     ///
     /// On `Err` for bad input (non-finite, |Z| out of band, railed ADC) nothing but the
-    /// latched fault set changes. On `Err(LossOfLock)` the observer has still advanced
-    /// (so that it can re-acquire) but adaptation is suspended until [`Self::clear_faults`].
+    /// latched fault set changes. `Err(LossOfLock)` comes once, on the sample where a
+    /// locked observer lost its lock: the observer has still advanced, re-acquires by
+    /// itself, and adaptation pauses until [`Self::is_locked`] again.
     ///
     /// An accepted sample (`Ok`, or `Err(LossOfLock)`) leaves its [`AdaptSample`] for
     /// [`Self::handoff`]. Updates due by this period must have been applied first.
