@@ -344,7 +344,8 @@ pub fn path_column_name(kind: PathKind) -> String {
     }
 }
 
-/// Samples the core refused, per fault kind (report keys).
+/// Samples the core refused, per fault kind (report keys); `loss_of_lock` counts the
+/// times a locked core lost its lock (it re-acquires by itself).
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 pub struct FaultCounts {
     pub non_finite_input: u64,
@@ -468,7 +469,8 @@ struct Report {
     input_scaling: InputScalingReport,
     faults: FaultCounts,
     faults_total: u64,
-    /// Line of the first loss of lock (adaptation is suspended from there on).
+    /// Line of the first loss of lock (adaptation pauses until the core has re-acquired
+    /// the lock by itself).
     first_loss_of_lock_line: Option<u64>,
     final_coefficients: Vec<CoefficientReport>,
     convergence: ConvergenceReport,
@@ -719,8 +721,9 @@ fn print_summary(a: &Args, r: &Report, period_s: f64) {
     println!("  faults: {}", r.faults.summary());
     if let Some(line) = r.first_loss_of_lock_line {
         println!(
-            "  note: the core latched loss of lock at line {line}; adaptation stays suspended \
-             from there on (a drive clears it after a safe restart)"
+            "  note: the core lost lock first at line {line} ({} time(s)); adaptation paused \
+             each time until the lock was re-acquired",
+            r.faults.loss_of_lock
         );
     }
     println!(

@@ -136,6 +136,11 @@ pub struct Params {
     pub verify_residual_rad: f32,
     /// After a loaded calibration or a commissioning: keep adapting slowly in Run.
     pub slow_tracking: bool,
+    /// In Run, how long the core may go without a locked estimate (a sensor dropout, a
+    /// loss of lock being re-acquired) before the drive goes to the safe state: the
+    /// bridge is off meanwhile and the core re-acquires by itself, typically within a
+    /// few ms of the sensor's return.
+    pub reacquire_timeout_s: f32,
 }
 
 impl Default for Params {
@@ -155,6 +160,7 @@ impl Default for Params {
             verify_s: 0.2,
             verify_residual_rad: 3.0e-3,
             slow_tracking: true,
+            reacquire_timeout_s: 0.05,
         }
     }
 }
@@ -199,6 +205,9 @@ pub struct Inputs {
     pub store: StoreStatus,
     /// The alignment sweep's result, once it finished.
     pub sweep: Option<SweepResult>,
+    /// The control period ran on a locked estimate in every period since the previous
+    /// step (no refused sample, no re-acquisition under way).
+    pub locked: bool,
 }
 
 impl Default for Inputs {
@@ -214,6 +223,7 @@ impl Default for Inputs {
             load: LoadStatus::Pending,
             store: StoreStatus::Pending,
             sweep: None,
+            locked: true,
         }
     }
 }
@@ -263,6 +273,10 @@ pub struct Outputs {
     /// Measure how far the corrected angle sits from the raw one on average (at speed,
     /// coefficients frozen), to move the alignment onto the corrected angle.
     pub measure_shift: bool,
+    /// Ride through sensor faults (Run): the control period switches the bridge off for
+    /// a period whose sample was refused or whose estimate is not locked, instead of
+    /// latching the safe state; the core re-acquires by itself.
+    pub reacquire: bool,
 }
 
 impl Outputs {
@@ -422,7 +436,18 @@ impl Commissioning {
                 StoreStatus::Done => self.go(State::Run),
                 StoreStatus::Failed => self.force_safe(Cause::StoreFailed),
             },
-            State::Run | State::Safe => {}
+            State::Run => {
+                if i.locked {
+                    self.held_s = 0.0;
+                } else {
+                    self.held_s += i.dt_s;
+                    if self.held_s >= p.reacquire_timeout_s {
+                        // The sensor stays wrong: only a restart may try again.
+                        self.force_safe(Cause::Sensor(mras::Fault::LossOfLock));
+                    }
+                }
+            }
+            State::Safe => {}
         }
     }
 
@@ -473,6 +498,7 @@ impl Commissioning {
             request,
             calibrate_currents: self.state == State::CheckSensor,
             measure_shift: self.state == State::Verify,
+            reacquire: self.state == State::Run,
         }
     }
 }

@@ -140,6 +140,8 @@ pub struct ControlPeriod<T: Trig> {
     /// Since the previous snapshot.
     cycles: CycleStats,
     handoffs_dropped: u32,
+    /// Some period since the previous snapshot had no locked estimate.
+    unlocked: bool,
     /// The scaled sensor vector fed to the core, and the fault of the period.
     last_xy: (f32, f32),
     last_fault: Option<Fault>,
@@ -257,6 +259,7 @@ impl<T: Trig> ControlPeriod<T> {
             until_supervisor: cfg.supervisor_divider,
             cycles: CycleStats::EMPTY,
             handoffs_dropped: 0,
+            unlocked: false,
             last_xy: (0.0, 0.0),
             last_fault: None,
             last_currents_a: (0.0, 0.0),
@@ -336,8 +339,14 @@ impl<T: Trig> ControlPeriod<T> {
             sensor.err().or(currents.err())
         };
         self.last_fault = fault;
+        // Riding through (Run), a refused sample or a loss of lock only keeps the bridge
+        // off while the core re-acquires; the supervisor bounds how long.
+        let locked = sensor.is_ok() && self.tracker.is_locked();
+        self.unlocked |= !locked;
         if let Some(f) = fault {
-            self.latched.get_or_insert(f);
+            if !(cmd.reacquire && matches!(f, Fault::Sensor(_))) {
+                self.latched.get_or_insert(f);
+            }
         }
         if cmd.setpoint == Setpoint::Off && cmd.calibrate_currents {
             self.measure_current_zero(s.ia, s.ib);
@@ -357,7 +366,7 @@ impl<T: Trig> ControlPeriod<T> {
             self.sweep = Sweep::default();
         }
         self.sweeping = sweeping;
-        if self.latched.is_some() || cmd.setpoint == Setpoint::Off {
+        if self.latched.is_some() || cmd.setpoint == Setpoint::Off || !locked && cmd.reacquire {
             return self.disarm(supervisor_due);
         }
 
@@ -506,6 +515,7 @@ impl<T: Trig> ControlPeriod<T> {
             fault: self.latched,
             release: self.release,
             core_faults: self.tracker.faults().bits(),
+            unlocked: self.unlocked,
             omega_rad_s: self.direction * est.omega_rad_s,
             amplitude: est.amplitude,
             converged: a.converged,
@@ -521,6 +531,7 @@ impl<T: Trig> ControlPeriod<T> {
             handoffs_dropped: self.handoffs_dropped,
         };
         self.cycles = CycleStats::EMPTY;
+        self.unlocked = false;
         t
     }
 

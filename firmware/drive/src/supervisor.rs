@@ -204,6 +204,7 @@ impl Supervisor {
             load: self.load,
             store: self.store,
             sweep: tm.sweep,
+            locked: !tm.unlocked,
         });
         let state = self.sm.state();
         if before == State::Verify && state == State::Store {
@@ -243,6 +244,7 @@ impl Supervisor {
             calibrate_currents: o.calibrate_currents,
             measure_shift: o.measure_shift,
             release: self.release,
+            reacquire: o.reacquire,
         };
         let record = (self.steps % RECORD_DIVIDER == 0).then(|| Record {
             t_ms,

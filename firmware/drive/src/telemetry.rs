@@ -37,6 +37,9 @@ pub struct Command {
     pub measure_shift: bool,
     /// A value other than the last one seen releases a latched fault.
     pub release: u8,
+    /// Ride through sensor faults: the bridge is off only for periods without a locked
+    /// estimate (`commissioning::Outputs::reacquire`).
+    pub reacquire: bool,
 }
 
 impl Command {
@@ -48,6 +51,7 @@ impl Command {
         calibrate_currents: false,
         measure_shift: false,
         release: 0,
+        reacquire: false,
     };
 }
 
@@ -138,6 +142,9 @@ pub struct Telemetry {
     pub release: u8,
     /// The core's latched fault set (`mras::Faults::bits`).
     pub core_faults: u8,
+    /// Some period since the previous snapshot had no locked estimate: its sample was
+    /// refused, or the core was (re-)acquiring its lock.
+    pub unlocked: bool,
     /// ω̂ in the motor's frame (the sensor's direction applied), mechanical.
     pub omega_rad_s: f32,
     pub amplitude: f32,

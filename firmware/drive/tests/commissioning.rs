@@ -394,3 +394,36 @@ fn safe_is_sticky_until_restart_and_boot_faults_force_it() {
         assert_eq!((c.state(), c.cause()), (State::Safe, Some(cause)));
     }
 }
+
+/// In Run the control period rides through sensor faults; the sequence goes to the safe
+/// state only when the estimate stays unlocked for `reacquire_timeout_s`, and a lock
+/// regained before that resets the clock. Outside Run nothing rides through.
+#[test]
+fn run_rides_through_an_unlocked_estimate_for_the_timeout_only() {
+    let mut c = Commissioning::new(params());
+    assert!(!c.outputs().reacquire);
+    run_until(&mut c, State::Run, 10.0, hardware);
+    assert!(c.outputs().reacquire);
+    let unlocked = |c: &Commissioning| Inputs {
+        locked: false,
+        ..hardware(c)
+    };
+    let timeout_steps = (params().reacquire_timeout_s / DT).round() as u32;
+    // Unlocked for all but the last step of the timeout, then locked again: no fault.
+    for _ in 0..timeout_steps - 1 {
+        c.step(&unlocked(&c));
+    }
+    c.step(&hardware(&c));
+    assert_eq!(c.state(), State::Run);
+    // Unlocked from then on: safe at the timeout (within a step: the time is summed in
+    // f32), with the lock loss as cause.
+    for k in 0..timeout_steps - 1 {
+        c.step(&unlocked(&c));
+        assert_eq!(c.state(), State::Run, "step {k}");
+    }
+    c.step(&unlocked(&c));
+    c.step(&unlocked(&c));
+    assert_eq!(c.state(), State::Safe);
+    assert_eq!(c.cause(), Some(Cause::Sensor(mras::Fault::LossOfLock)));
+    assert!(!c.outputs().reacquire);
+}

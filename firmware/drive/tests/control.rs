@@ -116,6 +116,60 @@ fn a_fault_latches_the_safe_state_until_released() {
     assert_eq!(p.snapshot().fault, None);
 }
 
+/// Riding through (Run): a refused sample or a lost lock switches the bridge off for
+/// the periods without a locked estimate only, latches nothing, and shows in the
+/// snapshot; the bridge is on again once the core has re-acquired. A fault that is not
+/// the sensor's still latches.
+#[test]
+fn riding_through_keeps_the_bridge_off_only_while_unlocked() {
+    let mut p = period();
+    let cmd = Command {
+        setpoint: Setpoint::Application,
+        reacquire: true,
+        ..running()
+    };
+    // Off until the core's first window has held the lock.
+    let mut th = 0.0;
+    for k in 0..200 {
+        th += 0.001;
+        assert_eq!(p.step(&sample(th), &cmd).enable, k >= 32, "{k}");
+    }
+    p.snapshot();
+    p.step(&sample(th), &cmd);
+    assert!(!p.snapshot().unlocked);
+    let broken = Sample {
+        x: 2048,
+        y: 2048,
+        ..sample(0.0)
+    };
+    assert!(!p.step(&broken, &cmd).enable);
+    assert_eq!(p.latched(), None);
+    assert!(p.snapshot().unlocked);
+    // Back, but half a sensor period away: the lock is lost and re-acquired.
+    th += std::f32::consts::PI;
+    let mut off = 0;
+    for k in 0..200 {
+        th += 0.001;
+        let o = p.step(&sample(th), &cmd);
+        if !o.enable {
+            off = k + 1;
+        }
+    }
+    assert_eq!(p.latched(), None);
+    assert!(p.tracker().is_locked());
+    // Two windows of 32 periods (measure and restart, then hold the lock).
+    assert!((32..=80).contains(&off), "bridge off for {off} periods");
+    assert!(p.snapshot().unlocked, "since the previous snapshot");
+    assert!(p.step(&sample(th), &cmd).enable);
+    assert!(!p.snapshot().unlocked);
+    let railed = Sample {
+        x: 4096,
+        ..sample(th)
+    };
+    assert!(!p.step(&railed, &cmd).enable);
+    assert_eq!(p.latched(), Some(Fault::AdcOutOfRange));
+}
+
 #[test]
 fn adc_range_rails_and_break_input_are_faults_by_name() {
     let cmd = running();

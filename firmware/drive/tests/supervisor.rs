@@ -72,6 +72,7 @@ fn telemetry(ticks: u32) -> Telemetry {
         fault: None,
         release: 0,
         core_faults: 0,
+        unlocked: false,
         omega_rad_s: Params::default().speed_rad_s,
         amplitude: 1.0,
         converged: false,

@@ -200,6 +200,24 @@ impl Injection {
         sum
     }
 
+    /// `D(θ)` as [`Self::vector`] (not bit for bit), as a plain power series: compact
+    /// code for the rare callers (lock acquisition), not another copy of the fast form.
+    #[inline(never)]
+    pub(crate) fn vector_compact(&self, u: Cplx) -> Cplx {
+        let v = u.conj();
+        let (mut d, mut p, mut q) = (self.pos[0], u, v);
+        let top = self.pos_degree.max(self.neg_degree) & POWER_MASK;
+        let mut k = 1;
+        // An opaque bound: no unrolling (code size over speed here).
+        while k <= core::hint::black_box(top) {
+            d = d + self.pos[k & POWER_MASK] * p + self.neg[k & POWER_MASK] * q;
+            p = p * u;
+            q = q * v;
+            k += 1;
+        }
+        d
+    }
+
     /// `D(θ)` for `u = e^{jθ}`.
     #[inline(always)]
     pub(crate) fn vector(&self, u: Cplx) -> Cplx {
@@ -247,11 +265,12 @@ pub struct AdaptSample {
 }
 
 impl AdaptSample {
-    /// No loss of lock latched.
+    /// The observer is locked ([`crate::Front::is_locked`]).
     pub const LOCKED: u8 = 1;
     /// Manual freeze: measure the residual but do not adapt.
     pub const FROZEN: u8 = 2;
-    /// The observer (re-)acquired on this sample: restart smoothing and blocks first.
+    /// The observer (re-)started on this sample, at the sample's ω̂ (0 at rest): restart
+    /// smoothing and blocks first.
     pub const RESTART: u8 = 4;
     /// Publish the convergence report after this sample (the supervisor's snapshot).
     pub const REPORT: u8 = 8;
@@ -481,9 +500,10 @@ impl PathBank {
         }
     }
 
-    /// Restart the smoothing (observer acquired at rest) and the blocks.
-    pub fn restart(&mut self, amplitude: f32) {
-        self.smooth = Smoothed::reset(0.0, amplitude);
+    /// Restart the smoothing at the speed the observer (re)started at (0 at rest, the
+    /// measured speed after a flying start) and the blocks.
+    pub fn restart(&mut self, omega_rad_s: f32, amplitude: f32) {
+        self.smooth = Smoothed::reset(omega_rad_s, amplitude);
         self.speed_ok = false;
         self.omega_window = [0.0; 2];
         self.phase = 0;
@@ -520,7 +540,7 @@ impl PathBank {
     #[inline(always)]
     pub fn step(&mut self, x: &AdaptSample) -> (bool, Option<InjectionUpdate>) {
         if x.has(AdaptSample::RESTART) {
-            self.restart(x.restart_amplitude);
+            self.restart(x.omega_rad_s, x.restart_amplitude);
         }
         self.update_powers(x.u);
         let k = &self.k;

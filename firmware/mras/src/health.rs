@@ -10,7 +10,8 @@ pub enum Fault {
     /// |Z| above `health.amplitude_max`, or a raw channel at `input.raw_limit`. Sample dropped.
     SensorSaturated,
     /// The decoupled vector and the reference are more than `health.lock_threshold_rad`
-    /// apart: the observer may slip a sensor period. Adaptation stops until cleared.
+    /// apart: the observer may slip a sensor period. Reported once per loss; the core
+    /// re-acquires by itself and adaptation pauses until it has.
     LossOfLock,
     /// An update would have produced a non-finite state (absurd torque input). Held.
     NumericalOverflow,

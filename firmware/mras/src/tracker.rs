@@ -11,7 +11,7 @@ use crate::health::{Fault, Faults};
 use crate::observer::{DiscreteGains, ObserverGains, ObserverState};
 use crate::trig::{inv_sqrt_f32, sin_cos_f32, F32Trig, Trig};
 use crate::Coefficients;
-use core::f32::consts::TAU;
+use core::f32::consts::{PI, TAU};
 
 /// What the observer knows after one sample.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -69,10 +69,19 @@ pub struct Front<T: Trig = F32Trig> {
     restart: bool,
     restart_amplitude: f32,
     acquired: bool,
+    /// Accepted samples left in the acquisition window under way; 0: locked. See
+    /// [`Acquisition`].
+    acq_left: u16,
+    acq: Acquisition,
+    /// The period of the last accepted sample (how long a run of refused ones lasts).
+    accepted_index: u32,
     frozen: bool,
     faults: Faults,
     last: Estimate,
     cos_lock: f32,
+    /// cos of half the lock threshold: a sample further from the reference is a slip
+    /// under way or a sensor reading garbage, and is not adapted on.
+    cos_adapt: f32,
     inv_n: f32,
     /// |Z|² limits of the health band (min², max²).
     amplitude2_band: [f32; 2],
@@ -80,6 +89,57 @@ pub struct Front<T: Trig = F32Trig> {
     lag_rad: f32,
     lag_alpha: f32,
 }
+
+/// Lock acquisition (docs/theory.md §6): the observer is (re)started at the sensor's
+/// angle and at the speed measured from the sensor's own phase advance over a window
+/// of samples, and declared locked only after a whole window in which its angle error
+/// stayed below the lock threshold.
+#[derive(Clone, Copy, Debug)]
+struct Acquisition {
+    /// Phase advances per window: one time constant of the fastest eigenvalue, so that
+    /// what the sensor's error adds to the measured speed (at most its pk-pk angle error
+    /// over that time) is pulled in by the observer well within the lock threshold.
+    window: u16,
+    /// Σ of the phase advance from each accepted sample to the next (sensor-electrical
+    /// rad, unwrapped: valid up to ~1 rad per sample), and how many.
+    advance_rad: f32,
+    count: u16,
+    /// The previous accepted sample of the window (`ZERO`: none, after a refused one:
+    /// the measurement starts again there).
+    prev: Cplx,
+    /// At the measurement's first sample, the decoupled vector's angle less the raw
+    /// one. The measured advance is that of the raw vector; moving both ends onto the
+    /// decoupled vector removes the sensor error the coefficients already know.
+    start_corr_rad: f32,
+    /// The last phase advance: a sensor turning at any plausible speed changes it by far
+    /// less than [`MAX_ADVANCE_CHANGE_RAD`] from one sample to the next.
+    last_advance_rad: f32,
+    /// Restart the observer at the window's end (the lock was lost in it, or the
+    /// estimate was held too long to be trusted).
+    reseed: bool,
+    /// First window after a start at rest: restart it also when the measured speed is
+    /// further from ω̂ than `speed_tol_rad_s` (a flying start the observer would not
+    /// pull in from rest without slipping).
+    speed_check: bool,
+    /// A quarter of the fastest eigenvalue over N (rad/s mechanical): an observer off by
+    /// this much in speed stays well inside the lock threshold while it settles.
+    speed_tol_rad_s: f32,
+    /// 1/(N·T): phase advance per sample (sensor-electrical rad) to ω (rad/s mechanical).
+    per_sample_to_rad_s: f32,
+}
+
+/// Largest change of the phase advance from one sample to the next that a sensor
+/// reading its rotor can show (sensor-electrical rad). Its error changes the advance by
+/// the error's second derivative times the advance squared: ~0.01 rad at 100 rev/s,
+/// 20 kHz, N = 2 on the extreme test sensor; noise adds ~1e-3. A sensor reading garbage
+/// changes it by a radian.
+const MAX_ADVANCE_CHANGE_RAD: f32 = 0.1;
+
+/// A run of refused samples after which the held estimate may be this far from the
+/// rotor (sensor-electrical rad): re-acquire rather than trust it. Half the default lock
+/// threshold, so that a slip by a whole period (which the lock test cannot see) is
+/// never taken for lock.
+const HELD_DRIFT_LIMIT_RAD: f32 = 0.5;
 
 /// The lag estimate's time constant: short against the disturbance estimate's settling
 /// (the slowest eigenvalue, ~0.1 s), long against the sample period, so that noise on ε
@@ -103,7 +163,30 @@ impl<T: Trig> Front<T> {
             cfg.observer.eigenvalues_hz,
             cfg.observer.inertia_kg_m2,
         );
+        let n = cfg.sensor_periods as f32;
+        let [l1, l2, l3] = gains.lambda_rad_s;
+        let fastest_rad_s = l1.max(l2).max(l3);
+        // ≥ 8 samples, so that a window spans several phase advances even with a
+        // fast observer; ≤ 1000, so that it stays short on a slow one.
+        let window = ((1.0 / (fastest_rad_s * cfg.sample_period_s)) as u16)
+            .saturating_add(1)
+            .clamp(8, 1000);
+        let acq = Acquisition {
+            window,
+            advance_rad: 0.0,
+            count: 0,
+            prev: Cplx::ZERO,
+            start_corr_rad: 0.0,
+            last_advance_rad: 0.0,
+            reseed: false,
+            speed_check: false,
+            speed_tol_rad_s: 0.25 * fastest_rad_s / n,
+            per_sample_to_rad_s: 1.0 / (n * cfg.sample_period_s),
+        };
         Ok(Self {
+            acq_left: 1,
+            acq,
+            accepted_index: 0,
             inject: Injection::new(cfg.paths()),
             index: 0,
             handoff: AdaptSample::default(),
@@ -119,6 +202,7 @@ impl<T: Trig> Front<T> {
             faults: Faults::default(),
             last: Estimate::default(),
             cos_lock: sin_cos_f32(cfg.health.lock_threshold_rad).1,
+            cos_adapt: sin_cos_f32(0.5 * cfg.health.lock_threshold_rad).1,
             inv_n: 1.0 / cfg.sensor_periods as f32,
             lag_rad: 0.0,
             lag_alpha: (cfg.sample_period_s / LAG_TAU_S).min(1.0),
@@ -147,8 +231,9 @@ impl<T: Trig> Front<T> {
     /// One control period: raw ADC values and the torque feedforward T* (N·m).
     ///
     /// On `Err` for bad input (non-finite, |Z| out of band, railed ADC) nothing but the
-    /// latched fault set changes. On `Err(LossOfLock)` the observer has still advanced
-    /// (so that it can re-acquire) but adaptation is suspended until [`Self::clear_faults`].
+    /// latched fault set changes. `Err(LossOfLock)` comes once, on the sample where a
+    /// locked observer lost its lock: the observer has still advanced, re-acquires by
+    /// itself, and adaptation pauses until [`Self::is_locked`] again.
     ///
     /// An accepted sample (`Ok`, or `Err(LossOfLock)`) leaves its [`AdaptSample`] for
     /// [`Self::handoff`]. Updates due by this period must have been applied first.
@@ -182,9 +267,10 @@ impl<T: Trig> Front<T> {
         if z2 < self.amplitude2_band[0] {
             return self.reject(Fault::SensorLost);
         }
-        if !self.acquired {
-            // Once: start at the measured angle, then run this sample as any other.
-            self.acquire(z);
+        if self.acq_left != 0 {
+            // Not locked: start at the measured angle, or measure the sensor's speed and
+            // restart there; then run this sample as any other.
+            self.acquiring(z);
         }
 
         // Reference unit vector at the prior estimate θ̂s.
@@ -211,10 +297,7 @@ impl<T: Trig> Front<T> {
         self.lag_rad = (self.lag_rad + (eps_e_rad - self.lag_rad) * self.lag_alpha)
             .clamp(-MAX_LAG_RAD, MAX_LAG_RAD);
         let cos_err = (zd.re * c + zd.im * s) * inv_zd;
-        let lock_lost = cos_err < self.cos_lock;
-        if lock_lost {
-            self.faults.insert(Fault::LossOfLock);
-        }
+        let lock_lost = cos_err < self.cos_lock && self.lock_lost(z);
 
         let n = self.cfg.sensor_periods;
         let next = self
@@ -225,7 +308,7 @@ impl<T: Trig> Front<T> {
         }
         let amplitude = zd_abs;
         let o = &self.obs;
-        let flags = if self.faults.contains(Fault::LossOfLock) {
+        let flags = if self.acq_left != 0 || cos_err < self.cos_adapt {
             0
         } else {
             AdaptSample::LOCKED
@@ -256,6 +339,7 @@ impl<T: Trig> Front<T> {
         }
         self.obs = next;
         self.last = est;
+        self.accepted_index = self.index;
         if lock_lost {
             Err(Fault::LossOfLock)
         } else {
@@ -265,22 +349,147 @@ impl<T: Trig> Front<T> {
 
     fn reject(&mut self, f: Fault) -> Result<Estimate, Fault> {
         self.faults.insert(f);
+        self.held();
         Err(f)
     }
 
-    /// First good sample: start at the measured angle, at rest.
+    /// A refused sample: the window's phase advance must restart after it, and once the
+    /// held estimate may have drifted past [`HELD_DRIFT_LIMIT_RAD`] the lock is void.
+    #[cold]
+    #[inline(never)]
+    fn held(&mut self) {
+        self.acq.prev = Cplx::ZERO;
+        if self.acq_left == 0 {
+            let periods = self.index.wrapping_sub(self.accepted_index) as f32;
+            let drift_rad = periods * libm::fabsf(self.obs.omega_rad_s) * self.discrete.n_t_s;
+            if drift_rad > HELD_DRIFT_LIMIT_RAD {
+                self.start_window(Cplx::ZERO, true);
+            }
+        }
+    }
+
+    /// The angle error passed the lock threshold on this sample: when locked, lock is
+    /// lost (latched, reported once) and re-acquisition starts; during a window, the
+    /// observer is restarted at its end. True when lock was lost on this sample.
+    #[cold]
+    #[inline(never)]
+    fn lock_lost(&mut self, z: Cplx) -> bool {
+        if self.acq_left != 0 {
+            self.acq.reseed = true;
+            return false;
+        }
+        self.faults.insert(Fault::LossOfLock);
+        self.start_window(z, true);
+        true
+    }
+
+    /// Begin a window of [`Acquisition::window`] phase advances after the accepted
+    /// sample `z` (`ZERO`: from the next accepted one); `reseed` forces a restart of the
+    /// observer at its end.
+    fn start_window(&mut self, z: Cplx, reseed: bool) {
+        self.acq_left = 1;
+        self.acq.prev = Cplx::ZERO;
+        if z != Cplx::ZERO {
+            self.measure_from(z);
+        }
+        self.acq.reseed = reseed;
+        self.acq.speed_check = false;
+    }
+
+    /// The speed measurement starts at `z`.
+    fn measure_from(&mut self, z: Cplx) {
+        let c = self.decoupled_correction(z, angle_of(z));
+        self.measure_from_corrected(z, c);
+    }
+
+    /// The speed measurement starts at `z`, whose decoupled angle less its raw one is
+    /// `corr_rad`.
+    fn measure_from_corrected(&mut self, z: Cplx, corr_rad: f32) {
+        self.acq.advance_rad = 0.0;
+        self.acq.count = 0;
+        self.acq.prev = z;
+        self.acq.start_corr_rad = corr_rad;
+    }
+
+    /// The angle of the decoupled vector `z + D(θ)` at its own angle, less the raw angle
+    /// `raw` of `z` (two fixed-point steps from `raw`): where θ̂ would be, locked, with
+    /// the coefficients in force. 0 while they are zero.
+    fn decoupled_correction(&self, z: Cplx, raw: f32) -> f32 {
+        self.decoupled_step(z, raw, self.decoupled_step(z, raw, 0.0))
+    }
+
+    /// One fixed-point step from the correction `c`: the angle of `z + D(raw + c)` less
+    /// `raw`, by the small angle it is turned from `raw + c` (no atan2: it is small).
+    /// Out of line: code size.
+    #[inline(never)]
+    fn decoupled_step(&self, z: Cplx, raw: f32, c: f32) -> f32 {
+        let (s, co) = self.trig.sin_cos(raw + c);
+        let u = Cplx::new(co, s);
+        let w = (z + self.inject.vector_compact(u)) * u.conj();
+        c + atan_series(w.im / w.re)
+    }
+
+    /// A sample while not locked: the first good one starts the observer at rest at the
+    /// measured angle (at rest no sample of it changes); every other one adds its phase
+    /// advance, and at the window's end the observer is either declared locked or
+    /// restarted at the measured angle and speed, followed by a window that must hold
+    /// the lock.
+    #[cold]
+    #[inline(never)]
+    fn acquiring(&mut self, z: Cplx) {
+        if !self.acquired {
+            self.acquire(z);
+            return;
+        }
+        let a = &mut self.acq;
+        if a.prev == Cplx::ZERO {
+            self.measure_from(z);
+            return;
+        }
+        // The advance from the previous sample (0.5 rad per sample is 800 rev/s at
+        // 20 kHz, N = 2).
+        let p = z * a.prev.conj();
+        let advance_rad = atan_series(p.im / p.re);
+        // Written so that a NaN also counts as a jump.
+        let smooth = libm::fabsf(advance_rad - a.last_advance_rad) <= MAX_ADVANCE_CHANGE_RAD;
+        if a.count > 0 && !smooth {
+            // Not a sensor turning smoothly: measure again from here, and restart the
+            // observer at the end whatever it does meanwhile.
+            a.reseed = true;
+            self.measure_from(z);
+            return;
+        }
+        a.last_advance_rad = advance_rad;
+        a.advance_rad += advance_rad;
+        a.count += 1;
+        a.prev = z;
+        if a.count < a.window {
+            return;
+        }
+        let raw = angle_of(z);
+        let corr_rad = self.decoupled_correction(z, raw);
+        let a = &self.acq;
+        let advance_rad = a.advance_rad + corr_rad - a.start_corr_rad;
+        let omega_rad_s = advance_rad / a.count as f32 * a.per_sample_to_rad_s;
+        // Written so that a NaN speed also restarts.
+        let pulled_in = libm::fabsf(omega_rad_s - self.obs.omega_rad_s) <= a.speed_tol_rad_s;
+        let restart = a.reseed || (a.speed_check && !pulled_in);
+        if restart {
+            self.reseed(z, angle_of_rad(raw + corr_rad), omega_rad_s);
+            self.start_window(Cplx::ZERO, false);
+            self.measure_from_corrected(z, corr_rad);
+        } else {
+            self.acq_left = 0;
+        }
+    }
+
+    /// First good sample: start at the measured angle, at rest, and open the first
+    /// window (which also checks the speed).
     #[cold]
     #[inline(never)]
     fn acquire(&mut self, z: Cplx) {
-        let mut th = libm::atan2f(z.im, z.re);
-        if th < 0.0 {
-            th += TAU;
-        }
-        if th >= TAU {
-            th = 0.0;
-        }
         self.obs = ObserverState {
-            theta_e_rad: th,
+            theta_e_rad: angle_of(z),
             ..Default::default()
         };
         self.mech = (0, 0);
@@ -288,6 +497,40 @@ impl<T: Trig> Front<T> {
         self.restart = true;
         self.restart_amplitude = z.abs();
         self.acquired = true;
+        self.start_window(z, false);
+        self.acq.speed_check = true;
+    }
+
+    /// Restart the observer at the (decoupled) angle `th` and the measured speed,
+    /// keeping the period count continuous (the nearest period to the estimate it
+    /// replaces); the adaptation restarts its smoothing there.
+    fn reseed(&mut self, z: Cplx, th: f32, omega_rad_s: f32) {
+        let d = self.obs.theta_e_rad - th;
+        let periods = if d > PI {
+            self.obs.periods.wrapping_add(1)
+        } else if d < -PI {
+            self.obs.periods.wrapping_sub(1)
+        } else {
+            self.obs.periods
+        };
+        // A non-finite speed (a sample exactly on the imaginary axis of the previous
+        // one) is kept out of the state.
+        let omega_rad_s = if omega_rad_s.is_finite() {
+            omega_rad_s
+        } else {
+            0.0
+        };
+        self.obs = ObserverState {
+            theta_e_rad: th,
+            periods,
+            omega_int_rad_s: omega_rad_s,
+            omega_rad_s,
+            ..Default::default()
+        };
+        self.mech = Self::split_periods(periods, self.cfg.sensor_periods);
+        self.lag_rad = 0.0;
+        self.restart = true;
+        self.restart_amplitude = z.abs();
     }
 
     fn split_periods(periods: i32, n: u16) -> (i32, i32) {
@@ -324,9 +567,17 @@ impl<T: Trig> Front<T> {
         self.obs
     }
 
+    /// Whether the observer is locked: acquired, and no loss of lock (or long run of
+    /// refused samples) since a window that held the lock. Adaptation runs only then.
+    #[inline(always)]
+    pub fn is_locked(&self) -> bool {
+        self.acq_left == 0
+    }
+
     /// Forget the observer state; the next good sample re-acquires. Coefficients stay.
     pub fn reset_observer(&mut self) {
         self.acquired = false;
+        self.acq_left = 1;
         self.obs = ObserverState::default();
         self.mech = (0, 0);
         self.lag_rad = 0.0;
@@ -485,6 +736,11 @@ impl<T: Trig> Tracker<T> {
         self.front.reset_observer();
     }
 
+    /// See [`Front::is_locked`].
+    pub fn is_locked(&self) -> bool {
+        self.front.is_locked()
+    }
+
     pub fn set_frozen(&mut self, frozen: bool) {
         self.front.set_frozen(frozen);
     }
@@ -519,4 +775,35 @@ impl<T: Trig> Tracker<T> {
     pub fn convergence(&self) -> Convergence {
         self.adapter.convergence()
     }
+}
+
+/// The angle of `z` in [0, 2π).
+#[inline(never)]
+fn angle_of(z: Cplx) -> f32 {
+    let mut th = libm::atan2f(z.im, z.re);
+    if th < 0.0 {
+        th += TAU;
+    }
+    if th >= TAU {
+        th = 0.0;
+    }
+    th
+}
+
+/// `x` (within a turn of [0, 2π)) wrapped into [0, 2π).
+fn angle_of_rad(x: f32) -> f32 {
+    let x = if x < 0.0 { x + TAU } else { x };
+    if x >= TAU {
+        x - TAU
+    } else {
+        x
+    }
+}
+
+/// arctan(t) by its series to t⁵: error < 1e-4 rad for |t| ≤ 0.5 (and far less for the
+/// small angles it is used on).
+#[inline(always)]
+fn atan_series(t: f32) -> f32 {
+    let t2 = t * t;
+    t * (1.0 - t2 * (1.0 / 3.0 - t2 * 0.2))
 }

@@ -339,7 +339,9 @@ pub fn run(name: &str, elf: &[u8]) -> Result<Outcome> {
                 "bridge off in control periods",
                 format!("{:.2}", dt / emu.m().board.period_s()),
             );
-            emu.run_for(0.05)?;
+            // Run rides through a sensor fault while the core re-acquires; a sensor that
+            // stays broken ends in the safe state after the supervisor's timeout (50 ms).
+            emu.run_for(0.1)?;
             emu
         }
         "overcurrent" => {
