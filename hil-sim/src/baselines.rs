@@ -8,7 +8,7 @@
 //!
 //! Sensor convention of this module (and of its tests):
 //! `x = ax·cos θ + ox`, `y = ay·sin(θ + φ) + oy`, quadrature error φ on Y.
-//! `mras::sim::SensorModel` puts the phase on X instead (`x = bx1·cos(θs + φx1)`,
+//! `mras_sim::SensorModel` puts the phase on X instead (`x = bx1·cos(θs + φx1)`,
 //! `y = by1·sin θs`); for it, [`EllipseParams::quadrature_rad`] is `-φx1` and the
 //! corrected angle is `θs + φx1` (a constant offset, like a mounting error).
 

@@ -3,8 +3,8 @@
 use crate::core_config::FieldError;
 use crate::Law;
 use anyhow::{bail, Context, Result};
-use mras::sim::{revs_to_reduction, wrap_pi, Adc, CommissioningRun, SensorModel, SpatialError};
 use mras::{PaperForm, Tracker};
+use mras_sim::{revs_to_reduction, wrap_pi, Adc, CommissioningRun, SensorModel, SpatialError};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};

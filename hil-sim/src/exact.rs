@@ -32,7 +32,7 @@ pub fn floor(x: f64) -> f64 {
     }
 }
 
-/// `mras::sim::wrap_pi` (to (-π, π]), the same operations with [`floor`] inlined.
+/// `mras_sim::wrap_pi` (to (-π, π]), the same operations with [`floor`] inlined.
 #[inline]
 pub fn wrap_pi(a: f64) -> f64 {
     use std::f64::consts::{PI, TAU};
@@ -100,7 +100,7 @@ mod tests {
     #[test]
     fn wrap_pi_is_the_cores() {
         for x in cases() {
-            let (a, b) = (wrap_pi(x), mras::sim::wrap_pi(x));
+            let (a, b) = (wrap_pi(x), mras_sim::wrap_pi(x));
             assert!(
                 a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()),
                 "{x:e}: {a:e} vs {b:e}"

@@ -492,8 +492,8 @@ mod tests {
     use drive::control::ControlPeriod;
     use drive::motion::LoopMode;
     use drive::telemetry::Command;
-    use mras::sim::{Adc, SensorModel, SpatialError};
     use mras::Config;
+    use mras_sim::{Adc, SensorModel, SpatialError};
     use std::f64::consts::TAU;
 
     const T_S: f64 = 50e-6;

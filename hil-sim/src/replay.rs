@@ -12,8 +12,8 @@ use crate::core_config::{line_of_field, path_toml_name, CoreConfigToml, FieldErr
 use crate::input_error::InputError;
 use crate::pending::Pending;
 use anyhow::{anyhow, bail, Context, Result};
-use mras::sim::{wrap_pi, SpatialError};
 use mras::{Config, Fault, PathKind, Tracker};
+use mras_sim::{wrap_pi, SpatialError};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::fs::{self, File};

@@ -33,19 +33,19 @@ pub enum Reference {
 }
 
 impl Reference {
-    fn trajectory(&self) -> mras::sim::Trajectory {
+    fn trajectory(&self) -> mras_sim::Trajectory {
         match *self {
             Reference::Ramp {
                 speed_rev_s,
                 accel_rad_s2,
-            } => mras::sim::Trajectory::Ramp {
+            } => mras_sim::Trajectory::Ramp {
                 omega_rad_s: speed_rev_s * TAU,
                 accel_rad_s2,
             },
             Reference::Sine {
                 amplitude_rad_s,
                 freq_hz,
-            } => mras::sim::Trajectory::Sine {
+            } => mras_sim::Trajectory::Sine {
                 amplitude_rad_s,
                 freq_hz,
             },

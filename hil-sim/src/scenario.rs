@@ -12,8 +12,8 @@ use drive::commissioning::{Adaptation, Setpoint};
 use drive::control::ControlPeriod;
 use drive::motion::LoopMode;
 use drive::telemetry::Command;
-use mras::sim::{Adc, SensorHarmonic, SensorModel, SpatialError};
 use mras::{AdaptationLaw, Coefficients, Tracker};
+use mras_sim::{Adc, SensorHarmonic, SensorModel, SpatialError};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::TAU;
 use std::path::{Path, PathBuf};
@@ -219,7 +219,7 @@ impl SensorToml {
             if !m.push_harmonic(hm) {
                 bail!(
                     "`sensor.harmonics`: at most {} harmonics",
-                    mras::sim::MAX_SENSOR_HARMONICS
+                    mras_sim::MAX_SENSOR_HARMONICS
                 );
             }
         }
@@ -865,7 +865,7 @@ pub fn reference_coefficients(sc: &Scenario) -> Result<Option<Vec<NamedCoefficie
     cfg.sample_period_s = 50e-6;
     cfg.observer.eigenvalues_hz = [100.0, 10.0, 1.0];
     let mut t = Tracker::new(cfg).map_err(FieldError::from)?;
-    let run = mras::sim::CommissioningRun {
+    let run = mras_sim::CommissioningRun {
         sensor: p.model,
         speed_rev_s: 20.0,
         sample_period_s: 50e-6,

@@ -1,10 +1,10 @@
-//! The simulated sensor front end: the paper's eq. (1)-(2) (`mras::sim::SensorModel`)
+//! The simulated sensor front end: the paper's eq. (1)-(2) (`mras_sim::SensorModel`)
 //! plus what a real board adds: noise, ADC quantisation, X/Y sampling skew, slow drift
 //! of offsets and gain (temperature) and a mechanical once-per-revolution error
 //! (magnet eccentricity).
 
 use crate::input_error::InvalidParam;
-use mras::sim::{Adc, CompiledSensor, SensorModel, MAX_SENSOR_HARMONICS};
+use mras_sim::{Adc, CompiledSensor, SensorModel, MAX_SENSOR_HARMONICS};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};

@@ -4,8 +4,8 @@ use crate::commission::{INERTIA_KG_M2, SAMPLE_PERIOD_S};
 use crate::core_config::FieldError;
 use crate::Law;
 use anyhow::Result;
-use mras::sim::{revs_to_reduction, CommissioningRun, SensorModel};
 use mras::{AdaptationLaw, Config, Tracker};
+use mras_sim::{revs_to_reduction, CommissioningRun, SensorModel};
 
 #[derive(clap::Args, Clone, Debug)]
 pub struct CompareArgs {

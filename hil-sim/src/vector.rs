@@ -4,8 +4,8 @@
 use crate::commission::{noise, ADC, INERTIA_KG_M2, SAMPLE_PERIOD_S};
 use crate::core_config::FieldError;
 use anyhow::{bail, Context, Result};
-use mras::sim::{encode_vector_record, write_trace_line, Kinematic, SensorModel, Trajectory};
 use mras::{Config, Tracker};
+use mras_sim::{encode_vector_record, write_trace_line, Kinematic, SensorModel, Trajectory};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Clone, Debug)]
@@ -13,7 +13,7 @@ pub struct Args {
     /// Input vector to write (x, y, torque as little-endian f32 per step).
     #[arg(long)]
     pub vector: PathBuf,
-    /// The host core's trace over that vector (`mras::sim::write_trace_line`).
+    /// The host core's trace over that vector (`mras_sim::write_trace_line`).
     #[arg(long)]
     pub trace: PathBuf,
     /// Steps (20 kHz): 8000 covers the spin-up to 20 rev/s and convergence.

@@ -191,8 +191,8 @@ fn ellipse_recovers_random_sensors() {
 
 #[test]
 fn ellipse_is_exact_on_mras_sensor_model_up_to_its_phase_convention() {
-    // `mras::sim::SensorModel` puts φ on X: x = bx1·cos(θ + φx1), y = by1·sin θ.
-    let mut m = mras::sim::SensorModel::ideal(1);
+    // `mras_sim::SensorModel` puts φ on X: x = bx1·cos(θ + φx1), y = by1·sin θ.
+    let mut m = mras_sim::SensorModel::ideal(1);
     (m.ax, m.ay, m.bx1, m.by1, m.phi_x1_rad) = (0.1, -0.08, 1.2, 1.0, 0.1);
     let samples: Vec<(f32, f32)> = (0..2048)
         .map(|i| {

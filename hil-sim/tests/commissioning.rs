@@ -100,7 +100,7 @@ fn a_wire_break_in_run_is_ridden_through_unless_it_lasts() {
         let healthy = sc.file.sensor.to_params().unwrap();
         // Both wires of the sensor's bridge open: X and Y at the amplifier's zero.
         let mut broken = healthy.clone();
-        broken.model = mras::sim::SensorModel::ideal(2);
+        broken.model = mras_sim::SensorModel::ideal(2);
         broken.model.bx1 = 0.0;
         broken.model.by1 = 0.0;
         let (mut t_break, mut first_fault, mut back) = (None, None, None);

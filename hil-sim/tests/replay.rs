@@ -3,8 +3,8 @@
 //! field named and without touching the output.
 
 use hil_sim::core_config::CoreConfigToml;
-use mras::sim::{Adc, Kinematic, SensorModel, Trajectory};
 use mras::{Config, Tracker};
+use mras_sim::{Adc, Kinematic, SensorModel, Trajectory};
 use std::fmt::Write as _;
 use std::path::Path;
 use std::process::{Command, Output};

@@ -2,7 +2,7 @@
 //! sensor drops out for 5 ms: the core locks from the first samples, never reports a
 //! loss of lock it did not have, and adapts (again) by itself.
 
-use mras::sim::{wrap_pi, Adc, SensorModel};
+use mras_sim::{wrap_pi, Adc, SensorModel};
 use serde_json::Value;
 use std::f64::consts::TAU;
 use std::fmt::Write as _;

@@ -14,7 +14,7 @@ use std::process::{Command, ExitCode};
 /// The one owner of the MCU target triple for automation.
 pub(crate) const TARGET: &str = "thumbv7em-none-eabihf";
 /// Portable crates that must build for the MCU (and are tested on the host).
-const CORE_CRATES: &[&str] = &["mras", "drive", "calib-record"];
+const CORE_CRATES: &[&str] = &["mras", "mras-sim", "drive", "calib-record"];
 /// The firmware binary (target only).
 pub(crate) const FIRMWARE: &str = "drive-fw";
 /// The emulator image of the core (target only, built by `xtask qemu`).

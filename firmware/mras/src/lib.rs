@@ -21,7 +21,6 @@ pub mod config;
 mod decoupler;
 mod health;
 pub mod observer;
-pub mod sim;
 mod tracker;
 mod trig;
 

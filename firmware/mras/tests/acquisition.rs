@@ -3,8 +3,8 @@
 mod common;
 
 use common::*;
-use mras::sim::{wrap_pi, SensorModel, SpatialError};
 use mras::{Config, Fault, Tracker};
+use mras_sim::{wrap_pi, SensorModel, SpatialError};
 use std::f64::consts::TAU;
 
 /// What a sample of the constant-speed drive fed the core.

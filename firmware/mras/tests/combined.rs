@@ -3,8 +3,8 @@
 
 mod common;
 use common::*;
-use mras::sim::{wrap_pi, CommissioningRun, SpatialError};
 use mras::{Config, Tracker};
+use mras_sim::{wrap_pi, CommissioningRun, SpatialError};
 
 /// Spatial error of θ̂ and of atan2(raw) over revolutions 11..=20, binned (360 bins).
 fn spatial_errors(speed_rev_s: f64, seed: u64) -> (f64, f64) {

@@ -3,8 +3,8 @@
 mod common;
 use common::*;
 use mras::closed_form;
-use mras::sim::SensorModel;
 use mras::{Config, PathKind};
+use mras_sim::SensorModel;
 
 /// Pins the paper's sign convention: in the speed band where its structure works
 /// (20 rev/s, EVs 100/10/1 Hz) the offset coefficient moves toward eq. (6)-(7) from the

@@ -3,8 +3,8 @@
 
 mod common;
 use common::*;
-use mras::sim::{SensorHarmonic, SensorModel};
 use mras::Config;
+use mras_sim::{SensorHarmonic, SensorModel};
 use proptest::prelude::*;
 
 /// Documented bounds: offsets |A| <= 0.10, Bx1 in [0.8, 1.2] (By1 = 1), quadrature

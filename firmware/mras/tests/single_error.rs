@@ -4,8 +4,8 @@
 mod common;
 use common::*;
 use mras::closed_form;
-use mras::sim::{SensorHarmonic, SensorModel};
 use mras::{Config, Cplx, PaperForm, PathKind};
+use mras_sim::{SensorHarmonic, SensorModel};
 
 /// Closed forms are exact fixed points for a single error (docs/theory.md §4);
 /// what remains is f32 round-off and the adaptation's residual ripple.

@@ -1,6 +1,6 @@
 //! The portable core on an emulated Cortex-M4F: runs the input vector embedded at build
 //! time through `Tracker::step` and prints every step's outputs as f32 bit patterns over
-//! semihosting (`mras::sim::write_trace_line`), for comparison with the host.
+//! semihosting (`mras_sim::write_trace_line`), for comparison with the host.
 //!
 //! Linked with the drive's own `memory.x` and built with the firmware's release profile.
 //! Runs on QEMU's `netduinoplus2` (STM32F405: a Cortex-M4F with the same flash and SRAM
@@ -83,9 +83,9 @@ fn main() -> ! {
             exit(debug::EXIT_FAILURE)
         };
         let mut pending = heapless::Deque::<InjectionUpdate, { mras::MAX_PATHS }>::new();
-        let records = VECTOR.chunks_exact(mras::sim::VECTOR_RECORD_BYTES);
+        let records = VECTOR.chunks_exact(mras_sim::VECTOR_RECORD_BYTES);
         for (k, rec) in records.take(WARMUP_STEPS + 2 * MEASURED_STEPS).enumerate() {
-            let (x, y, tq) = mras::sim::decode_vector_record(rec);
+            let (x, y, tq) = mras_sim::decode_vector_record(rec);
             while let Some(u) = pending.front() {
                 if !front.apply(u) {
                     break;
@@ -137,12 +137,12 @@ fn main() -> ! {
         Err(_) => exit(debug::EXIT_FAILURE),
     };
     for (k, rec) in VECTOR
-        .chunks_exact(mras::sim::VECTOR_RECORD_BYTES)
+        .chunks_exact(mras_sim::VECTOR_RECORD_BYTES)
         .enumerate()
     {
-        let (x, y, tq) = mras::sim::decode_vector_record(rec);
+        let (x, y, tq) = mras_sim::decode_vector_record(rec);
         let result = tracker.step(x, y, tq);
-        if mras::sim::write_trace_line(&mut console, k, &result, &tracker).is_err() {
+        if mras_sim::write_trace_line(&mut console, k, &result, &tracker).is_err() {
             exit(debug::EXIT_FAILURE);
         }
     }

@@ -317,7 +317,7 @@ pub fn run(name: &str, elf: &[u8]) -> Result<Outcome> {
             emu.run_for(0.2)?;
             // Both wires of the sensor's bridge open: X and Y at the amplifier's zero.
             let mut broken = emu.m().board.plant.sensor.params.clone();
-            broken.model = mras::sim::SensorModel::ideal(2);
+            broken.model = mras_sim::SensorModel::ideal(2);
             broken.model.bx1 = 0.0;
             broken.model.by1 = 0.0;
             emu.m_mut().board.plant.sensor = hil_sim::sensor::SensorSim::new(broken, 7)?;

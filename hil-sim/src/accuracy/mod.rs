@@ -41,8 +41,8 @@ use drive::commissioning::{Adaptation, Setpoint};
 use drive::control::ControlPeriod;
 use drive::motion::LoopMode;
 use drive::telemetry::Command;
-use mras::sim::{wrap_pi, SpatialError};
 use mras::{Config, Estimate, Fault, Front, PathKind, Tracker};
+use mras_sim::{wrap_pi, SpatialError};
 use std::f64::consts::TAU;
 
 pub use oracle::oracle_angle_rad;

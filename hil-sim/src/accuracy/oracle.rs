@@ -1,7 +1,7 @@
 //! The oracle: the exact inverse of the simulated sensor, the floor that noise and
 //! quantisation leave to any calibration.
 
-use mras::sim::{wrap_pi, SensorModel, MAX_SENSOR_HARMONICS};
+use mras_sim::{wrap_pi, SensorModel, MAX_SENSOR_HARMONICS};
 
 /// Gauss-Newton iterations; started at the true angle with a residual of noise size,
 /// two already agree with four to 1e-12 rad.

@@ -2,7 +2,7 @@
 
 use super::SENSOR_PERIODS;
 use crate::sensor::{Drift, Mount, SensorParams};
-use mras::sim::{Adc, SensorHarmonic, SensorModel};
+use mras_sim::{Adc, SensorHarmonic, SensorModel};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::f64::consts::TAU;

@@ -1,8 +1,8 @@
 //! Shared test driver pieces: sensors, noise, and a commissioning run at constant speed.
 #![allow(dead_code)]
 
-use mras::sim::{revs_to_reduction, Adc, CommissioningRun, Kinematic, SensorModel, Trajectory};
 use mras::{AdaptationLaw, Config, Tracker};
+use mras_sim::{revs_to_reduction, Adc, CommissioningRun, Kinematic, SensorModel, Trajectory};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};

@@ -1,11 +1,14 @@
-//! Simulation helpers shared by the core's tests, hil-sim and (later) the emulator
-//! image: the paper's sensor model (eq. 1-2), kinematic trajectories, a driver loop,
-//! and the spatial error measure. Not used by the control path.
+//! Simulation helpers shared by the core's tests, hil-sim and the emulator image: the
+//! paper's sensor model (eq. 1-2), kinematic trajectories, a driver loop, the spatial
+//! error measure, and the trace and vector record codecs. `no_std` like the core, so
+//! that the emulated Cortex-M4F runs them, but apart from it: nothing here is part of
+//! the control path, and the firmware does not link it.
 //!
 //! Everything "true" is computed in f64; only what a real ADC would deliver is f32.
+#![no_std]
 
-use crate::{Estimate, Fault, Tracker, Trig};
 use core::f64::consts::{PI, TAU};
+use mras::{Estimate, Fault, Tracker, Trig};
 
 /// Most extra harmonics a [`SensorModel`] carries.
 pub const MAX_SENSOR_HARMONICS: usize = 12;
