@@ -1,7 +1,7 @@
 //! Scenarios: one TOML file per case (`hil-sim/scenarios/`), run by name. A paper
 //! scenario runs twice, the paper-literal law and ours, on the same drive and sensor.
 
-use crate::core_config::{CoreConfigToml, FieldError};
+use crate::core_config::FieldError;
 use crate::exact::wrap_pi;
 use crate::input_error::{InputError, InvalidParam};
 use crate::plant::{Cogging, LoadStep, MotorParams, Plant};
@@ -64,8 +64,9 @@ pub struct ScenarioFile {
     #[serde(default)]
     pub motor: MotorToml,
     pub control: ControlToml,
+    /// The core's configuration (`mras::Config`'s own TOML form, every key optional).
     #[serde(default)]
-    pub core: CoreConfigToml,
+    pub core: mras::Config,
     /// The paper-literal gains for this scenario; when present the scenario also runs
     /// the paper's law side by side with ours.
     pub paper: Option<PaperToml>,
@@ -514,7 +515,12 @@ impl Scenario {
     /// scenario's inertia ratio, and the law replaced by the paper's when asked.
     pub fn core_config(&self, paper: Option<PaperToml>) -> Result<mras::Config> {
         let f = &self.file;
-        let mut cfg = f.core.to_config(self.sample_period_s() as f32)?;
+        let mut cfg = mras::Config {
+            sample_period_s: self.sample_period_s() as f32,
+            ..f.core
+        };
+        // The table as written is checked too, before the scenario overrides parts of it.
+        cfg.validate().map_err(FieldError::from)?;
         cfg.sensor_periods = f.sensor.sensor_periods;
         cfg.observer.inertia_kg_m2 = (f.motor.j_kg_m2 * f.inertia_estimate_ratio) as f32;
         if let Some(p) = paper {
