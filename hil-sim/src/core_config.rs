@@ -70,42 +70,44 @@ impl CoreConfigFile {
     /// The core's refusal, at the line of its field:
     /// `cfg.toml:5: invalid configuration `law.gain_per_rad`: ...`.
     pub fn locate(&self, e: ConfigError) -> InputError {
-        self.at_key(e.field, e.to_string())
-    }
-
-    /// `problem` at the line of `key`, else of its closest parent in the file (`paths` for
-    /// `paths.harmonic`, `[law]` for a law key the file leaves at its default).
-    fn at_key(&self, key: &str, problem: String) -> InputError {
-        let set =
-            (self.keys.iter()).filter(|(k, ..)| key == k || key.starts_with(&format!("{k}.")));
-        let name = set.max_by_key(|(k, ..)| k.len()).map(|(_, name, _)| name);
         InputError {
-            line: name.map(|n| self.line_at(n.start)),
-            ..InputError::new(&self.origin, problem)
+            line: self.line_of(e.field),
+            ..InputError::new(&self.origin, e.to_string())
         }
     }
 
+    /// The line of `key`, else of its closest parent in the file (`paths` for
+    /// `paths.harmonic`, `[law]` for a law key the file leaves at its default).
+    fn line_of(&self, key: &str) -> Option<u64> {
+        let set = self.keys.iter();
+        let set = set.filter(|(k, ..)| key == k || key.starts_with(&format!("{k}.")));
+        let (_, name, _) = set.max_by_key(|(k, ..)| k.len())?;
+        Some(self.line_at(name.start))
+    }
+
     fn toml_error(&self, e: &toml::de::Error) -> InputError {
-        let problem = e.message().to_string();
+        let problem = e.message();
         // serde carries only a message. The core's refusals while parsing (a key of the
         // other law, too many paths) are `ConfigError`'s text naming the key: point at
         // that key rather than at its table.
         let named = problem.strip_prefix("invalid configuration `");
         if let Some(key) = named.and_then(|rest| rest.split('`').next()) {
-            return self.at_key(&key.to_string(), problem);
+            return InputError {
+                line: self.line_of(key),
+                ..InputError::new(&self.origin, problem)
+            };
         }
         let pos = e.span().map(|s| s.start);
         // The innermost key whose name or value holds the error. Unknown-field messages
         // already say which key; the dotted name adds its table.
-        let key = pos.and_then(|p| {
-            (self.keys.iter().rev())
-                .find(|(_, name, value)| name.contains(&p) || value.contains(&p))
+        let keys = self.keys.iter().rev();
+        let mut key = keys.filter(|(_, name, value)| {
+            pos.is_some_and(|p| name.contains(&p) || value.contains(&p))
         });
         InputError {
-            file: self.origin.clone(),
             line: pos.map(|p| self.line_at(p)),
-            field: key.map(|(k, ..)| k.clone()),
-            problem,
+            field: key.next().map(|(k, ..)| k.clone()),
+            ..InputError::new(&self.origin, problem)
         }
     }
 
@@ -135,23 +137,6 @@ pub fn path_toml_name(kind: PathKind) -> String {
         PathKind::Offset => "offset".into(),
         PathKind::AmplitudeQuadrature => "amplitude-quadrature".into(),
         PathKind::Harmonic(h) => format!("h{h}"),
-    }
-}
-
-/// A configuration field that is out of range, named as in the TOML (`law.gain_per_rad`).
-#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
-#[error("invalid configuration `{field}`: {problem}")]
-pub struct FieldError {
-    pub field: String,
-    pub problem: String,
-}
-
-impl From<ConfigError> for FieldError {
-    fn from(e: ConfigError) -> Self {
-        Self {
-            field: e.field.into(),
-            problem: e.problem.into(),
-        }
     }
 }
 

@@ -8,7 +8,7 @@
 //! when everything succeeded, so a failing run never leaves a partial OUT.csv behind nor
 //! destroys an existing one.
 
-use crate::core_config::{path_toml_name, CoreConfigFile, FieldError};
+use crate::core_config::{path_toml_name, CoreConfigFile};
 use crate::input_error::InputError;
 use crate::pending::Pending;
 use anyhow::{anyhow, bail, Context, Result};
@@ -563,7 +563,7 @@ pub fn run(a: &Args) -> Result<()> {
     }
     let period_s = control_period_s(&rec)?;
     let (cfg, estimated) = build_config(a, &rec, period_s)?;
-    let mut tracker = Tracker::new(cfg).map_err(FieldError::from)?;
+    let mut tracker = Tracker::new(cfg)?;
     let paths: Vec<PathKind> = cfg.paths().to_vec();
     let rows = rec.rows();
     let has_theta = !rec.theta_rad.is_empty();

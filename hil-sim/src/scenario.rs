@@ -1,7 +1,6 @@
 //! Scenarios: one TOML file per case (`hil-sim/scenarios/`), run by name. A paper
 //! scenario runs twice, the paper-literal law and ours, on the same drive and sensor.
 
-use crate::core_config::FieldError;
 use crate::exact::wrap_pi;
 use crate::input_error::{InputError, InvalidParam};
 use crate::plant::{Cogging, LoadStep, MotorParams, Plant};
@@ -520,7 +519,7 @@ impl Scenario {
             ..f.core
         };
         // The table as written is checked too, before the scenario overrides parts of it.
-        cfg.validate().map_err(FieldError::from)?;
+        cfg.validate()?;
         cfg.sensor_periods = f.sensor.sensor_periods;
         cfg.observer.inertia_kg_m2 = (f.motor.j_kg_m2 * f.inertia_estimate_ratio) as f32;
         if let Some(p) = paper {
@@ -529,7 +528,7 @@ impl Scenario {
                 k2: p.k2,
             };
         }
-        cfg.validate().map_err(FieldError::from)?;
+        cfg.validate()?;
         Ok(cfg)
     }
 }
@@ -561,8 +560,8 @@ impl Scenario {
         let control = f.control.to_params()?;
         let mut dcfg = rig::drive_config(&plant, &control, j_hat, t_s)?;
         adjust(&mut dcfg);
-        let tracker = mras::Front::new(cfg).map_err(FieldError::from)?;
-        let period = ControlPeriod::new(dcfg, tracker).map_err(FieldError::from)?;
+        let tracker = mras::Front::new(cfg)?;
+        let period = ControlPeriod::new(dcfg, tracker)?;
         Ok(Rig::new(plant, period, Some(control.reference)))
     }
 }
@@ -870,7 +869,7 @@ pub fn reference_coefficients(sc: &Scenario) -> Result<Option<Vec<NamedCoefficie
     let mut cfg = sc.core_config(None)?;
     cfg.sample_period_s = 50e-6;
     cfg.observer.eigenvalues_hz = [100.0, 10.0, 1.0];
-    let mut t = Tracker::new(cfg).map_err(FieldError::from)?;
+    let mut t = Tracker::new(cfg)?;
     let run = mras::sim::CommissioningRun {
         sensor: p.model,
         speed_rev_s: 20.0,

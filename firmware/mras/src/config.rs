@@ -310,6 +310,9 @@ impl core::fmt::Display for ConfigError {
     }
 }
 
+/// So hosts can pass it up with `?` as any error; `core::error::Error` needs no `std`.
+impl core::error::Error for ConfigError {}
+
 fn positive_finite(v: f32, field: &'static str) -> Result<(), ConfigError> {
     if v.is_finite() && v > 0.0 {
         Ok(())
