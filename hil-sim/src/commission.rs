@@ -1,6 +1,5 @@
 //! Constant-speed self-commissioning with a summary a drive engineer can check.
 
-use crate::core_config::FieldError;
 use crate::Law;
 use anyhow::{bail, Context, Result};
 use mras::{PaperForm, Tracker};
@@ -71,7 +70,7 @@ pub fn run(a: &Args) -> Result<()> {
     }
     let sensor = SensorModel::extreme();
     let cfg = a.law.config();
-    let mut t = Tracker::new(cfg).map_err(FieldError::from)?;
+    let mut t = Tracker::new(cfg)?;
     let ev = cfg.observer.eigenvalues_hz;
     println!(
         "hil-sim commission: kinematic drive, extreme sensor, N = {}",

@@ -8,7 +8,7 @@
 //! when everything succeeded, so a failing run never leaves a partial OUT.csv behind nor
 //! destroys an existing one.
 
-use crate::core_config::{line_of_field, path_toml_name, CoreConfigToml, FieldError};
+use crate::core_config::{path_toml_name, CoreConfigFile};
 use crate::input_error::InputError;
 use crate::pending::Pending;
 use anyhow::{anyhow, bail, Context, Result};
@@ -290,33 +290,32 @@ fn estimate_scaling(r: &Recording) -> Result<[f32; 4], InputError> {
 /// The core configuration: `--config` (or the defaults), N from the file or the flag,
 /// input scaling from the file or estimated. Returns it and whether scaling was estimated.
 fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<(Config, bool)> {
-    let (mut toml_cfg, origin, text) = match &a.config {
+    let file = match &a.config {
         Some(p) => {
             let origin = p.display().to_string();
             let text = fs::read_to_string(p).with_context(|| format!("{origin}: cannot read"))?;
-            (CoreConfigToml::from_toml_str(&text, &origin)?, origin, text)
+            CoreConfigFile::parse(&text, &origin)?
         }
-        None => (
-            CoreConfigToml::default(),
-            "default configuration".to_string(),
-            String::new(),
-        ),
+        None => CoreConfigFile::parse("", "default configuration")?,
     };
-    if toml_cfg.sensor_periods.is_none() {
+    let mut cfg = Config {
+        sample_period_s: period_s as f32,
+        ..file.config
+    };
+    if !file.sets("sensor_periods") {
         if a.sensor_periods == 0 {
             bail!("--sensor-periods must be at least 1");
         }
-        toml_cfg.sensor_periods = Some(a.sensor_periods);
+        cfg.sensor_periods = a.sensor_periods;
     }
-    let estimated = !toml_cfg.input_given();
+    let estimated = !file.input_given();
     if estimated {
         let [ox, gx, oy, gy] = estimate_scaling(r)?;
-        let i = &mut toml_cfg.input;
-        (i.offset_x, i.gain_x, i.offset_y, i.gain_y) = (Some(ox), Some(gx), Some(oy), Some(gy));
+        let i = &mut cfg.input;
+        (i.offset_x, i.gain_x, i.offset_y, i.gain_y) = (ox, gx, oy, gy);
     }
-    let cfg = toml_cfg.build(period_s as f32).map_err(|e| {
-        let line = line_of_field(&text, &e.field).map(|l| l as u64);
-        let why = match e.field.as_str() {
+    cfg.validate().map_err(|e| {
+        let why = match e.field {
             "observer.eigenvalues_hz" | "sample_period_s" => format!(
                 " (control period {:.3} µs derived from {}; set [observer] eigenvalues_hz \
                  in a --config file)",
@@ -328,10 +327,9 @@ fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<(Config, bool)
             }
             _ => String::new(),
         };
-        InputError {
-            line,
-            ..InputError::new(&origin, format!("{e}{why}"))
-        }
+        let mut located = file.locate(e);
+        located.problem.push_str(&why);
+        located
     })?;
     Ok((cfg, estimated))
 }
@@ -567,7 +565,7 @@ pub fn run(a: &Args) -> Result<()> {
     }
     let period_s = control_period_s(&rec)?;
     let (cfg, estimated) = build_config(a, &rec, period_s)?;
-    let mut tracker = Tracker::new(cfg).map_err(FieldError::from)?;
+    let mut tracker = Tracker::new(cfg)?;
     let paths: Vec<PathKind> = cfg.paths().to_vec();
     let rows = rec.rows();
     let has_theta = !rec.theta_rad.is_empty();

@@ -1,7 +1,6 @@
 //! Scenarios: one TOML file per case (`hil-sim/scenarios/`), run by name. A paper
 //! scenario runs twice, the paper-literal law and ours, on the same drive and sensor.
 
-use crate::core_config::{CoreConfigToml, FieldError};
 use crate::exact::wrap_pi;
 use crate::input_error::{InputError, InvalidParam};
 use crate::plant::{Cogging, LoadStep, MotorParams, Plant};
@@ -64,8 +63,9 @@ pub struct ScenarioFile {
     #[serde(default)]
     pub motor: MotorToml,
     pub control: ControlToml,
+    /// The core's configuration (`mras::Config`'s own TOML form, every key optional).
     #[serde(default)]
-    pub core: CoreConfigToml,
+    pub core: mras::Config,
     /// The paper-literal gains for this scenario; when present the scenario also runs
     /// the paper's law side by side with ours.
     pub paper: Option<PaperToml>,
@@ -514,7 +514,12 @@ impl Scenario {
     /// scenario's inertia ratio, and the law replaced by the paper's when asked.
     pub fn core_config(&self, paper: Option<PaperToml>) -> Result<mras::Config> {
         let f = &self.file;
-        let mut cfg = f.core.to_config(self.sample_period_s() as f32)?;
+        let mut cfg = mras::Config {
+            sample_period_s: self.sample_period_s() as f32,
+            ..f.core
+        };
+        // The table as written is checked too, before the scenario overrides parts of it.
+        cfg.validate()?;
         cfg.sensor_periods = f.sensor.sensor_periods;
         cfg.observer.inertia_kg_m2 = (f.motor.j_kg_m2 * f.inertia_estimate_ratio) as f32;
         if let Some(p) = paper {
@@ -523,7 +528,7 @@ impl Scenario {
                 k2: p.k2,
             };
         }
-        cfg.validate().map_err(FieldError::from)?;
+        cfg.validate()?;
         Ok(cfg)
     }
 }
@@ -555,8 +560,8 @@ impl Scenario {
         let control = f.control.to_params()?;
         let mut dcfg = rig::drive_config(&plant, &control, j_hat, t_s)?;
         adjust(&mut dcfg);
-        let tracker = mras::Front::new(cfg).map_err(FieldError::from)?;
-        let period = ControlPeriod::new(dcfg, tracker).map_err(FieldError::from)?;
+        let tracker = mras::Front::new(cfg)?;
+        let period = ControlPeriod::new(dcfg, tracker)?;
         Ok(Rig::new(plant, period, Some(control.reference)))
     }
 }
@@ -864,7 +869,7 @@ pub fn reference_coefficients(sc: &Scenario) -> Result<Option<Vec<NamedCoefficie
     let mut cfg = sc.core_config(None)?;
     cfg.sample_period_s = 50e-6;
     cfg.observer.eigenvalues_hz = [100.0, 10.0, 1.0];
-    let mut t = Tracker::new(cfg).map_err(FieldError::from)?;
+    let mut t = Tracker::new(cfg)?;
     let run = mras_sim::CommissioningRun {
         sensor: p.model,
         speed_rev_s: 20.0,

@@ -1,7 +1,6 @@
 //! Parameter studies whose tables go into docs/theory.md.
 
 use crate::commission::{INERTIA_KG_M2, SAMPLE_PERIOD_S};
-use crate::core_config::FieldError;
 use crate::Law;
 use anyhow::Result;
 use mras::{AdaptationLaw, Config, Tracker};
@@ -32,7 +31,7 @@ pub fn revs_to_10x(cfg: Config, speed_rev_s: f64, revs: u32) -> Result<Option<us
         inertia_kg_m2: INERTIA_KG_M2,
         adc: None,
     };
-    let mut t = Tracker::new(cfg).map_err(FieldError::from)?;
+    let mut t = Tracker::new(cfg)?;
     let (mut per_rev, mut raw) = (Vec::new(), 0.0);
     r.run(
         &mut t,

@@ -2,7 +2,6 @@
 //! through commissioning) and the host's trace of the same core over it.
 
 use crate::commission::{noise, ADC, INERTIA_KG_M2, SAMPLE_PERIOD_S};
-use crate::core_config::FieldError;
 use anyhow::{bail, Context, Result};
 use mras::{Config, Tracker};
 use mras_sim::{encode_vector_record, write_trace_line, Kinematic, SensorModel, Trajectory};
@@ -39,7 +38,7 @@ pub fn run(a: &Args) -> Result<()> {
     };
     let mut vector = Vec::with_capacity(a.steps as usize * 12);
     let mut trace = String::new();
-    let mut tracker = Tracker::new(Config::default()).map_err(FieldError::from)?;
+    let mut tracker = Tracker::new(Config::default())?;
     // The driver feeds the live tracker; the trace is written from what it fed, so the
     // host trace is the core over exactly the recorded f32 values.
     kin.run(

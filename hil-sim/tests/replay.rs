@@ -2,7 +2,7 @@
 //! live one bit for bit, the report scores it, and bad input stops with file, line and
 //! field named and without touching the output.
 
-use hil_sim::core_config::CoreConfigToml;
+use hil_sim::core_config::CoreConfigFile;
 use mras::{Config, Tracker};
 use mras_sim::{Adc, Kinematic, SensorModel, Trajectory};
 use std::fmt::Write as _;
@@ -90,8 +90,10 @@ fn report(path: &Path) -> serde_json::Value {
 
 #[test]
 fn replay_reproduces_the_live_estimate_bit_exactly() {
-    let cfg_toml = CoreConfigToml::from_toml_str(IDENTITY_CONFIG, "identity").unwrap();
-    let cfg = cfg_toml.to_config(SAMPLE_PERIOD_S as f32).unwrap();
+    let cfg = CoreConfigFile::parse(IDENTITY_CONFIG, "identity")
+        .unwrap()
+        .to_config(SAMPLE_PERIOD_S as f32)
+        .unwrap();
     let rows = simulate(cfg, 0.6);
 
     let dir = tempfile::tempdir().unwrap();

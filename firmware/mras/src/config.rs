@@ -5,6 +5,9 @@
 
 use core::f32::consts::PI;
 
+#[cfg(feature = "serde")]
+mod de;
+
 /// Most harmonic paths one core can run (offset, C/D and six more).
 pub const MAX_PATHS: usize = 8;
 /// Largest |h| (sensor harmonic number) a path may inject.
@@ -67,6 +70,8 @@ impl PathKind {
 
 /// Raw ADC units to the sensor's nominal unit vector: `x = (x_raw - offset_x) · gain_x`.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 pub struct InputScaling {
     pub offset_x: f32,
     pub offset_y: f32,
@@ -90,6 +95,8 @@ impl Default for InputScaling {
 
 /// The Luenberger motion observer (paper Fig. 5).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 pub struct ObserverConfig {
     /// Closed-loop eigenvalues λ1..λ3 of `Ĵs³ + b_o s² + K_so s + K_iso`, in Hz
     /// (paper: 100/10/1 Hz in simulation, 200/20/2 Hz on the bench).
@@ -109,6 +116,10 @@ impl Default for ObserverConfig {
 
 /// How a path turns its correlation into a coefficient change.
 #[derive(Clone, Copy, Debug, PartialEq)]
+// A flat table with `kind` rather than serde's tagged enum, so a file can set one gain
+// and keep the law's other defaults.
+#[cfg_attr(feature = "serde", derive(serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(try_from = "de::LawFile"))]
 pub enum AdaptationLaw {
     /// Ours: the correlation is compensated by the observer's error transfer function
     /// H(j m N ω̂) (phase, and magnitude with a floor) and integrated over the sensor
@@ -142,6 +153,8 @@ impl AdaptationLaw {
 
 /// Conditions under which adaptation may run (§V.B-C: high speed, low load, steady).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 pub struct Gates {
     /// Minimum |ω̂| (rad/s, mechanical).
     pub min_speed_rad_s: f32,
@@ -172,6 +185,8 @@ impl Default for Gates {
 
 /// Sensor and observer health limits.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 pub struct HealthConfig {
     /// |Z| (scaled, nominal 1) below this: sensor disconnected.
     pub amplitude_min: f32,
@@ -197,6 +212,8 @@ impl Default for HealthConfig {
 
 /// The `converged` judgement (see [`crate::Convergence`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 pub struct ConvergenceConfig {
     /// Every path's residual error phasor below this (rad, sensor electrical).
     pub residual_rad: f32,
@@ -218,6 +235,9 @@ impl Default for ConvergenceConfig {
 
 /// Everything the core needs; validate with [`Config::validate`] (done by `Tracker::new`).
 #[derive(Clone, Copy, Debug, PartialEq)]
+// The file form lists the paths and leaves out the control period (see `de::ConfigFile`).
+#[cfg_attr(feature = "serde", derive(serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(from = "de::ConfigFile"))]
 pub struct Config {
     /// Control period T (s).
     pub sample_period_s: f32,
@@ -289,6 +309,9 @@ impl core::fmt::Display for ConfigError {
         )
     }
 }
+
+/// So hosts can pass it up with `?` as any error; `core::error::Error` needs no `std`.
+impl core::error::Error for ConfigError {}
 
 fn positive_finite(v: f32, field: &'static str) -> Result<(), ConfigError> {
     if v.is_finite() && v > 0.0 {

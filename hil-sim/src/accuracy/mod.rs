@@ -31,7 +31,6 @@ pub mod report;
 pub mod stats;
 
 use crate::baselines::{constant_speed_reference, Corrector, Ellipse, Lut, MinMax, Raw};
-use crate::core_config::FieldError;
 use crate::plant::{Cogging, LoadStep, MotorParams, Plant};
 use crate::rig::{self, ControlParams, Rig};
 use crate::sensor::SensorSim;
@@ -257,10 +256,9 @@ pub fn tracker_config(m: Method, j_kg_m2: f64) -> Result<Config> {
             PathKind::AmplitudeQuadrature,
             PathKind::Harmonic(4),
             PathKind::Harmonic(5),
-        ])
-        .map_err(FieldError::from)?;
+        ])?;
     }
-    cfg.validate().map_err(FieldError::from)?;
+    cfg.validate()?;
     Ok(cfg)
 }
 
@@ -449,15 +447,9 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult> {
     let sensor = SensorSim::new(case.params.clone(), case.noise_seed)?;
     let plant = Plant::new(motor, sensor, SAMPLE_PERIOD_S, 0.0)?;
     let dcfg = rig::drive_config(&plant, &control, j, SAMPLE_PERIOD_S)?;
-    let period = ControlPeriod::new(
-        dcfg,
-        Front::new(tracker_config(Method::Ours, j)?).map_err(FieldError::from)?,
-    )
-    .map_err(FieldError::from)?;
+    let period = ControlPeriod::new(dcfg, Front::new(tracker_config(Method::Ours, j)?)?)?;
     let mut drive = Rig::new(plant, period, None);
-    let new_tracker = |m| -> Result<Tracker> {
-        Ok(Tracker::new(tracker_config(m, j)?).map_err(FieldError::from)?)
-    };
+    let new_tracker = |m| -> Result<Tracker> { Ok(Tracker::new(tracker_config(m, j)?)?) };
     let mut passengers = [
         new_tracker(Method::Paper)?,
         new_tracker(Method::OursPaperBank)?,
