@@ -68,7 +68,8 @@ pub extern "C" fn mras_step_end() {
 #[entry]
 fn main() -> ! {
     // Prefixes of the core's default bank (offset, C/D, h4, h5, ...): observer only, + offset
-    // and C/D, + two harmonic paths (the measured configurations), then all of it.
+    // and C/D, + two harmonic paths (the configurations docs/performance.md tabulates), then
+    // all of it.
     // Per configuration: `MEASURED_STEPS` of the front (what runs in the control
     // interrupt), then as many of the adapter (the adaptation task), as the firmware
     // drives them.

@@ -10,7 +10,7 @@ use rand_distr::{Distribution, Normal};
 pub const T_S: f64 = 50.0e-6;
 pub const J_KG_M2: f64 = 1.0e-4;
 
-/// The "combined extreme" sensor of issue 2 (see `SensorModel::extreme`).
+/// The "combined extreme" sensor: every error term at once (see `SensorModel::extreme`).
 pub fn extreme_sensor() -> SensorModel {
     SensorModel::extreme()
 }
