@@ -63,10 +63,10 @@ fn ensure_font() -> Result<()> {
 }
 
 /// Tick labels: plain decimals in a readable range, scientific notation outside it.
-pub(crate) fn tick_label(v: f64) -> String {
+pub(crate) fn tick_label(v: &f64) -> String {
     // Log-axis ticks come from repeated multiplication (9.999999999999999e-5): round to 6
     // significant digits first, then print the shortest form.
-    let v: f64 = format!("{v:.5e}").parse().unwrap_or(v);
+    let v: f64 = format!("{v:.5e}").parse().unwrap_or(*v);
     let a = v.abs();
     // Linear ticks stepped from a range land on ±2e-16 instead of 0.
     if a < 1e-12 {
@@ -132,18 +132,18 @@ impl<'a, X, Y> Frame<'a, X, Y> {
     /// The results page's frame: its charts were published with this title style, which
     /// asks for bold through `FontDesc::style` and so draws regular glyphs, and with
     /// plotters' default lines at labelled ticks.
-    pub fn page(title: &'a str, label_px: (u32, u32), y_desc: &'a str) -> Self {
+    pub fn page(
+        title: &'a str,
+        label_px: (u32, u32),
+        x_desc: Option<&'a str>,
+        y_desc: &'a str,
+    ) -> Self {
         Self {
             title_style: (FONT, 24).into_font().style(FontStyle::Bold).into(),
-            desc: (None, Some(y_desc)),
+            desc: (x_desc, Some(y_desc)),
             bold_grid: false,
             ..Self::new(title, label_px, "", y_desc)
         }
-    }
-
-    pub fn x_desc(mut self, desc: &'a str) -> Self {
-        self.desc.0 = Some(desc);
-        self
     }
 
     pub fn x_fmt(mut self, f: &'a dyn Fn(&X) -> String) -> Self {
@@ -316,13 +316,13 @@ mod tests {
 
     #[test]
     fn tick_labels_are_readable() {
-        assert_eq!(tick_label(0.0), "0");
-        assert_eq!(tick_label(-2.220446049250313e-16), "0");
-        assert_eq!(tick_label(0.25), "0.25");
-        assert_eq!(tick_label(-3.0), "-3");
-        assert_eq!(tick_label(1e-5), "1e-5");
-        assert_eq!(tick_label(2e6), "2e6");
-        assert_eq!(tick_label(9.999999999999999e-5), "1e-4");
-        assert_eq!(tick_label(0.30000000000000004), "0.3");
+        assert_eq!(tick_label(&0.0), "0");
+        assert_eq!(tick_label(&-2.220446049250313e-16), "0");
+        assert_eq!(tick_label(&0.25), "0.25");
+        assert_eq!(tick_label(&-3.0), "-3");
+        assert_eq!(tick_label(&1e-5), "1e-5");
+        assert_eq!(tick_label(&2e6), "2e6");
+        assert_eq!(tick_label(&9.999999999999999e-5), "1e-4");
+        assert_eq!(tick_label(&0.30000000000000004), "0.3");
     }
 }

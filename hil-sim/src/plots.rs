@@ -64,8 +64,8 @@ pub fn line_chart(
     let corner = legend_corner(&series, (&x, &y), plot_px(LINE_SIZE, LINE_LABEL_PX), true);
     png_and_svg!(stem, LINE_SIZE, |root| {
         let mut chart = Frame::new(title, LINE_LABEL_PX, x_label, y_label)
-            .x_fmt(&|v| tick_label(*v))
-            .y_fmt(&|v| tick_label(*v))
+            .x_fmt(&tick_label)
+            .y_fmt(&tick_label)
             .draw(root, x.clone(), y.clone())?;
         for (i, s) in series.iter().enumerate() {
             let c = color(i);
@@ -123,8 +123,8 @@ pub fn vector_image(stem: &Path, title: &str, series: &[Series]) -> Result<()> {
     png_and_svg!(stem, VECTOR_SIZE, |root| {
         let mut chart = Frame::new(title, VECTOR_LABEL_PX, "x", "y")
             .extra_margin(w - side, h - side)
-            .x_fmt(&|v| tick_label(*v))
-            .y_fmt(&|v| tick_label(*v))
+            .x_fmt(&tick_label)
+            .y_fmt(&tick_label)
             .draw(root, range.clone(), range.clone())?;
         for (i, s) in series.iter().enumerate() {
             let c = color(i);
@@ -208,18 +208,10 @@ pub fn spectrum_chart(
     let ticks: Vec<f64> = (0..n).step_by(step).map(|i| i as f64).collect();
     // One notation per axis: "0.01" next to "1e-4" reads badly.
     let scientific = floor < 1e-3 || top >= 1e5;
-    let log_label = |v: &f64| {
-        if scientific {
-            tick_label(*v).parse::<f64>().map_or_else(
-                |_| tick_label(*v),
-                |r| match r {
-                    1.0 => "1".into(),
-                    _ => format!("{r:e}"),
-                },
-            )
-        } else {
-            tick_label(*v)
-        }
+    let log_label = |v: &f64| match tick_label(v).parse::<f64>() {
+        // The rounded tick in scientific notation; 1 stays "1" (tick_label's form).
+        Ok(r) if scientific && r != 1.0 => format!("{r:e}"),
+        _ => tick_label(v),
     };
     let harmonic_label = |v: &f64| {
         let i = v.round();
@@ -320,27 +312,19 @@ pub fn decimate(points: &[(f64, f64)], max: usize) -> Vec<(f64, f64)> {
     let size = finite.len().div_ceil(buckets);
     let mut out = Vec::with_capacity(4 * buckets);
     for chunk in finite.chunks(size) {
+        // The first point with the smallest x, largest x, smallest y, largest y.
         let mut keep = [0usize; 4];
         for (i, p) in chunk.iter().enumerate() {
-            if p.0 < chunk[keep[0]].0 {
-                keep[0] = i;
-            }
-            if p.0 > chunk[keep[1]].0 {
-                keep[1] = i;
-            }
-            if p.1 < chunk[keep[2]].1 {
-                keep[2] = i;
-            }
-            if p.1 > chunk[keep[3]].1 {
-                keep[3] = i;
+            let [x_lo, x_hi, y_lo, y_hi] = keep.map(|k| chunk[k]);
+            let wins = [p.0 < x_lo.0, p.0 > x_hi.0, p.1 < y_lo.1, p.1 > y_hi.1];
+            for (k, _) in keep.iter_mut().zip(wins).filter(|(_, win)| *win) {
+                *k = i;
             }
         }
         keep.sort_unstable();
-        let mut last = None;
-        for i in keep {
-            if last != Some(i) {
+        for (j, &i) in keep.iter().enumerate() {
+            if j == 0 || keep[j - 1] != i {
                 out.push(chunk[i]);
-                last = Some(i);
             }
         }
     }
@@ -382,16 +366,12 @@ fn data_bounds<'a>(
 /// Widens a range by `frac` of its span on each side; a zero-width range gets a unit span.
 fn pad(r: Range<f64>, frac: f64) -> Range<f64> {
     let span = r.end - r.start;
-    if span > 0.0 {
-        r.start - span * frac..r.end + span * frac
-    } else {
-        let half = if r.start != 0.0 {
-            r.start.abs() * 0.1
-        } else {
-            1.0
-        };
-        r.start - half..r.end + half
-    }
+    let half = match (span > 0.0, r.start != 0.0) {
+        (true, _) => span * frac,
+        (false, true) => r.start.abs() * 0.1,
+        (false, false) => 1.0,
+    };
+    r.start - half..r.end + half
 }
 
 fn no_data_error(stem: &Path, title: &str) -> anyhow::Error {
@@ -612,16 +592,9 @@ mod tests {
     #[test]
     fn million_points_render_quickly() {
         let dir = tempfile::tempdir().unwrap();
-        let pts = sine(1_000_000, 0.0);
+        let (pts, big) = (sine(1_000_000, 0.0), dir.path().join("big"));
         let start = Instant::now();
-        line_chart(
-            &dir.path().join("big"),
-            "Big",
-            "t",
-            "y",
-            &[Series::new("1e6", &pts)],
-        )
-        .unwrap();
+        line_chart(&big, "Big", "t", "y", &[Series::new("1e6", &pts)]).unwrap();
         let line = start.elapsed();
         let xy: Vec<(f64, f64)> = (0..1_000_000)
             .map(|i| {

@@ -42,8 +42,8 @@ pub fn cdf_chart(
     let (lo, hi) = log_range(series.iter().flat_map(|s| s.1.iter().copied()))
         .ok_or_else(|| anyhow!("{}: no positive value to plot", path.display()))?;
     png(path, SIZE, |root| {
-        let mut chart = Frame::page(title, (55, 70), "fraction of sensors at or below")
-            .x_desc(x_label)
+        let y_desc = "fraction of sensors at or below";
+        let mut chart = Frame::page(title, (55, 70), Some(x_label), y_desc)
             .x_fmt(&tick)
             .draw(root, (lo..hi).log_scale(), 0.0..1.0)?;
         for (i, (label, values)) in series.iter().enumerate() {
@@ -93,7 +93,7 @@ pub fn grouped_bars(
     let legend_room = n as f64 / 3.0;
     png(path, SIZE, |root| {
         // Category names are drawn below (plotters' ticks would skip some).
-        let mut chart = Frame::page(title, (45, 70), y_label)
+        let mut chart = Frame::page(title, (45, 70), None, y_label)
             .no_x_grid()
             .no_x_ticks()
             .y_fmt(&tick)
