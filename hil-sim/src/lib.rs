@@ -7,6 +7,7 @@ pub mod cli;
 pub mod commission;
 pub mod core_config;
 pub mod exact;
+pub(crate) mod figure;
 pub mod input_error;
 pub(crate) mod pending;
 pub mod plant;

@@ -1,24 +1,20 @@
-//! PNG and SVG plots drawn with plotters.
-//!
-//! The DejaVu Sans font is compiled in (crate `dejavu`) and registered with plotters, so PNG
-//! text does not depend on fonts installed on the machine. Every chart is drawn by one function
-//! generic over the drawing backend and run once for the bitmap and once for the SVG backend,
-//! so `<stem>.png` and `<stem>.svg` always show the same content.
+//! The simulation's PNG and SVG plots: line charts, the sensor-vector image and the error
+//! spectrum, each written as `<stem>.png` and `<stem>.svg` with the same content (the frame,
+//! legend and files are [`crate::figure`]'s).
 //!
 //! Series longer than [`MAX_DRAW_POINTS`] are decimated before drawing (see [`decimate`]):
 //! a chart with 10⁶ samples per series would otherwise take seconds and produce a
 //! hundred-megabyte SVG, while a 1000-pixel-wide image cannot show more detail anyway.
 
-use anyhow::{anyhow, bail, Context, Result};
+use crate::figure::{
+    bar_key, color, err, legend, line_key, png_and_svg, tick_label, Frame, MARGIN_PX, TITLE_PX,
+};
+use anyhow::{anyhow, bail, Result};
+use plotters::coord::ranged1d::{DefaultFormatting, KeyPointHint};
+use plotters::prelude::*;
 use std::collections::HashSet;
 use std::ops::Range;
-use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
-
-use plotters::coord::ranged1d::{DefaultFormatting, KeyPointHint};
-use plotters::coord::Shift;
-use plotters::prelude::*;
-use plotters::style::register_font;
+use std::path::Path;
 
 /// One named line or point set.
 #[derive(Clone, Copy, Debug)]
@@ -27,39 +23,23 @@ pub struct Series<'a> {
     pub points: &'a [(f64, f64)],
 }
 
+impl<'a> Series<'a> {
+    pub fn new(label: &'a str, points: &'a [(f64, f64)]) -> Self {
+        Self { label, points }
+    }
+}
+
 /// Upper bound on the points drawn per series; longer series are decimated with a min/max
 /// envelope so that peaks survive.
 pub const MAX_DRAW_POINTS: usize = 20_000;
 
-/// Font family the DejaVu font is registered under (plotters' name for the generic sans font).
-pub(crate) const FONT: &str = "sans-serif";
-
 const LINE_SIZE: (u32, u32) = (1000, 600);
 const VECTOR_SIZE: (u32, u32) = (700, 700);
 const SPECTRUM_SIZE: (u32, u32) = (1000, 600);
-
-const TITLE_PX: u32 = 26;
-const AXIS_DESC_PX: u32 = 18;
-const TICK_PX: u32 = 15;
+/// Label areas below and left of the plotting area, in pixels.
+const LINE_LABEL_PX: (u32, u32) = (55, 90);
+const VECTOR_LABEL_PX: (u32, u32) = (55, 75);
 const LEGEND_PX: u32 = 16;
-
-/// Tableau-10 colours: distinguishable, print well, and colour-blind friendlier than RGB primaries.
-pub(crate) const PALETTE: [RGBColor; 10] = [
-    RGBColor(31, 119, 180),
-    RGBColor(255, 127, 14),
-    RGBColor(44, 160, 44),
-    RGBColor(214, 39, 40),
-    RGBColor(148, 103, 189),
-    RGBColor(140, 86, 75),
-    RGBColor(227, 119, 194),
-    RGBColor(127, 127, 127),
-    RGBColor(188, 189, 34),
-    RGBColor(23, 190, 207),
-];
-
-fn color(i: usize) -> RGBColor {
-    PALETTE[i % PALETTE.len()]
-}
 
 /// Line chart (1000×600) of one coloured line per series, with a legend of the series labels.
 ///
@@ -74,25 +54,37 @@ pub fn line_chart(
     y_label: &str,
     series: &[Series],
 ) -> Result<()> {
-    let prepared: Vec<PreparedSeries> = series
+    let series: Vec<PreparedSeries> = series
         .iter()
         .map(|s| PreparedSeries::new(s.label, decimate(s.points, MAX_DRAW_POINTS)))
         .collect();
-    let (x, y) = data_bounds(prepared.iter().flat_map(|s| s.points.iter()))
+    let (x, y) = data_bounds(series.iter().flat_map(|s| s.points.iter()))
         .ok_or_else(|| no_data_error(stem, title))?;
-    let x = pad(x, 0.05);
-    let y = pad(y, 0.05);
-    let legend = legend_corner(&prepared, (&x, &y), plot_px(LINE_SIZE, LINE_MARGINS), true);
-    let figure = LineFigure {
-        title,
-        x_label,
-        y_label,
-        series: prepared,
-        x,
-        y,
-        legend,
-    };
-    render(stem, &figure)
+    let (x, y) = (pad(x, 0.05), pad(y, 0.05));
+    let corner = legend_corner(&series, (&x, &y), plot_px(LINE_SIZE, LINE_LABEL_PX), true);
+    png_and_svg!(stem, LINE_SIZE, |root| {
+        let mut chart = Frame::new(title, LINE_LABEL_PX, x_label, y_label)
+            .x_fmt(&tick_label)
+            .y_fmt(&tick_label)
+            .draw(root, x.clone(), y.clone())?;
+        for (i, s) in series.iter().enumerate() {
+            let c = color(i);
+            // Thin lines for dense data, where 2 px strokes would merge into a blob.
+            let width = if s.points.len() > 2000 { 1 } else { 2 };
+            if let [p] = s.points[..] {
+                // A line through one point draws nothing.
+                chart
+                    .draw_series([Circle::new(p, 3, c.filled())])
+                    .map_err(err)?;
+            }
+            let line = LineSeries::new(s.points.iter().copied(), c.stroke_width(width));
+            let drawn = chart.draw_series(line).map_err(err)?;
+            if !s.label.is_empty() {
+                drawn.label(s.label.as_str()).legend(line_key(c));
+            }
+        }
+        series_legend(&mut chart, series.iter().map(|s| s.label.as_str()), &corner)
+    })
 }
 
 /// Equal-aspect X-Y image (700×700) of sensor vectors (paper Fig. 8a), one point cloud per
@@ -116,23 +108,36 @@ pub fn vector_image(stem: &Path, title: &str, series: &[Series]) -> Result<()> {
         .fold(0.0_f64, |m, v| m.max(v.abs()));
     let reach = if reach > 0.0 { reach * 1.08 } else { 1.0 };
     let range = -reach..reach;
-    let side = vector_plot_side();
+    // Lay out the chart so the plotting area is exactly square: equal aspect.
+    let (w, h) = plot_px(VECTOR_SIZE, VECTOR_LABEL_PX);
+    let side = w.min(h);
     // 2-pixel cells: with 3-pixel dots, dropping further points of a cell changes nothing visible.
-    let prepared: Vec<PreparedSeries> = series
+    let series: Vec<PreparedSeries> = series
         .iter()
         .map(|s| {
             let unique = dedup_on_grid(s.points, &range, side / 2);
             PreparedSeries::new(s.label, decimate(&unique, MAX_DRAW_POINTS))
         })
         .collect();
-    let legend = legend_corner(&prepared, (&range, &range), (side, side), false);
-    let figure = VectorFigure {
-        title,
-        series: prepared,
-        range,
-        legend,
-    };
-    render(stem, &figure)
+    let corner = legend_corner(&series, (&range, &range), (side, side), false);
+    png_and_svg!(stem, VECTOR_SIZE, |root| {
+        let mut chart = Frame::new(title, VECTOR_LABEL_PX, "x", "y")
+            .extra_margin(w - side, h - side)
+            .x_fmt(&tick_label)
+            .y_fmt(&tick_label)
+            .draw(root, range.clone(), range.clone())?;
+        for (i, s) in series.iter().enumerate() {
+            let c = color(i);
+            let dots = s.points.iter().map(|&p| Circle::new(p, 1.5, c.filled()));
+            let drawn = chart.draw_series(dots).map_err(err)?;
+            if !s.label.is_empty() {
+                drawn
+                    .label(s.label.as_str())
+                    .legend(move |(x, y)| Circle::new((x + 12, y), 4, c.filled()));
+            }
+        }
+        series_legend(&mut chart, series.iter().map(|s| s.label.as_str()), &corner)
+    })
 }
 
 /// Grouped bar chart (1000×600) of an error spectrum by harmonic, log-scale y, one colour per
@@ -176,11 +181,12 @@ pub fn spectrum_chart(
     } else {
         (1e-3, 1.0)
     };
-    let x = -0.5..harmonics.len() as f64 - 0.5;
+    let n = harmonics.len();
+    let x = -0.5..n as f64 - 0.5;
+    let width = 0.8 / groups.len() as f64;
     // Legend placement: sample each bar's column in axis-normalised coordinates.
     let span = (top / floor).ln();
     let mut samples = Vec::new();
-    let width = 0.8 / groups.len() as f64;
     for (g, (_, values)) in groups.iter().enumerate() {
         for (j, v) in values.iter().enumerate() {
             let xc = j as f64 - 0.4 + (g as f64 + 0.5) * width;
@@ -196,17 +202,98 @@ pub fn spectrum_chart(
         }
     }
     let labels: Vec<&str> = groups.iter().map(|(n, _)| *n).collect();
-    let legend = choose_corner(&samples, &labels, plot_px(SPECTRUM_SIZE, SPECTRUM_MARGINS));
-    let figure = SpectrumFigure {
-        title,
-        y_label,
-        harmonics,
-        groups,
-        x,
-        y: floor..top,
-        legend,
+    let corner = choose_corner(&samples, &labels, plot_px(SPECTRUM_SIZE, LINE_LABEL_PX));
+    // Label every harmonic unless they would crowd (about 25 fit in the width).
+    let step = n.div_ceil(25).max(1);
+    let ticks: Vec<f64> = (0..n).step_by(step).map(|i| i as f64).collect();
+    // One notation per axis: "0.01" next to "1e-4" reads badly.
+    let scientific = floor < 1e-3 || top >= 1e5;
+    let log_label = |v: &f64| match tick_label(v).parse::<f64>() {
+        // The rounded tick in scientific notation; 1 stays "1" (tick_label's form).
+        Ok(r) if scientific && r != 1.0 => format!("{r:e}"),
+        _ => tick_label(v),
     };
-    render(stem, &figure)
+    let harmonic_label = |v: &f64| {
+        let i = v.round();
+        if i >= 0.0 && (i as usize) < n && (v - i).abs() < 1e-6 {
+            harmonics[i as usize].to_string()
+        } else {
+            String::new()
+        }
+    };
+    png_and_svg!(stem, SPECTRUM_SIZE, |root| {
+        let axis = HarmonicAxis {
+            range: x.clone(),
+            ticks: ticks.clone(),
+        };
+        let mut chart = Frame::new(title, LINE_LABEL_PX, "harmonic", y_label)
+            .no_x_grid()
+            .x_fmt(&harmonic_label)
+            .y_fmt(&log_label)
+            .draw(root, axis, (floor..top).log_scale())?;
+        for (g, (name, values)) in groups.iter().enumerate() {
+            let c = color(g);
+            let bars = values
+                .iter()
+                .enumerate()
+                .filter(|(_, v)| v.is_finite() && **v > floor)
+                .map(|(j, &v)| {
+                    let x0 = j as f64 - 0.4 + g as f64 * width;
+                    Rectangle::new([(x0, floor), (x0 + width, v)], c.filled())
+                });
+            let drawn = chart.draw_series(bars).map_err(err)?;
+            if !name.is_empty() {
+                let visible = values.iter().any(|&v| v.is_finite() && v > floor);
+                let label = match visible {
+                    true => name.to_string(),
+                    false => format!("{name} (no positive values)"),
+                };
+                drawn.label(label).legend(bar_key(c));
+            }
+        }
+        series_legend(&mut chart, groups.iter().map(|(name, _)| *name), &corner)
+    })
+}
+
+/// The legend, if any series has a label.
+fn series_legend<'a, 'l, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    mut labels: impl Iterator<Item = &'l str>,
+    corner: &SeriesLabelPosition,
+) -> Result<()> {
+    match labels.any(|l| !l.is_empty()) {
+        true => legend(chart, corner.clone(), LEGEND_PX),
+        false => Ok(()),
+    }
+}
+
+/// Linear x axis with one tick per (shown) harmonic index; plotters' `with_key_points` on an
+/// `f64` range loses the label formatter, hence this small axis type.
+struct HarmonicAxis {
+    range: Range<f64>,
+    ticks: Vec<f64>,
+}
+
+impl Ranged for HarmonicAxis {
+    type FormatOption = DefaultFormatting;
+    type ValueType = f64;
+
+    fn map(&self, value: &f64, limit: (i32, i32)) -> i32 {
+        let t = (value - self.range.start) / (self.range.end - self.range.start);
+        limit.0 + (t * f64::from(limit.1 - limit.0)).round() as i32
+    }
+
+    fn key_points<Hint: KeyPointHint>(&self, hint: Hint) -> Vec<f64> {
+        if hint.weight().allow_light_points() {
+            Vec::new()
+        } else {
+            self.ticks.clone()
+        }
+    }
+
+    fn range(&self) -> Range<f64> {
+        self.range.clone()
+    }
 }
 
 /// Reduces `points` to at most about `max` finite points for drawing.
@@ -225,27 +312,19 @@ pub fn decimate(points: &[(f64, f64)], max: usize) -> Vec<(f64, f64)> {
     let size = finite.len().div_ceil(buckets);
     let mut out = Vec::with_capacity(4 * buckets);
     for chunk in finite.chunks(size) {
+        // The first point with the smallest x, largest x, smallest y, largest y.
         let mut keep = [0usize; 4];
         for (i, p) in chunk.iter().enumerate() {
-            if p.0 < chunk[keep[0]].0 {
-                keep[0] = i;
-            }
-            if p.0 > chunk[keep[1]].0 {
-                keep[1] = i;
-            }
-            if p.1 < chunk[keep[2]].1 {
-                keep[2] = i;
-            }
-            if p.1 > chunk[keep[3]].1 {
-                keep[3] = i;
+            let [x_lo, x_hi, y_lo, y_hi] = keep.map(|k| chunk[k]);
+            let wins = [p.0 < x_lo.0, p.0 > x_hi.0, p.1 < y_lo.1, p.1 > y_hi.1];
+            for (k, _) in keep.iter_mut().zip(wins).filter(|(_, win)| *win) {
+                *k = i;
             }
         }
         keep.sort_unstable();
-        let mut last = None;
-        for i in keep {
-            if last != Some(i) {
+        for (j, &i) in keep.iter().enumerate() {
+            if j == 0 || keep[j - 1] != i {
                 out.push(chunk[i]);
-                last = Some(i);
             }
         }
     }
@@ -287,16 +366,12 @@ fn data_bounds<'a>(
 /// Widens a range by `frac` of its span on each side; a zero-width range gets a unit span.
 fn pad(r: Range<f64>, frac: f64) -> Range<f64> {
     let span = r.end - r.start;
-    if span > 0.0 {
-        r.start - span * frac..r.end + span * frac
-    } else {
-        let half = if r.start != 0.0 {
-            r.start.abs() * 0.1
-        } else {
-            1.0
-        };
-        r.start - half..r.end + half
-    }
+    let half = match (span > 0.0, r.start != 0.0) {
+        (true, _) => span * frac,
+        (false, true) => r.start.abs() * 0.1,
+        (false, false) => 1.0,
+    };
+    r.start - half..r.end + half
 }
 
 fn no_data_error(stem: &Path, title: &str) -> anyhow::Error {
@@ -323,42 +398,13 @@ impl PreparedSeries {
     }
 }
 
-/// Chart margins and label-area sizes in pixels, used both for building the chart and for
-/// estimating the plotting-area size when placing the legend.
-#[derive(Clone, Copy)]
-struct Margins {
-    margin: u32,
-    title: u32,
-    left: u32,
-    bottom: u32,
-}
-
-const LINE_MARGINS: Margins = Margins {
-    margin: 15,
-    title: TITLE_PX + 10,
-    left: 90,
-    bottom: 55,
-};
-const SPECTRUM_MARGINS: Margins = LINE_MARGINS;
-const VECTOR_MARGINS: Margins = Margins {
-    margin: 15,
-    title: TITLE_PX + 10,
-    left: 75,
-    bottom: 55,
-};
-
-/// Plotting-area size in pixels: lays out the square vector image and sizes legend estimates.
-fn plot_px(size: (u32, u32), m: Margins) -> (u32, u32) {
+/// Plotting-area size in pixels of a chart of `size` with label areas `label_px` (below,
+/// left): lays out the square vector image and sizes legend estimates.
+fn plot_px(size: (u32, u32), label_px: (u32, u32)) -> (u32, u32) {
     (
-        size.0 - 2 * m.margin - m.left,
-        size.1 - 2 * m.margin - m.title - m.bottom,
+        size.0 - 2 * MARGIN_PX - label_px.1,
+        size.1 - 2 * MARGIN_PX - (TITLE_PX + 10) - label_px.0,
     )
-}
-
-/// Side of the square plotting area of the vector image.
-fn vector_plot_side() -> u32 {
-    let (w, h) = plot_px(VECTOR_SIZE, VECTOR_MARGINS);
-    w.min(h)
 }
 
 /// Picks the plot corner where the legend hides the fewest data points.
@@ -420,367 +466,10 @@ fn choose_corner(samples: &[(f64, f64)], labels: &[&str], plot: (u32, u32)) -> S
     best.0
 }
 
-/// A chart that can draw itself on any plotters backend.
-trait Figure {
-    fn size(&self) -> (u32, u32);
-    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()>;
-}
-
-/// Draws `figure` into `<stem>.png` and `<stem>.svg`, creating the parent directory.
-fn render<F: Figure>(stem: &Path, figure: &F) -> Result<()> {
-    ensure_font()?;
-    if let Some(dir) = stem.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("cannot create directory {}", dir.display()))?;
-    }
-    let png = with_extension(stem, "png");
-    {
-        let root = BitMapBackend::new(&png, figure.size()).into_drawing_area();
-        figure
-            .draw(&root)
-            .with_context(|| format!("cannot draw {}", png.display()))?;
-        root.present()
-            .with_context(|| format!("cannot write {}", png.display()))?;
-    }
-    let svg = with_extension(stem, "svg");
-    let mut text = String::new();
-    {
-        let root = SVGBackend::with_string(&mut text, figure.size()).into_drawing_area();
-        figure
-            .draw(&root)
-            .with_context(|| format!("cannot draw {}", svg.display()))?;
-        root.present()
-            .with_context(|| format!("cannot draw {}", svg.display()))?;
-    }
-    std::fs::write(&svg, text).with_context(|| format!("cannot write {}", svg.display()))
-}
-
-/// Appends `.ext` (a stem like `run.1` must not lose its `.1` as `set_extension` would do).
-fn with_extension(stem: &Path, ext: &str) -> PathBuf {
-    let mut s = stem.as_os_str().to_owned();
-    s.push(".");
-    s.push(ext);
-    PathBuf::from(s)
-}
-
-/// Registers DejaVu Sans once; with the `ab_glyph` feature plotters knows no system fonts.
-pub(crate) fn ensure_font() -> Result<()> {
-    static REGISTERED: OnceLock<bool> = OnceLock::new();
-    let ok = *REGISTERED.get_or_init(|| {
-        let normal = register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok();
-        let bold = register_font(FONT, FontStyle::Bold, dejavu::sans::bold()).is_ok();
-        normal && bold
-    });
-    if ok {
-        Ok(())
-    } else {
-        Err(anyhow!("cannot load the bundled DejaVu Sans font"))
-    }
-}
-
-/// Plotters' errors as messages: the backends' error types carry no `'static` bound.
-fn err<E: std::fmt::Display>(e: E) -> anyhow::Error {
-    anyhow!("{e}")
-}
-
-/// Bold title. `FontDesc::style` would keep the regular glyphs (plotters loads the font data
-/// on construction), so the bold face is requested up front.
-fn title_style() -> TextStyle<'static> {
-    FontDesc::new(FontFamily::SansSerif, f64::from(TITLE_PX), FontStyle::Bold).into()
-}
-
-/// Tick labels: plain decimals in a readable range, scientific notation outside it.
-fn tick_label(v: f64) -> String {
-    // Log-axis ticks come from repeated multiplication (9.999999999999999e-5): round to 6
-    // significant digits first, then print the shortest form.
-    let v: f64 = format!("{v:.5e}").parse().unwrap_or(v);
-    let a = v.abs();
-    // Linear ticks stepped from a range land on ±2e-16 instead of 0.
-    if a < 1e-12 {
-        "0".into()
-    } else if !(1e-3..1e5).contains(&a) {
-        format!("{v:e}")
-    } else {
-        let s = format!("{v:.6}");
-        let s = s.trim_end_matches('0').trim_end_matches('.');
-        if s == "-0" {
-            "0".into()
-        } else {
-            s.into()
-        }
-    }
-}
-
-fn draw_legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
-    chart: &mut ChartContext<'a, DB, CT>,
-    labelled: bool,
-    position: &SeriesLabelPosition,
-) -> Result<()> {
-    if !labelled {
-        return Ok(());
-    }
-    chart
-        .configure_series_labels()
-        .position(position.clone())
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK.mix(0.5))
-        .label_font((FONT, LEGEND_PX))
-        .draw()
-        .map_err(err)
-}
-
-struct LineFigure<'a> {
-    title: &'a str,
-    x_label: &'a str,
-    y_label: &'a str,
-    series: Vec<PreparedSeries>,
-    x: Range<f64>,
-    y: Range<f64>,
-    legend: SeriesLabelPosition,
-}
-
-impl Figure for LineFigure<'_> {
-    fn size(&self) -> (u32, u32) {
-        LINE_SIZE
-    }
-
-    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()> {
-        root.fill(&WHITE).map_err(err)?;
-        let m = LINE_MARGINS;
-        let mut chart = ChartBuilder::on(root)
-            .margin(m.margin)
-            .caption(self.title, title_style())
-            .x_label_area_size(m.bottom)
-            .y_label_area_size(m.left)
-            .build_cartesian_2d(self.x.clone(), self.y.clone())
-            .map_err(err)?;
-        chart
-            .configure_mesh()
-            .x_desc(self.x_label)
-            .y_desc(self.y_label)
-            .label_style((FONT, TICK_PX))
-            .axis_desc_style((FONT, AXIS_DESC_PX))
-            .x_label_formatter(&|v| tick_label(*v))
-            .y_label_formatter(&|v| tick_label(*v))
-            .light_line_style(RGBColor(240, 240, 240))
-            .bold_line_style(RGBColor(215, 215, 215))
-            .draw()
-            .map_err(err)?;
-        for (i, s) in self.series.iter().enumerate() {
-            let c = color(i);
-            // Thin lines for dense data, where 2 px strokes would merge into a blob.
-            let width = if s.points.len() > 2000 { 1 } else { 2 };
-            if let [p] = s.points[..] {
-                // A line through one point draws nothing.
-                chart
-                    .draw_series([Circle::new(p, 3, c.filled())])
-                    .map_err(err)?;
-            }
-            let drawn = chart
-                .draw_series(LineSeries::new(
-                    s.points.iter().copied(),
-                    c.stroke_width(width),
-                ))
-                .map_err(err)?;
-            if !s.label.is_empty() {
-                drawn.label(s.label.as_str()).legend(move |(x, y)| {
-                    PathElement::new([(x, y), (x + 24, y)], c.stroke_width(3))
-                });
-            }
-        }
-        let labelled = self.series.iter().any(|s| !s.label.is_empty());
-        draw_legend(&mut chart, labelled, &self.legend)
-    }
-}
-
-struct VectorFigure<'a> {
-    title: &'a str,
-    series: Vec<PreparedSeries>,
-    range: Range<f64>,
-    legend: SeriesLabelPosition,
-}
-
-impl Figure for VectorFigure<'_> {
-    fn size(&self) -> (u32, u32) {
-        VECTOR_SIZE
-    }
-
-    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()> {
-        root.fill(&WHITE).map_err(err)?;
-        let m = VECTOR_MARGINS;
-        // Lay out the chart so the plotting area is exactly square: equal aspect.
-        let (w, h) = plot_px(VECTOR_SIZE, m);
-        let side = w.min(h);
-        let mut chart = ChartBuilder::on(root)
-            .margin(m.margin)
-            .margin_right(m.margin + (w - side))
-            .margin_top(m.margin + (h - side))
-            .caption(self.title, title_style())
-            .x_label_area_size(m.bottom)
-            .y_label_area_size(m.left)
-            .build_cartesian_2d(self.range.clone(), self.range.clone())
-            .map_err(err)?;
-        chart
-            .configure_mesh()
-            .x_desc("x")
-            .y_desc("y")
-            .label_style((FONT, TICK_PX))
-            .axis_desc_style((FONT, AXIS_DESC_PX))
-            .x_label_formatter(&|v| tick_label(*v))
-            .y_label_formatter(&|v| tick_label(*v))
-            .light_line_style(RGBColor(240, 240, 240))
-            .bold_line_style(RGBColor(215, 215, 215))
-            .draw()
-            .map_err(err)?;
-        for (i, s) in self.series.iter().enumerate() {
-            let c = color(i);
-            let drawn = chart
-                .draw_series(s.points.iter().map(|&p| Circle::new(p, 1.5, c.filled())))
-                .map_err(err)?;
-            if !s.label.is_empty() {
-                drawn
-                    .label(s.label.as_str())
-                    .legend(move |(x, y)| Circle::new((x + 12, y), 4, c.filled()));
-            }
-        }
-        let labelled = self.series.iter().any(|s| !s.label.is_empty());
-        draw_legend(&mut chart, labelled, &self.legend)
-    }
-}
-
-/// Linear x axis with one tick per (shown) harmonic index; plotters' `with_key_points` on an
-/// `f64` range loses the label formatter, hence this small axis type.
-struct HarmonicAxis {
-    range: Range<f64>,
-    ticks: Vec<f64>,
-}
-
-impl Ranged for HarmonicAxis {
-    type FormatOption = DefaultFormatting;
-    type ValueType = f64;
-
-    fn map(&self, value: &f64, limit: (i32, i32)) -> i32 {
-        let t = (value - self.range.start) / (self.range.end - self.range.start);
-        limit.0 + (t * f64::from(limit.1 - limit.0)).round() as i32
-    }
-
-    fn key_points<Hint: KeyPointHint>(&self, hint: Hint) -> Vec<f64> {
-        if hint.weight().allow_light_points() {
-            Vec::new()
-        } else {
-            self.ticks.clone()
-        }
-    }
-
-    fn range(&self) -> Range<f64> {
-        self.range.clone()
-    }
-}
-
-struct SpectrumFigure<'a> {
-    title: &'a str,
-    y_label: &'a str,
-    harmonics: &'a [u32],
-    groups: &'a [(&'a str, &'a [f64])],
-    x: Range<f64>,
-    y: Range<f64>,
-    legend: SeriesLabelPosition,
-}
-
-impl Figure for SpectrumFigure<'_> {
-    fn size(&self) -> (u32, u32) {
-        SPECTRUM_SIZE
-    }
-
-    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<()> {
-        root.fill(&WHITE).map_err(err)?;
-        let m = SPECTRUM_MARGINS;
-        let n = self.harmonics.len();
-        // Label every harmonic unless they would crowd (about 25 fit in the width).
-        let step = n.div_ceil(25).max(1);
-        let ticks: Vec<f64> = (0..n).step_by(step).map(|i| i as f64).collect();
-        let mut chart = ChartBuilder::on(root)
-            .margin(m.margin)
-            .caption(self.title, title_style())
-            .x_label_area_size(m.bottom)
-            .y_label_area_size(m.left)
-            .build_cartesian_2d(
-                HarmonicAxis {
-                    range: self.x.clone(),
-                    ticks,
-                },
-                self.y.clone().log_scale(),
-            )
-            .map_err(err)?;
-        // One notation per axis: "0.01" next to "1e-4" reads badly.
-        let scientific = self.y.start < 1e-3 || self.y.end >= 1e5;
-        let log_label = |v: &f64| {
-            if scientific {
-                tick_label(*v).parse::<f64>().map_or_else(
-                    |_| tick_label(*v),
-                    |r| match r {
-                        1.0 => "1".into(),
-                        _ => format!("{r:e}"),
-                    },
-                )
-            } else {
-                tick_label(*v)
-            }
-        };
-        let harmonic_label = |v: &f64| {
-            let i = v.round();
-            if i >= 0.0 && (i as usize) < n && (v - i).abs() < 1e-6 {
-                self.harmonics[i as usize].to_string()
-            } else {
-                String::new()
-            }
-        };
-        chart
-            .configure_mesh()
-            .disable_x_mesh()
-            .x_desc("harmonic")
-            .y_desc(self.y_label)
-            .label_style((FONT, TICK_PX))
-            .axis_desc_style((FONT, AXIS_DESC_PX))
-            .x_label_formatter(&harmonic_label)
-            .y_label_formatter(&log_label)
-            .light_line_style(RGBColor(240, 240, 240))
-            .bold_line_style(RGBColor(215, 215, 215))
-            .draw()
-            .map_err(err)?;
-        let floor = self.y.start;
-        let width = 0.8 / self.groups.len() as f64;
-        for (g, (name, values)) in self.groups.iter().enumerate() {
-            let c = color(g);
-            let bars = values
-                .iter()
-                .enumerate()
-                .filter(|(_, v)| v.is_finite() && **v > floor)
-                .map(|(j, &v)| {
-                    let x0 = j as f64 - 0.4 + g as f64 * width;
-                    Rectangle::new([(x0, floor), (x0 + width, v)], c.filled())
-                });
-            let drawn = chart.draw_series(bars).map_err(err)?;
-            if !name.is_empty() {
-                let visible = values.iter().any(|&v| v.is_finite() && v > floor);
-                let label = if visible {
-                    name.to_string()
-                } else {
-                    format!("{name} (no positive values)")
-                };
-                drawn.label(label).legend(move |(x, y)| {
-                    Rectangle::new([(x + 4, y - 6), (x + 20, y + 6)], c.filled())
-                });
-            }
-        }
-        let labelled = self.groups.iter().any(|(name, _)| !name.is_empty());
-        draw_legend(&mut chart, labelled, &self.legend)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::figure::with_extension;
     use std::time::{Duration, Instant};
 
     fn png_size(path: &Path) -> (u32, u32) {
@@ -823,18 +512,9 @@ mod tests {
         b[10] = (f64::NAN, 0.0);
         b[11] = (0.5, f64::INFINITY);
         let series = [
-            Series {
-                label: "measured",
-                points: &a,
-            },
-            Series {
-                label: "estimated",
-                points: &b,
-            },
-            Series {
-                label: "missing",
-                points: &[],
-            },
+            Series::new("measured", &a),
+            Series::new("estimated", &b),
+            Series::new("missing", &[]),
         ];
         line_chart(
             &stem,
@@ -862,17 +542,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let stem = dir.path().join("run.1");
         let a = sine(10, 0.0);
-        line_chart(
-            &stem,
-            "t",
-            "x",
-            "y",
-            &[Series {
-                label: "a",
-                points: &a,
-            }],
-        )
-        .unwrap();
+        line_chart(&stem, "t", "x", "y", &[Series::new("a", &a)]).unwrap();
         assert!(dir.path().join("run.1.png").exists());
         assert!(dir.path().join("run.1.svg").exists());
     }
@@ -882,28 +552,11 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let stem = dir.path().join("bad");
         let nan = [(f64::NAN, 1.0), (1.0, f64::NAN)];
-        let e = line_chart(
-            &stem,
-            "Broken",
-            "x",
-            "y",
-            &[Series {
-                label: "n",
-                points: &nan,
-            }],
-        )
-        .unwrap_err()
-        .to_string();
+        let e = line_chart(&stem, "Broken", "x", "y", &[Series::new("n", &nan)])
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("Broken") && e.contains("bad"), "{e}");
-        assert!(vector_image(
-            &stem,
-            "Broken",
-            &[Series {
-                label: "n",
-                points: &nan
-            }]
-        )
-        .is_err());
+        assert!(vector_image(&stem, "Broken", &[Series::new("n", &nan)]).is_err());
         assert!(line_chart(&stem, "Empty", "x", "y", &[]).is_err());
         assert!(!with_extension(&stem, "png").exists());
     }
@@ -915,17 +568,7 @@ mod tests {
         std::fs::write(&file, "x").unwrap();
         let stem = file.join("chart");
         let a = sine(10, 0.0);
-        let e = line_chart(
-            &stem,
-            "t",
-            "x",
-            "y",
-            &[Series {
-                label: "a",
-                points: &a,
-            }],
-        )
-        .unwrap_err();
+        let e = line_chart(&stem, "t", "x", "y", &[Series::new("a", &a)]).unwrap_err();
         let e = format!("{e:#}");
         assert!(e.contains("plain-file"), "{e}");
     }
@@ -949,19 +592,9 @@ mod tests {
     #[test]
     fn million_points_render_quickly() {
         let dir = tempfile::tempdir().unwrap();
-        let pts = sine(1_000_000, 0.0);
+        let (pts, big) = (sine(1_000_000, 0.0), dir.path().join("big"));
         let start = Instant::now();
-        line_chart(
-            &dir.path().join("big"),
-            "Big",
-            "t",
-            "y",
-            &[Series {
-                label: "1e6",
-                points: &pts,
-            }],
-        )
-        .unwrap();
+        line_chart(&big, "Big", "t", "y", &[Series::new("1e6", &pts)]).unwrap();
         let line = start.elapsed();
         let xy: Vec<(f64, f64)> = (0..1_000_000)
             .map(|i| {
@@ -973,10 +606,7 @@ mod tests {
         vector_image(
             &dir.path().join("bigxy"),
             "Big XY",
-            &[Series {
-                label: "xy",
-                points: &xy,
-            }],
+            &[Series::new("xy", &xy)],
         )
         .unwrap();
         let vector = start.elapsed();
@@ -1009,18 +639,9 @@ mod tests {
             &stem,
             "Sensor vector",
             &[
-                Series {
-                    label: "before",
-                    points: &ellipse,
-                },
-                Series {
-                    label: "after",
-                    points: &circle,
-                },
-                Series {
-                    label: "unit circle",
-                    points: &circle,
-                },
+                Series::new("before", &ellipse),
+                Series::new("after", &circle),
+                Series::new("unit circle", &circle),
             ],
         )
         .unwrap();
@@ -1060,17 +681,5 @@ mod tests {
         );
         assert!(spectrum_chart(&stem, "Short", "a", &h, &[("s", &zeros[..2])]).is_err());
         assert!(spectrum_chart(&stem, "None", "a", &[], &[]).is_err());
-    }
-
-    #[test]
-    fn tick_labels_are_readable() {
-        assert_eq!(tick_label(0.0), "0");
-        assert_eq!(tick_label(-2.220446049250313e-16), "0");
-        assert_eq!(tick_label(0.25), "0.25");
-        assert_eq!(tick_label(-3.0), "-3");
-        assert_eq!(tick_label(1e-5), "1e-5");
-        assert_eq!(tick_label(2e6), "2e6");
-        assert_eq!(tick_label(9.999999999999999e-5), "1e-4");
-        assert_eq!(tick_label(0.30000000000000004), "0.3");
     }
 }

@@ -18,7 +18,7 @@
 
 use crate::pending::{Pending, PendingDir};
 use crate::plots::{self, Series};
-use crate::stream::{self, Item, Line};
+use crate::stream::{self, Item, Line, Value};
 use anyhow::{anyhow, bail, Context, Result};
 use drive::telemetry::{FieldValue, Record, RECORD_KEYS};
 use std::fmt::Write as _;
@@ -233,27 +233,6 @@ fn add_event(cap: &mut Capture, l: &Line, paths_changed: bool) {
     });
 }
 
-/// Plots rendered into a hidden directory inside DIR and moved into DIR on success, so a
-/// failing run leaves no half set of plots.
-struct PendingPlots(PendingDir);
-
-impl PendingPlots {
-    fn create(dir: &Path) -> Result<Self> {
-        PendingDir::create(dir, "rtt-log").map(Self)
-    }
-
-    fn chart(&mut self, stem: &str, title: &str, y_label: &str, series: &[Series]) -> Result<()> {
-        plots::line_chart(&self.0.tmp().join(stem), title, "time (s)", y_label, series)?;
-        self.0.add(format!("{stem}.png"));
-        self.0.add(format!("{stem}.svg"));
-        Ok(())
-    }
-
-    fn commit(self) -> Result<Vec<PathBuf>> {
-        self.0.commit()
-    }
-}
-
 /// `out.csv` → `out.<tag>.csv` (`out` → `out.<tag>`).
 fn tagged(path: &Path, tag: &str) -> PathBuf {
     let stem = path.file_stem().unwrap_or_default().to_string_lossy();
@@ -324,11 +303,7 @@ fn write_segment(seg: &Segment, dest: &Path) -> Result<Pending> {
             .filter(|(k, _)| *k != "coef")
             .map(|(k, v)| match (k, v) {
                 ("t_ms", FieldValue::U32(t)) => t_s(t).to_string(),
-                (_, FieldValue::U32(x)) => x.to_string(),
-                (_, FieldValue::U8(x)) => x.to_string(),
-                (_, FieldValue::F32(x)) => x.to_string(),
-                (_, FieldValue::Bool(x)) => x.to_string(),
-                (_, FieldValue::Str(x)) => x.to_string(),
+                (_, v) => Value::from(v).text(),
             })
             .collect();
         row.extend(r.coef.iter().take(width).map(|c| c.to_string()));
@@ -350,9 +325,10 @@ fn write_events(events: &[EventRow], dest: &Path) -> Result<Pending> {
     write_csv(dest, &header, rows)
 }
 
-/// Coefficient and speed charts of every segment; a chart without a finite point is
-/// skipped with a note.
-fn render_plots(cap: &Capture, plots: &mut PendingPlots) -> Vec<String> {
+/// Coefficient and speed charts of every segment, rendered into a hidden directory inside
+/// the plot directory and moved into it on success (a failing run leaves no half set of
+/// plots); a chart without a finite point is skipped with a note.
+fn render_plots(cap: &Capture, plots: &mut PendingDir) -> Vec<String> {
     let mut notes = Vec::new();
     let file = Path::new(&cap.name)
         .file_name()
@@ -368,36 +344,20 @@ fn render_plots(cap: &Capture, plots: &mut PendingPlots) -> Vec<String> {
             true => format!("{what}, {file} segment {}", k + 1),
             false => format!("{what}, {file}"),
         };
-        let labels: Vec<String> = seg
+        let over_time = |f: &dyn Fn(&Record) -> f32| -> Vec<(f64, f64)> {
+            let at = |r: &Record| (t_s(r.t_ms), f64::from(f(r)));
+            seg.records.iter().map(at).collect()
+        };
+        let coefs: Vec<(String, Vec<(f64, f64)>)> = seg
             .paths
             .iter()
             .flat_map(|p| [format!("{p} re"), format!("{p} im")])
+            .enumerate()
+            .map(|(j, label)| (label, over_time(&|r| r.coef[j])))
             .collect();
-        let points: Vec<Vec<(f64, f64)>> = (0..labels.len())
-            .map(|j| {
-                seg.records
-                    .iter()
-                    .map(|r| (t_s(r.t_ms), r.coef[j] as f64))
-                    .collect()
-            })
-            .collect();
-        let coef_series: Vec<Series> = labels
-            .iter()
-            .zip(&points)
-            .map(|(l, p)| Series {
-                label: l,
-                points: p,
-            })
-            .collect();
-        let speed: Vec<(f64, f64)> = seg
-            .records
-            .iter()
-            .map(|r| (t_s(r.t_ms), r.omega_rad_s as f64))
-            .collect();
-        let speed_series = [Series {
-            label: "ω̂ (omega_rad_s)",
-            points: &speed,
-        }];
+        let coef_series: Vec<Series> = coefs.iter().map(|(l, p)| Series::new(l, p)).collect();
+        let speed = over_time(&|r| r.omega_rad_s);
+        let speed_series = [Series::new("ω̂ (omega_rad_s)", &speed)];
         for (stem, title, y_label, series) in [
             (
                 format!("coefficients{sfx}"),
@@ -415,12 +375,17 @@ fn render_plots(cap: &Capture, plots: &mut PendingPlots) -> Vec<String> {
             let finite = series
                 .iter()
                 .any(|s| s.points.iter().any(|p| p.0.is_finite() && p.1.is_finite()));
+            let path = plots.tmp().join(&stem);
             let result = match finite {
-                true => plots.chart(&stem, &title, y_label, series),
+                true => plots::line_chart(&path, &title, "time (s)", y_label, series),
                 false => Err(anyhow!("no finite value")),
             };
-            if let Err(e) = result {
-                notes.push(format!("{stem}: not drawn: {e:#}"));
+            match result {
+                Ok(()) => {
+                    plots.add(format!("{stem}.png"));
+                    plots.add(format!("{stem}.svg"));
+                }
+                Err(e) => notes.push(format!("{stem}: not drawn: {e:#}")),
             }
         }
     }
@@ -451,7 +416,7 @@ pub fn run(a: &Args) -> Result<()> {
     }
     let (plots, notes) = match &a.plots {
         Some(dir) => {
-            let mut p = PendingPlots::create(dir)?;
+            let mut p = PendingDir::create(dir, "rtt-log")?;
             let notes = render_plots(&cap, &mut p);
             (Some(p), notes)
         }

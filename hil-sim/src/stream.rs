@@ -9,12 +9,14 @@
 //! parameter (exact: f32 prints shortest-round-trip). Nothing is matched by pattern over
 //! printed text.
 
+use crate::rig::Streamed;
 use anyhow::{anyhow, bail, Context, Result};
 use defmt_decoder::{DecodeError, Table};
 use defmt_parser::{Fragment, ParserMode, Type};
 use drive::commissioning::State;
 use drive::telemetry::{FieldValue, Record, RECORD_KEYS};
 use mras::MAX_PATHS;
+use serde_json::Value as Json;
 use std::path::{Path, PathBuf};
 
 /// A decoded value.
@@ -28,54 +30,43 @@ pub enum Value {
 
 impl Value {
     fn parse(ty: &Type, text: &str) -> Result<Self> {
+        fn num<T: std::str::FromStr>(text: &str, what: &str) -> Result<T>
+        where
+            T::Err: std::error::Error + Send + Sync + 'static,
+        {
+            text.parse()
+                .with_context(|| format!("`{text}` is not {what}"))
+        }
         Ok(match ty {
-            Type::U8 | Type::U16 | Type::U32 | Type::U64 | Type::Usize => Value::Uint(
-                text.parse()
-                    .with_context(|| format!("`{text}` is not an integer"))?,
-            ),
-            Type::F32 => Value::F32(
-                text.parse()
-                    .with_context(|| format!("`{text}` is not an f32"))?,
-            ),
-            Type::Bool => Value::Bool(
-                text.parse()
-                    .with_context(|| format!("`{text}` is not a bool"))?,
-            ),
+            Type::U8 | Type::U16 | Type::U32 | Type::U64 | Type::Usize => {
+                Value::Uint(num(text, "an integer")?)
+            }
+            Type::F32 => Value::F32(num(text, "an f32")?),
+            Type::Bool => Value::Bool(num(text, "a bool")?),
             Type::Str | Type::IStr => Value::Str(text.to_string()),
             other => bail!("parameter type {other:?} is not part of the stream schema"),
         })
     }
 
-    fn from_field(v: FieldValue) -> Self {
-        match v {
-            FieldValue::U32(x) => Value::Uint(x as u64),
-            FieldValue::U8(x) => Value::Uint(x as u64),
-            FieldValue::F32(x) => Value::F32(x),
-            FieldValue::Bool(x) => Value::Bool(x),
-            FieldValue::Str(x) => Value::Str(x.to_string()),
-        }
-    }
-
-    fn uint(&self, key: &str, max: u64) -> Result<u64> {
-        match self {
-            Value::Uint(v) if *v <= max => Ok(*v),
-            other => bail!("`{key}`: {other:?} is not an integer up to {max}"),
-        }
-    }
-
-    fn f32(&self, key: &str) -> Result<f32> {
-        match self {
-            Value::F32(v) => Ok(*v),
-            other => bail!("`{key}`: {other:?} is not an f32"),
-        }
-    }
-
+    /// The value as text: `Display` of the value (shortest round trip for f32).
     pub fn text(&self) -> String {
         match self {
             Value::Uint(v) => v.to_string(),
             Value::F32(v) => v.to_string(),
             Value::Bool(v) => v.to_string(),
             Value::Str(v) => v.clone(),
+        }
+    }
+}
+
+impl From<FieldValue> for Value {
+    fn from(v: FieldValue) -> Self {
+        match v {
+            FieldValue::U32(x) => Value::Uint(x.into()),
+            FieldValue::U8(x) => Value::Uint(x.into()),
+            FieldValue::F32(x) => Value::F32(x),
+            FieldValue::Bool(x) => Value::Bool(x),
+            FieldValue::Str(x) => Value::Str(x.to_string()),
         }
     }
 }
@@ -89,14 +80,10 @@ pub struct Line {
 }
 
 impl Line {
-    pub fn get(&self, key: &str) -> Option<&Value> {
-        self.fields.iter().find(|(k, _)| k == key).map(|(_, v)| v)
-    }
-
     /// The `t_ms` of the line, if it has one.
     pub fn t_ms(&self) -> Option<u32> {
-        match self.get("t_ms")? {
-            Value::Uint(v) => u32::try_from(*v).ok(),
+        match self.fields.iter().find(|(k, _)| k == "t_ms")? {
+            (_, Value::Uint(v)) => u32::try_from(*v).ok(),
             _ => None,
         }
     }
@@ -111,61 +98,67 @@ impl Line {
             .join(" ")
     }
 
+    /// The values of the fields named `key`, in order.
+    fn values(&self, key: &str) -> Vec<&Value> {
+        let named = self.fields.iter().filter(|(k, _)| k == key);
+        named.map(|(_, v)| v).collect()
+    }
+
     /// A record line as the typed record.
     pub fn record(&self) -> Result<Record> {
         if self.kind != "mras" {
             bail!("a `{}` line is not a record", self.kind);
         }
-        let one = |key: &str| -> Result<&Value> {
-            let mut it = self.fields.iter().filter(|(k, _)| k == key);
-            let v = it
-                .next()
-                .map(|(_, v)| v)
-                .ok_or_else(|| anyhow!("no `{key}`"))?;
-            if it.next().is_some() {
-                bail!("`{key}` appears twice");
-            }
-            Ok(v)
-        };
         for (k, _) in &self.fields {
             if !RECORD_KEYS.contains(&k.as_str()) {
                 bail!("unknown field `{k}`");
             }
         }
+        let one = |key: &str| -> Result<&Value> {
+            match self.values(key)[..] {
+                [v] => Ok(v),
+                [] => bail!("no `{key}`"),
+                _ => bail!("`{key}` appears twice"),
+            }
+        };
+        let f32_of = |key: &str, v: &Value| match v {
+            Value::F32(x) => Ok(*x),
+            other => bail!("`{key}`: {other:?} is not an f32"),
+        };
+        let uint = |key: &str, max: u32| match one(key)? {
+            Value::Uint(v) if *v <= u64::from(max) => Ok(*v as u32),
+            other => bail!("`{key}`: {other:?} is not an integer up to {max}"),
+        };
         let state_name = match one("state")? {
             Value::Str(s) => s,
             other => bail!("`state`: {other:?} is not a name"),
         };
         let coefs: Vec<f32> = self
-            .fields
-            .iter()
-            .filter(|(k, _)| k == "coef")
-            .map(|(_, v)| v.f32("coef"))
+            .values("coef")
+            .into_iter()
+            .map(|v| f32_of("coef", v))
             .collect::<Result<_>>()?;
         let coef: [f32; 2 * MAX_PATHS] = coefs.try_into().map_err(|v: Vec<f32>| {
-            anyhow!(
-                "`coef`: {} values, the schema has {}",
-                v.len(),
-                2 * MAX_PATHS
-            )
+            let n = 2 * MAX_PATHS;
+            anyhow!("`coef`: {} values, the schema has {n}", v.len())
         })?;
-        let u32_of = |k: &str| -> Result<u32> { Ok(one(k)?.uint(k, u32::MAX as u64)? as u32) };
+        let f32_at = |key: &str| f32_of(key, one(key)?);
         Ok(Record {
-            t_ms: u32_of("t_ms")?,
+            t_ms: uint("t_ms", u32::MAX)?,
             state: State::from_name(state_name)
                 .ok_or_else(|| anyhow!("`state`: unknown state `{state_name}`"))?,
-            faults: one("faults")?.uint("faults", u8::MAX as u64)? as u8,
-            omega_rad_s: one("omega_rad_s")?.f32("omega_rad_s")?,
-            amplitude: one("amplitude")?.f32("amplitude")?,
+            faults: uint("faults", u8::MAX.into())? as u8,
+            omega_rad_s: f32_at("omega_rad_s")?,
+            amplitude: f32_at("amplitude")?,
             converged: match one("converged")? {
                 Value::Bool(b) => *b,
                 other => bail!("`converged`: {other:?} is not a bool"),
             },
-            revs: u32_of("revs")?,
-            residual_max_rad: one("residual_max_rad")?.f32("residual_max_rad")?,
-            cycles_max: u32_of("cycles_max")?,
-            cycles_mean: u32_of("cycles_mean")?,
-            cycles_min: u32_of("cycles_min")?,
+            revs: uint("revs", u32::MAX)?,
+            residual_max_rad: f32_at("residual_max_rad")?,
+            cycles_max: uint("cycles_max", u32::MAX)?,
+            cycles_mean: uint("cycles_mean", u32::MAX)?,
+            cycles_min: uint("cycles_min", u32::MAX)?,
             coef,
         })
     }
@@ -185,6 +178,11 @@ impl Line {
     }
 }
 
+/// Whether a line's marker (its first word) is one of ours: `mras` or `mras-...`.
+fn is_ours(marker: &str) -> bool {
+    marker == "mras" || marker.starts_with("mras-")
+}
+
 /// Each parameter's name and type, in order.
 type Params = Vec<(String, Type)>;
 
@@ -196,7 +194,7 @@ fn schema(frags: &[Fragment<'_>]) -> Result<Option<(String, Params)>> {
         return Ok(None);
     };
     let kind = first.split_whitespace().next().unwrap_or("");
-    if kind != "mras" && !kind.starts_with("mras-") {
+    if !is_ours(kind) {
         return Ok(None);
     }
     let mut key = String::new();
@@ -207,11 +205,7 @@ fn schema(frags: &[Fragment<'_>]) -> Result<Option<(String, Params)>> {
                 let lit: &str = lit;
                 let rest = if n == 0 { &lit[kind.len()..] } else { lit }.trim();
                 if let Some(name) = rest.strip_suffix('=') {
-                    key = name
-                        .rsplit(char::is_whitespace)
-                        .next()
-                        .unwrap_or("")
-                        .to_string();
+                    key = name.rsplit(char::is_whitespace).next().unwrap_or("").into();
                 } else if !rest.is_empty() && rest != "," {
                     bail!("`{kind}`: unexpected text `{rest}` between fields");
                 }
@@ -223,11 +217,13 @@ fn schema(frags: &[Fragment<'_>]) -> Result<Option<(String, Params)>> {
 }
 
 /// A line of ours from a frame's fragments and each parameter's rendered text.
-fn line_of(frags: &[Fragment<'_>], texts: impl Iterator<Item = String>) -> Result<Option<Line>> {
+fn line_of(
+    frags: &[Fragment<'_>],
+    mut texts: impl Iterator<Item = String>,
+) -> Result<Option<Line>> {
     let Some((kind, params)) = schema(frags)? else {
         return Ok(None);
     };
-    let mut texts = texts;
     let mut fields = Vec::with_capacity(params.len());
     for (key, ty) in params {
         let text = texts
@@ -300,30 +296,20 @@ impl Formats {
     pub fn from_elf(elf: &[u8]) -> Result<Self> {
         use object::{Object, ObjectSection, ObjectSymbol};
         let file = object::File::parse(elf).context("parsing the ELF")?;
-        let defmt: Vec<_> = file
-            .sections()
-            .filter(|s| {
-                s.name()
-                    .is_ok_and(|n| n == ".defmt" || n.starts_with(".defmt."))
-            })
+        let defmt_section = |n: &str| n == ".defmt" || n.starts_with(".defmt.");
+        let defmt: Vec<_> = (file.sections())
+            .filter(|s| s.name().is_ok_and(defmt_section))
             .map(|s| s.index())
             .collect();
         let mut by_kind = Vec::new();
-        for sym in file.symbols() {
-            if !sym.section_index().is_some_and(|i| defmt.contains(&i)) {
-                continue;
-            }
-            let Ok(name) = sym.name() else { continue };
-            let Ok(json) = serde_json::from_str::<serde_json::Value>(name) else {
-                continue;
-            };
+        let in_defmt = |s: &object::Symbol| s.section_index().is_some_and(|i| defmt.contains(&i));
+        for sym in file.symbols().filter(in_defmt) {
+            let json: Option<Json> = sym.name().ok().and_then(|n| serde_json::from_str(n).ok());
+            let Some(json) = json else { continue };
             let tag = json["tag"].as_str().unwrap_or("");
             let data = json["data"].as_str().unwrap_or("");
-            if !matches!(tag, "defmt_info" | "defmt_error" | "defmt_warn") {
-                continue;
-            }
             let word = data.split_whitespace().next().unwrap_or("");
-            if word == "mras" || word.starts_with("mras-") {
+            if matches!(tag, "defmt_info" | "defmt_error" | "defmt_warn") && is_ours(word) {
                 let index = u16::try_from(sym.address())
                     .map_err(|_| anyhow!("defmt index {:#x} beyond u16", sym.address()))?;
                 by_kind.push((word.to_string(), index, data.to_string()));
@@ -336,20 +322,28 @@ impl Formats {
     }
 
     fn get(&self, kind: &str) -> Result<(u16, &str)> {
-        let mut it = self.by_kind.iter().filter(|(k, _, _)| k == kind);
-        let (_, index, format) = it
-            .next()
-            .ok_or_else(|| anyhow!("the ELF has no `{kind}` log statement"))?;
-        if it.next().is_some() {
-            bail!("the ELF has two `{kind}` log statements");
+        match self
+            .by_kind
+            .iter()
+            .filter(|(k, _, _)| k == kind)
+            .collect::<Vec<_>>()[..]
+        {
+            [(_, index, format)] => Ok((*index, format)),
+            [] => bail!("the ELF has no `{kind}` log statement"),
+            _ => bail!("the ELF has two `{kind}` log statements"),
         }
-        Ok((*index, format))
     }
 
     /// One frame of `kind` with `fields` in the format's order, rzCOBS-framed as defmt-rtt
     /// sends it (no timestamp: the firmware defines none). The names the format gives its
     /// parameters must be the fields' names.
-    pub fn encode(&self, kind: &str, fields: &[(String, Value)], out: &mut Vec<u8>) -> Result<()> {
+    pub fn encode<'k>(
+        &self,
+        kind: &str,
+        fields: impl IntoIterator<Item = (&'k str, Value)>,
+        out: &mut Vec<u8>,
+    ) -> Result<()> {
+        let fields: Vec<(&str, Value)> = fields.into_iter().collect();
         let (index, format) = self.get(kind)?;
         let frags = defmt_parser::parse(format, ParserMode::Strict)
             .map_err(|e| anyhow!("`{format}`: {e:?}"))?;
@@ -362,7 +356,7 @@ impl Formats {
             );
         }
         let mut raw = index.to_le_bytes().to_vec();
-        for ((key, ty), (name, v)) in params.iter().zip(fields) {
+        for ((key, ty), (name, v)) in params.iter().zip(&fields) {
             if key != name {
                 bail!("`{kind}`: parameter `{key}` where the schema has `{name}`");
             }
@@ -375,29 +369,9 @@ impl Formats {
         Ok(())
     }
 
-    pub fn encode_record(&self, r: &Record, out: &mut Vec<u8>) -> Result<()> {
-        let fields: Vec<(String, Value)> = r
-            .fields()
-            .map(|(k, v)| (k.to_string(), Value::from_field(v)))
-            .collect();
-        self.encode("mras", &fields, out)
-    }
-
-    pub fn encode_event(&self, e: &drive::telemetry::Event, out: &mut Vec<u8>) -> Result<()> {
-        let fields: Vec<(String, Value)> = e
-            .fields()
-            .iter()
-            .map(|(k, v)| (k.to_string(), Value::from_field(*v)))
-            .collect();
-        self.encode(e.kind(), &fields, out)
-    }
-
+    /// The `mras-paths` line naming the coefficient columns, as the firmware's init sends it.
     pub fn encode_paths(&self, names: &str, out: &mut Vec<u8>) -> Result<()> {
-        self.encode(
-            "mras-paths",
-            &[(String::new(), Value::Str(names.to_string()))],
-            out,
-        )
+        self.encode("mras-paths", [("", Value::Str(names.into()))], out)
     }
 }
 
@@ -406,14 +380,17 @@ impl Formats {
 pub fn encode_streamed(
     formats: &Formats,
     path_names: &str,
-    items: &[(f64, crate::rig::Streamed)],
+    items: &[(f64, Streamed)],
 ) -> Result<Vec<u8>> {
     let mut out = Vec::new();
     formats.encode_paths(path_names, &mut out)?;
+    let named = |(k, v): (&'static str, FieldValue)| (k, Value::from(v));
     for (_, item) in items {
         match item {
-            crate::rig::Streamed::Record(r) => formats.encode_record(r, &mut out)?,
-            crate::rig::Streamed::Event(e) => formats.encode_event(e, &mut out)?,
+            Streamed::Record(r) => formats.encode("mras", r.fields().map(named), &mut out)?,
+            Streamed::Event(e) => {
+                formats.encode(e.kind(), e.fields().into_iter().map(named), &mut out)?
+            }
         }
     }
     Ok(out)
@@ -446,12 +423,9 @@ fn encode_param(ty: &Type, v: &Value, raw: &mut Vec<u8>) -> Result<()> {
 mod tests {
     use super::*;
 
-    fn frags(format: &str) -> Vec<Fragment<'_>> {
-        defmt_parser::parse(format, ParserMode::Strict).unwrap()
-    }
-
     fn line(format: &str, texts: &[&str]) -> Result<Option<Line>> {
-        line_of(&frags(format), texts.iter().map(|t| t.to_string()))
+        let frags = defmt_parser::parse(format, ParserMode::Strict).unwrap();
+        line_of(&frags, texts.iter().map(|t| t.to_string()))
     }
 
     #[test]
@@ -502,13 +476,9 @@ mod tests {
             cycles_min: 0,
             coef: [0.25; 2 * MAX_PATHS],
         };
-        let fields: Vec<(String, Value)> = r
-            .fields()
-            .map(|(k, v)| (k.to_string(), Value::from_field(v)))
-            .collect();
         let line = Line {
             kind: "mras".into(),
-            fields: fields.clone(),
+            fields: r.fields().map(|(k, v)| (k.into(), v.into())).collect(),
         };
         assert_eq!(line.record().unwrap(), r);
         let mut short = line.clone();

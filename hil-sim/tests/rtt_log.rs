@@ -299,15 +299,13 @@ fn records_before_the_path_list_and_foreign_inputs_fail_clearly() {
 fn the_elf_format_names_match_the_schema() {
     let formats = Formats::from_elf(&elf()).unwrap();
     let mut out = Vec::new();
-    let wrong = [("t_ms".to_string(), stream::Value::Uint(1))];
-    let e = formats.encode("mras", &wrong, &mut out).unwrap_err();
+    let wrong = [("t_ms", stream::Value::Uint(1))];
+    let e = formats.encode("mras", wrong, &mut out).unwrap_err();
     assert!(format!("{e:#}").contains("parameters"), "{e:#}");
     let renamed = [
-        ("state".to_string(), stream::Value::Str("Run".into())),
-        ("time".to_string(), stream::Value::Uint(1)),
+        ("state", stream::Value::Str("Run".into())),
+        ("time", stream::Value::Uint(1)),
     ];
-    let e = formats
-        .encode("mras-state", &renamed, &mut out)
-        .unwrap_err();
+    let e = formats.encode("mras-state", renamed, &mut out).unwrap_err();
     assert!(format!("{e:#}").contains("`t_ms`"), "{e:#}");
 }
