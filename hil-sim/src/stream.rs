@@ -80,10 +80,15 @@ pub struct Line {
 }
 
 impl Line {
+    /// The first field named `key` (the emulator's scenarios read states this way).
+    pub fn get(&self, key: &str) -> Option<&Value> {
+        self.fields.iter().find(|(k, _)| k == key).map(|(_, v)| v)
+    }
+
     /// The `t_ms` of the line, if it has one.
     pub fn t_ms(&self) -> Option<u32> {
-        match self.fields.iter().find(|(k, _)| k == "t_ms")? {
-            (_, Value::Uint(v)) => u32::try_from(*v).ok(),
+        match self.get("t_ms")? {
+            Value::Uint(v) => u32::try_from(*v).ok(),
             _ => None,
         }
     }
