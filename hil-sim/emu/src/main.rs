@@ -100,19 +100,7 @@ fn main() -> Result<()> {
             );
             let note = format!("Firmware: the release `{name}` ELF of this checkout.");
             let text = scenarios::report(&outcomes, &note);
-            match report {
-                Some(p) => {
-                    let doc = splice(
-                        &std::fs::read_to_string(&p).unwrap_or_default(),
-                        &text,
-                        SCENARIOS,
-                    );
-                    std::fs::write(&p, doc).with_context(|| p.display().to_string())?;
-                    eprintln!("drive-emu: report written to {}", p.display());
-                }
-                None => println!("{text}"),
-            }
-            Ok(())
+            publish(report, &text, SCENARIOS)
         }
     }
 }
@@ -150,6 +138,18 @@ fn splice(doc: &str, generated: &str, sec: Section) -> String {
         }
         _ => format!("{doc}\n{}\n\n{section}", sec.heading),
     }
+}
+
+/// `text` as `sec` of the document at `report`, or on stdout without one.
+fn publish(report: Option<PathBuf>, text: &str, sec: Section) -> Result<()> {
+    let Some(p) = report else {
+        println!("{text}");
+        return Ok(());
+    };
+    let doc = splice(&std::fs::read_to_string(&p).unwrap_or_default(), text, sec);
+    std::fs::write(&p, doc).with_context(|| p.display().to_string())?;
+    eprintln!("drive-emu: report written to {}", p.display());
+    Ok(())
 }
 
 fn perf(builds: &[String], window_s: f64, report: Option<PathBuf>) -> Result<()> {
@@ -190,18 +190,7 @@ fn perf(builds: &[String], window_s: f64, report: Option<PathBuf>) -> Result<()>
             ));
         }
     }
-    match report {
-        Some(p) => {
-            let doc = splice(
-                &std::fs::read_to_string(&p).unwrap_or_default(),
-                &text,
-                PERF,
-            );
-            std::fs::write(&p, doc).with_context(|| p.display().to_string())?;
-            eprintln!("drive-emu: report written to {}", p.display());
-        }
-        None => println!("{text}"),
-    }
+    publish(report, &text, PERF)?;
     if !missed.is_empty() {
         anyhow::bail!("control periods missed:\n  {}", missed.join("\n  "));
     }
