@@ -2,29 +2,15 @@
 //! live one bit for bit, the report scores it, and bad input stops with file, line and
 //! field named and without touching the output.
 
+mod common;
+
+use common::{hil_sim, path_str, report, ADC, IDENTITY_CONFIG, SAMPLE_PERIOD_S};
 use hil_sim::core_config::CoreConfigFile;
 use mras::{Config, Tracker};
-use mras_sim::{Adc, Kinematic, SensorModel, Trajectory};
+use mras_sim::{Kinematic, SensorModel, Trajectory};
 use std::fmt::Write as _;
-use std::path::Path;
-use std::process::{Command, Output};
 
-const SAMPLE_PERIOD_S: f64 = 50.0e-6;
 const INERTIA_KG_M2: f64 = 1.0e-4;
-const ADC: Adc = Adc {
-    bits: 12,
-    full_scale: 1.5,
-};
-/// Identity input scaling, so that the live tracker and replay agree on every field
-/// (without [input] replay would estimate the scaling from the data).
-const IDENTITY_CONFIG: &str = "\
-sensor_periods = 2
-[input]
-offset_x = 0.0
-offset_y = 0.0
-gain_x = 1.0
-gain_y = 1.0
-";
 
 /// One simulated control period: what the core was fed and what it answered.
 struct Row {
@@ -70,22 +56,6 @@ fn simulate(cfg: Config, duration_s: f64) -> Vec<Row> {
         },
     );
     rows
-}
-
-fn hil_sim(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_hil-sim"))
-        .args(args)
-        .output()
-        .expect("hil-sim runs")
-}
-
-fn path_str(p: &Path) -> &str {
-    p.to_str().expect("temp paths are UTF-8")
-}
-
-fn report(path: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(path).expect("report written"))
-        .expect("report is JSON")
 }
 
 #[test]

@@ -2,26 +2,14 @@
 //! sensor drops out for 5 ms: the core locks from the first samples, never reports a
 //! loss of lock it did not have, and adapts (again) by itself.
 
-use mras_sim::{wrap_pi, Adc, SensorModel};
+mod common;
+
+use common::{hil_sim, path_str, report, ADC, IDENTITY_CONFIG, SAMPLE_PERIOD_S};
+use mras_sim::{wrap_pi, SensorModel};
 use serde_json::Value;
 use std::f64::consts::TAU;
 use std::fmt::Write as _;
 use std::path::Path;
-use std::process::Command;
-
-const T_S: f64 = 50.0e-6;
-const ADC: Adc = Adc {
-    bits: 12,
-    full_scale: 1.5,
-};
-const IDENTITY_CONFIG: &str = "\
-sensor_periods = 2
-[input]
-offset_x = 0.0
-offset_y = 0.0
-gain_x = 1.0
-gain_y = 1.0
-";
 
 /// `revs` revolutions of the extreme sensor at a constant speed from the first row (the
 /// recording starts mid-flight, at an arbitrary angle), with a 12-bit converter. Rows in
@@ -29,10 +17,10 @@ gain_y = 1.0
 fn recording(speed_rev_s: f64, revs: f64, dropout: Option<std::ops::Range<usize>>) -> String {
     let sensor = SensorModel::extreme();
     let w = speed_rev_s * TAU;
-    let rows = (revs / speed_rev_s.abs() / T_S).round() as usize;
+    let rows = (revs / speed_rev_s.abs() / SAMPLE_PERIOD_S).round() as usize;
     let mut text = String::from("t_s,x,y,theta_rad\n");
     for k in 0..rows {
-        let t = k as f64 * T_S;
+        let t = k as f64 * SAMPLE_PERIOD_S;
         let th = 1.234 + w * t;
         let (x, y) = match &dropout {
             Some(d) if d.contains(&k) => (0.0, 0.0),
@@ -51,22 +39,28 @@ fn replay(dir: &Path, name: &str, text: &str) -> (Value, Vec<f64>) {
     let input = dir.join(format!("{name}.csv"));
     let output = dir.join(format!("{name}-out.csv"));
     let config = dir.join("identity.toml");
-    let report = dir.join(format!("{name}.json"));
+    let report_path = dir.join(format!("{name}.json"));
     std::fs::write(&input, text).unwrap();
     std::fs::write(&config, IDENTITY_CONFIG).unwrap();
-    let p = |p: &Path| p.to_str().unwrap().to_string();
-    let out = Command::new(env!("CARGO_BIN_EXE_hil-sim"))
-        .args(["replay", "--input", &p(&input), "--output", &p(&output)])
-        .args(["--config", &p(&config), "--report", &p(&report)])
-        .output()
-        .expect("hil-sim runs");
+    let p = path_str;
+    let out = hil_sim(&[
+        "replay",
+        "--input",
+        p(&input),
+        "--output",
+        p(&output),
+        "--config",
+        p(&config),
+        "--report",
+        p(&report_path),
+    ]);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
         "{stdout}\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let rep: Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    let rep = report(&report_path);
     let mut rdr = csv::Reader::from_path(&output).unwrap();
     let theta_hat = rdr
         .records()
@@ -78,7 +72,7 @@ fn replay(dir: &Path, name: &str, text: &str) -> (Value, Vec<f64>) {
 /// The estimate's spatial error pk-pk (mechanical rad) over revolution `rev` (0-based)
 /// of a recording at `speed_rev_s`, modulo a sensor period, its mean removed.
 fn revolution_pk_pk(text: &str, theta_hat: &[f64], speed_rev_s: f64, rev: usize) -> f64 {
-    let per_rev = (1.0 / speed_rev_s.abs() / T_S).round() as usize;
+    let per_rev = (1.0 / speed_rev_s.abs() / SAMPLE_PERIOD_S).round() as usize;
     let theta: Vec<f64> = text
         .lines()
         .skip(1 + rev * per_rev)
@@ -145,8 +139,8 @@ fn replay_of_a_recording_that_starts_at_speed_adapts() {
 fn replay_reacquires_after_a_dropout_at_speed() {
     let dir = tempfile::tempdir().unwrap();
     let speed_rev_s = 100.0;
-    let start = (2.5 / speed_rev_s / T_S) as usize;
-    let dropout = start..start + (5.0e-3 / T_S) as usize;
+    let start = (2.5 / speed_rev_s / SAMPLE_PERIOD_S) as usize;
+    let dropout = start..start + (5.0e-3 / SAMPLE_PERIOD_S) as usize;
     let text = recording(speed_rev_s, 20.0, Some(dropout.clone()));
     let (rep, theta_hat) = replay(dir.path(), "dropout", &text);
     assert_eq!(rep["faults"]["sensor_lost"], dropout.len());
