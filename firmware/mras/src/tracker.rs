@@ -630,6 +630,18 @@ impl<T: Trig> Front<T> {
         due
     }
 
+    /// Put in force, in order, the updates at the front of `pending` that are due at the
+    /// coming period ([`Self::apply`]); the rest stay queued.
+    #[inline(always)]
+    pub fn apply_due<const N: usize>(&mut self, pending: &mut heapless::Deque<InjectionUpdate, N>) {
+        while let Some(u) = pending.front() {
+            if !self.apply(u) {
+                break;
+            }
+            pending.pop_front();
+        }
+    }
+
     /// Every path's decoupling-vector term at once (coefficients loaded from flash, which
     /// the [`Adapter`] has validated).
     pub fn load_injection(&mut self, c: &Coefficients) {
@@ -673,12 +685,7 @@ impl<T: Trig> Tracker<T> {
     /// One control period: raw ADC values and the torque feedforward T* (N·m); see
     /// [`Front::step`].
     pub fn step(&mut self, x_raw: f32, y_raw: f32, torque_ff_nm: f32) -> Result<Estimate, Fault> {
-        while let Some(u) = self.pending.front() {
-            if !self.front.apply(u) {
-                break;
-            }
-            self.pending.pop_front();
-        }
+        self.front.apply_due(&mut self.pending);
         let result = self.front.step(x_raw, y_raw, torque_ff_nm);
         // `adapting` stays that of the last accepted sample, as the estimate does.
         if let Some(&s) = self.front.handoff() {

@@ -18,15 +18,10 @@ fn split_run(
     let mut front = Front::new(cfg).unwrap();
     let mut adapter = Adapter::new(&cfg).unwrap();
     let mut to_task: VecDeque<AdaptSample> = VecDeque::new();
-    let mut to_front: VecDeque<InjectionUpdate> = VecDeque::new();
+    let mut to_front = heapless::Deque::<InjectionUpdate, { 2 * mras::MAX_PATHS }>::new();
     let mut out = Vec::new();
     for (k, &(x, y)) in samples.iter().enumerate() {
-        while let Some(u) = to_front.front() {
-            if !front.apply(u) {
-                break;
-            }
-            to_front.pop_front();
-        }
+        front.apply_due(&mut to_front);
         let r = front.step(x, y, 0.0).map(|e| mras::Estimate {
             adapting: false,
             ..e
@@ -35,7 +30,9 @@ fn split_run(
         if k % task_every == task_every - 1 {
             for s in to_task.drain(..) {
                 let (_, update) = adapter.step(&s);
-                to_front.extend(update);
+                if let Some(u) = update {
+                    to_front.push_back(u).expect("one update per stride fits");
+                }
             }
         }
         out.push((r, adapter.convergence().revs_adapted));

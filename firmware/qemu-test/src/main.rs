@@ -87,12 +87,7 @@ fn main() -> ! {
         let records = VECTOR.chunks_exact(mras_sim::VECTOR_RECORD_BYTES);
         for (k, rec) in records.take(WARMUP_STEPS + 2 * MEASURED_STEPS).enumerate() {
             let (x, y, tq) = mras_sim::decode_vector_record(rec);
-            while let Some(u) = pending.front() {
-                if !front.apply(u) {
-                    break;
-                }
-                pending.pop_front();
-            }
+            front.apply_due(&mut pending);
             let measure_front = (WARMUP_STEPS..WARMUP_STEPS + MEASURED_STEPS).contains(&k);
             let measure_adapter = k >= WARMUP_STEPS + MEASURED_STEPS;
             if measure_front {
