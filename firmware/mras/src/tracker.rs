@@ -787,14 +787,7 @@ impl<T: Trig> Tracker<T> {
 /// The angle of `z` in [0, 2π).
 #[inline(never)]
 fn angle_of(z: Cplx) -> f32 {
-    let mut th = libm::atan2f(z.im, z.re);
-    if th < 0.0 {
-        th += TAU;
-    }
-    if th >= TAU {
-        th = 0.0;
-    }
-    th
+    angle_of_rad(libm::atan2f(z.im, z.re))
 }
 
 /// `x` (within a turn of [0, 2π)) wrapped into [0, 2π).
