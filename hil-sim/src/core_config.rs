@@ -8,11 +8,16 @@
 //! the recording or the scenario. A complete example is
 //! `hil-sim/tests/data/core_config_full.toml`.
 //!
+//! One table is not the core's: `[input]`, replay's front end (the firmware's is its ADC
+//! scaling, `drive::adc`).
+//!
 //! Here: what serde cannot say, the line and the dotted key of an error, from the spans
-//! of a second parse of the text into a spanned table.
+//! of the parse into a spanned table.
 
+use crate::front_end::FrontEnd;
 use crate::input_error::InputError;
 use mras::{Config, ConfigError, PathKind};
+use serde::Deserialize;
 use std::ops::Range;
 use toml::de::{DeTable, DeValue};
 
@@ -21,6 +26,8 @@ use toml::de::{DeTable, DeValue};
 pub struct CoreConfigFile {
     /// As the file sets it; the control period is still the default's.
     pub config: Config,
+    /// `[input]` as the file sets it.
+    pub input: FrontEnd,
     origin: String,
     text: String,
     /// Every key, dotted (`law.gain_per_rad`), with the spans of its name and its value;
@@ -36,11 +43,23 @@ impl CoreConfigFile {
         collect_keys(DeTable::parse_recoverable(text).0.get_ref(), "", &mut keys);
         let mut file = Self {
             config: Config::default(),
+            input: FrontEnd::default(),
             origin: origin.into(),
             text: text.into(),
             keys,
         };
-        file.config = toml::from_str(text).map_err(|e| file.toml_error(&e))?;
+        let mut root = DeTable::parse(text).map_err(|e| file.toml_error(&e))?;
+        // `[input]` apart, the rest is the core's; the spans stay those of `text`.
+        if let Some(input) = root.get_mut().remove("input") {
+            let span = input.span();
+            let DeValue::Table(table) = input.into_inner() else {
+                return Err(file.locate(ConfigError::new("input", "must be a table")));
+            };
+            let table = toml::de::Deserializer::from(toml::Spanned::new(span, table));
+            file.input = FrontEnd::deserialize(table).map_err(|e| file.toml_error(&e))?;
+        }
+        let core = toml::de::Deserializer::from(root);
+        file.config = Config::deserialize(core).map_err(|e| file.toml_error(&e))?;
         Ok(file)
     }
 
@@ -168,9 +187,9 @@ mod tests {
         let c = t.to_config(100.0e-6).unwrap();
         assert_eq!(c.sample_period_s, 100.0e-6);
         assert_eq!(c.sensor_periods, 4);
-        assert_eq!(c.input.offset_x, 2048.0);
-        assert_eq!(c.input.gain_y, 1.0 / 1000.0);
-        assert_eq!(c.input.raw_limit, 4095.0);
+        assert_eq!(t.input.offset_x, 2048.0);
+        assert_eq!(t.input.gain_y, 1.0 / 1000.0);
+        assert_eq!(t.input.raw_limit, 4095.0);
         assert_eq!(c.observer.eigenvalues_hz, [200.0, 20.0, 2.0]);
         assert_eq!(c.observer.inertia_kg_m2, 2.0e-4);
         assert_eq!(
@@ -202,17 +221,32 @@ mod tests {
         let t = parse("");
         assert!(!t.input_given() && !t.sets("sensor_periods"));
         assert_eq!(t.to_config(50.0e-6).unwrap(), Config::default());
+        assert_eq!(t.input, FrontEnd::default());
     }
 
     #[test]
     fn a_partial_table_keeps_the_other_defaults() {
-        let c = parse("[gates]\nmin_h = 0.01\n[input]\nraw_limit = 4095\n").config;
-        let d = Config::default();
+        let t = parse("[gates]\nmin_h = 0.01\n[input]\nraw_limit = 4095\n");
+        let (c, d) = (t.config, Config::default());
         assert_eq!(c.gates.min_h, 0.01);
         assert_eq!(c.gates.min_speed_rad_s, d.gates.min_speed_rad_s);
-        assert_eq!(c.input.raw_limit, 4095.0);
-        assert_eq!(c.input.gain_x, d.input.gain_x);
+        assert_eq!(t.input.raw_limit, 4095.0);
+        assert_eq!(t.input.gain_x, FrontEnd::default().gain_x);
         assert!(!parse("[input]\nraw_limit = 4095\n").input_given());
+    }
+
+    #[test]
+    fn input_table_errors_name_their_line() {
+        let e = parse_error("sensor_periods = 2\n[input]\ngain_x = 0.5\nofset_x = 1\n");
+        assert!(
+            e.starts_with("cfg.toml:4: ") && e.contains("`input.ofset_x`"),
+            "{e}"
+        );
+        let e = parse_error("sensor_periods = 2\ninput = 3\n");
+        assert!(
+            e.starts_with("cfg.toml:2: ") && e.contains("must be a table"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -8,6 +8,7 @@ pub mod commission;
 pub mod core_config;
 pub mod exact;
 pub(crate) mod figure;
+pub mod front_end;
 pub mod input_error;
 pub(crate) mod pending;
 pub mod plant;

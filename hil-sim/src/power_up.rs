@@ -7,7 +7,7 @@
 use crate::rig::{Rig, SimFlash, Step, Streamed};
 use crate::scenario::{NamedCoefficient, Probe, Scenario, Window, WindowStats};
 use anyhow::{anyhow, Result};
-use calib_record::{config_hash, Alignment, RamFlash};
+use calib_record::{Alignment, RamFlash};
 use drive::commissioning::{Cause, State};
 use drive::supervisor::Supervisor;
 use drive::telemetry::Event;
@@ -77,7 +77,7 @@ pub fn rig_with(
     let cfg = sc.core_config(None)?;
     let rig = sc.rig_with(cfg, seed, adjust)?;
     let d = rig.period.config();
-    let hash = config_hash(&cfg, d.motor.pole_pairs);
+    let hash = rig.period.calibration_hash();
     let rate_hz = (1.0 / sc.sample_period_s()).round() as u32;
     let sup = Supervisor::new(c.params(), hash, rate_hz, d.supervisor_divider);
     Ok(rig.with_supervisor(sup, flash))

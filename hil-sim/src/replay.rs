@@ -9,6 +9,7 @@
 //! destroys an existing one.
 
 use crate::core_config::{path_toml_name, CoreConfigFile};
+use crate::front_end::FrontEnd;
 use crate::input_error::InputError;
 use crate::pending::Pending;
 use anyhow::{anyhow, bail, Context, Result};
@@ -287,9 +288,10 @@ fn estimate_scaling(r: &Recording) -> Result<[f32; 4], InputError> {
     Ok([offsets[0] as f32, gain, offsets[1] as f32, gain])
 }
 
-/// The core configuration: `--config` (or the defaults), N from the file or the flag,
-/// input scaling from the file or estimated. Returns it and whether scaling was estimated.
-fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<(Config, bool)> {
+/// The core configuration: `--config` (or the defaults), N from the file or the flag;
+/// and the front end, its scaling from the file or estimated. Returns both and whether
+/// the scaling was estimated.
+fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<(Config, FrontEnd, bool)> {
     let file = match &a.config {
         Some(p) => {
             let origin = p.display().to_string();
@@ -309,12 +311,12 @@ fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<(Config, bool)
         cfg.sensor_periods = a.sensor_periods;
     }
     let estimated = !file.input_given();
+    let mut front = file.input;
     if estimated {
         let [ox, gx, oy, gy] = estimate_scaling(r)?;
-        let i = &mut cfg.input;
-        (i.offset_x, i.gain_x, i.offset_y, i.gain_y) = (ox, gx, oy, gy);
+        (front.offset_x, front.gain_x, front.offset_y, front.gain_y) = (ox, gx, oy, gy);
     }
-    cfg.validate().map_err(|e| {
+    front.validate().and(cfg.validate()).map_err(|e| {
         let why = match e.field {
             "observer.eigenvalues_hz" | "sample_period_s" => format!(
                 " (control period {:.3} µs derived from {}; set [observer] eigenvalues_hz \
@@ -331,7 +333,7 @@ fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<(Config, bool)
         located.problem.push_str(&why);
         located
     })?;
-    Ok((cfg, estimated))
+    Ok((cfg, front, estimated))
 }
 
 /// Column name of a path in OUT.csv: `offset`, `amplitude_quadrature`, `h4`, `h-2`.
@@ -487,12 +489,12 @@ struct Report {
 fn spatial_error(
     r: &Recording,
     cfg: &Config,
+    inp: &FrontEnd,
     window: std::ops::Range<usize>,
     theta_hat_rad: &[f64],
     accepted: &[bool],
 ) -> SpatialErrorReport {
     let n = cfg.sensor_periods as f64;
-    let inp = &cfg.input;
     let raw_e = |k: usize| {
         let xs = (r.x[k] as f64 - inp.offset_x as f64) * inp.gain_x as f64;
         let ys = (r.y[k] as f64 - inp.offset_y as f64) * inp.gain_y as f64;
@@ -564,7 +566,7 @@ pub fn run(a: &Args) -> Result<()> {
         bail!("--report and --output name the same file");
     }
     let period_s = control_period_s(&rec)?;
-    let (cfg, estimated) = build_config(a, &rec, period_s)?;
+    let (cfg, front, estimated) = build_config(a, &rec, period_s)?;
     let mut tracker = Tracker::new(cfg)?;
     let paths: Vec<PathKind> = cfg.paths().to_vec();
     let rows = rec.rows();
@@ -595,7 +597,10 @@ pub fn run(a: &Args) -> Result<()> {
     let mut next_tenth = 1;
     for k in 0..rows {
         let tq = rec.torque_nm.get(k).copied().unwrap_or(0.0);
-        let result = tracker.step(rec.x[k], rec.y[k], tq);
+        let result = match front.scale(rec.x[k], rec.y[k]) {
+            Ok((x, y)) => tracker.step(x, y, tq),
+            Err(f) => Err(tracker.refuse(f)),
+        };
         if let Err(f) = result {
             faults.count(f);
             if f == Fault::LossOfLock && first_lock_loss.is_none() {
@@ -630,7 +635,8 @@ pub fn run(a: &Args) -> Result<()> {
         .sync_all()
         .with_context(|| out_name.clone())?;
 
-    let spatial = has_theta.then(|| spatial_error(&rec, &cfg, window, &theta_hat_rad, &accepted));
+    let spatial =
+        has_theta.then(|| spatial_error(&rec, &cfg, &front, window, &theta_hat_rad, &accepted));
     let conv = tracker.convergence();
     let coefs = tracker.coefficients();
     let n_paths = paths.len();
@@ -648,10 +654,10 @@ pub fn run(a: &Args) -> Result<()> {
             } else {
                 "config"
             },
-            offset_x: cfg.input.offset_x,
-            offset_y: cfg.input.offset_y,
-            gain_x: cfg.input.gain_x,
-            gain_y: cfg.input.gain_y,
+            offset_x: front.offset_x,
+            offset_y: front.offset_y,
+            gain_x: front.gain_x,
+            gain_y: front.gain_y,
         },
         faults,
         faults_total: faults.total(),

@@ -44,7 +44,6 @@ mod app {
     use crate::adc::Adcs;
     use crate::pwm::Pwm;
     use crate::{board, calibration, fault_record};
-    use calib_record::config_hash;
     use cortex_m::peripheral::DWT;
     use drive::adaptation::{AdaptReport, AdaptationTask};
     use drive::commissioning::Cause;
@@ -128,7 +127,7 @@ mod app {
         });
         let mut supervisor = Supervisor::new(
             board::commissioning_params(),
-            config_hash(&cfg, board::POLE_PAIRS),
+            period.calibration_hash(),
             board::PWM_HZ,
             board::SUPERVISOR_DIVIDER,
         );

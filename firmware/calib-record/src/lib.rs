@@ -13,12 +13,12 @@
 //! `no_std`, no allocation, no panics on any flash content.
 //!
 //! ```
-//! use calib_record::{config_hash, load, store, Alignment, Calibration, RamFlash};
+//! use calib_record::{config_hash, load, store, Alignment, Calibration, InputScaling, RamFlash};
 //! use mras::{Coefficients, Config, Cplx, PathKind};
 //!
 //! let cfg = Config::default();
 //! let pole_pairs = 4;
-//! let hash = config_hash(&cfg, pole_pairs);
+//! let hash = config_hash(&cfg, pole_pairs, &InputScaling::IDENTITY);
 //! let mut coefficients = Coefficients::zeros(cfg.paths());
 //! coefficients.set(PathKind::Offset, Cplx::new(0.1, -0.08));
 //! let calibration = Calibration {
@@ -45,7 +45,9 @@ mod slots;
 
 pub use layout::{DOUBLE_WORD_BYTES, PAGE_BYTES, RECORD_BYTES};
 pub use ram_flash::{RamFlash, RamFlashError};
-pub use record::{config_hash, decode, encode, Alignment, Calibration, Record, RecordError};
+pub use record::{
+    config_hash, decode, encode, Alignment, Calibration, InputScaling, Record, RecordError,
+};
 pub use slots::{
     is_newer, load, store, FlashSlots, LoadError, Loaded, OtherSlot, Rejected, Slot, StoreError,
     FIRST_SEQUENCE,

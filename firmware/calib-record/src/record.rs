@@ -108,24 +108,44 @@ impl RecordError {
     }
 }
 
+/// The front end's scaling of raw samples into the core's units,
+/// `x = (x_raw - offset_x) · gain_x`: the coefficients are in those units, so a
+/// calibration means nothing under another scaling.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InputScaling {
+    pub offset_x: f32,
+    pub offset_y: f32,
+    pub gain_x: f32,
+    pub gain_y: f32,
+}
+
+impl InputScaling {
+    /// Samples already in the core's units.
+    pub const IDENTITY: Self = Self {
+        offset_x: 0.0,
+        offset_y: 0.0,
+        gain_x: 1.0,
+        gain_y: 1.0,
+    };
+}
+
 /// Hash of the configuration fields that give a [`Calibration`] its meaning.
 ///
 /// Covered: `sensor_periods` and the motor's `pole_pairs` (the alignment maps the
 /// sensor angle to the electrical angle through p/N: for another sensor or motor it
-/// means nothing), the input scaling offsets and gains (coefficients are in scaled
-/// units) and the path list (count, kinds, order). Not covered: sample period,
-/// observer, adaptation law, gates, health and convergence settings, and
-/// `input.raw_limit`: retuning those must not throw away a calibration.
+/// means nothing), the front end's input scaling and the path list (count, kinds,
+/// order). Not covered: sample period, observer, adaptation law, gates, health and
+/// convergence settings: retuning those must not throw away a calibration.
 ///
 /// CRC-32/ISO-HDLC over, little-endian: `sensor_periods` (u16); `pole_pairs` (u16);
 /// `offset_x`, `offset_y`, `gain_x`, `gain_y` (f32 bits, `-0.0` as `0.0`); path count
 /// (u8); per path its (tag, h) bytes as in the record. Changing this requires a new
 /// [`FORMAT_VERSION`].
-pub fn config_hash(cfg: &Config, pole_pairs: u16) -> u32 {
+pub fn config_hash(cfg: &Config, pole_pairs: u16, input: &InputScaling) -> u32 {
     let mut d = CRC32.digest();
     d.update(&cfg.sensor_periods.to_le_bytes());
     d.update(&pole_pairs.to_le_bytes());
-    let i = &cfg.input;
+    let i = input;
     for v in [i.offset_x, i.offset_y, i.gain_x, i.gain_y] {
         d.update(&canonical_bits(v).to_le_bytes());
     }

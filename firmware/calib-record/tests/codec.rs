@@ -6,8 +6,8 @@ use core::f32::consts::PI;
 
 use calib_record::layout::{COMMIT_OFFSET, DOUBLE_WORD_BYTES, FORMAT_VERSION, HEADER_BYTES};
 use calib_record::{
-    config_hash, decode, encode, Alignment, Calibration, Record, RecordError, PAGE_BYTES,
-    RECORD_BYTES,
+    config_hash, decode, encode, Alignment, Calibration, InputScaling, Record, RecordError,
+    PAGE_BYTES, RECORD_BYTES,
 };
 use common::{
     calib, coefs, encoded, reseal, same_bits, v1_record, with_identity, DEFAULT_PATHS, HASH,
@@ -540,7 +540,8 @@ fn encode_returns_record_length_and_overwrites_buffer() {
 #[test]
 fn config_hash_covers_the_meaning_of_the_coefficients_only() {
     let base = Config::default();
-    let h = config_hash(&base, 4);
+    let id = InputScaling::IDENTITY;
+    let h = config_hash(&base, 4, &id);
     // Independently computed with zlib.crc32 over the documented serialisation
     // (sensor_periods, then pole_pairs, then the input scaling and the path list).
     assert_eq!(h, 0xFF94_483C);
@@ -553,40 +554,41 @@ fn config_hash_covers_the_meaning_of_the_coefficients_only() {
     tuned.gates.min_speed_rad_s = 5.0;
     tuned.health.coefficient_limit = 0.3;
     tuned.convergence.min_revs = 9;
-    tuned.input.raw_limit = 4095.0;
     assert_eq!(
-        config_hash(&tuned, 4),
+        config_hash(&tuned, 4, &id),
         h,
         "tuning must not invalidate a calibration"
     );
 
-    let mut neg_zero = base;
-    neg_zero.input.offset_x = -0.0;
-    assert_eq!(config_hash(&neg_zero, 4), h);
+    let neg_zero = InputScaling {
+        offset_x: -0.0,
+        ..id
+    };
+    assert_eq!(config_hash(&base, 4, &neg_zero), h);
 
-    // (configuration, pole pairs) pairs that must each hash differently.
+    // (configuration, pole pairs, scaling) that must each hash differently.
     let mut variants = Vec::new();
     let mut c = base;
     c.sensor_periods = 3;
-    variants.push((c, 4));
+    variants.push((c, 4, id));
     // Another motor: the alignment means nothing for it.
     for pole_pairs in [0, 1, 3, 5, 7, u16::MAX] {
-        variants.push((base, pole_pairs));
+        variants.push((base, pole_pairs, id));
     }
     // N and p swapped (the same p/N ratio is not the same configuration).
     let mut c = base;
     c.sensor_periods = 4;
-    variants.push((c, 2));
+    variants.push((c, 2, id));
     for field in 0..4 {
-        let mut c = base;
+        let mut i = id;
         let f = match field {
-            0 => &mut c.input.offset_x,
-            1 => &mut c.input.offset_y,
-            2 => &mut c.input.gain_x,
-            _ => &mut c.input.gain_y,
+            0 => &mut i.offset_x,
+            1 => &mut i.offset_y,
+            2 => &mut i.gain_x,
+            _ => &mut i.gain_y,
         };
         *f += 1.0e-3;
-        variants.push((c, 4));
+        variants.push((base, 4, i));
     }
     for paths in [
         &DEFAULT_PATHS[..3],
@@ -605,12 +607,12 @@ fn config_hash_covers_the_meaning_of_the_coefficients_only() {
     ] {
         let mut c = base;
         c.set_paths(paths).unwrap();
-        variants.push((c, 4));
+        variants.push((c, 4, id));
     }
     let mut seen = vec![h];
-    for (v, pole_pairs) in &variants {
-        let hv = config_hash(v, *pole_pairs);
-        assert!(!seen.contains(&hv), "{v:?}, {pole_pairs} pole pairs");
+    for (v, pole_pairs, i) in &variants {
+        let hv = config_hash(v, *pole_pairs, i);
+        assert!(!seen.contains(&hv), "{v:?}, {pole_pairs} pole pairs, {i:?}");
         seen.push(hv);
     }
 }

@@ -83,6 +83,17 @@ pub fn scale(counts: u16, s: &ChannelScaling) -> Result<f32, SampleError> {
     Ok(d as f32 * s.gain_f32)
 }
 
+/// The pair's scaling as a stored calibration's hash covers it (offsets in counts, the
+/// gains the control path multiplies by).
+pub fn record_scaling(x: &ChannelScaling, y: &ChannelScaling) -> calib_record::InputScaling {
+    calib_record::InputScaling {
+        offset_x: x.offset_counts as f32,
+        offset_y: y.offset_counts as f32,
+        gain_x: x.gain_f32,
+        gain_y: y.gain_f32,
+    }
+}
+
 /// Scale the (X, Y) pair sampled at the same instant.
 #[inline]
 pub fn scale_pair(

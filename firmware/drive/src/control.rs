@@ -17,7 +17,7 @@
 //! target), so the FOC angle and the observer use the same sine and cosine.
 
 use crate::adaptation::AdaptReport;
-use crate::adc::{scale_pair, ChannelScaling, SampleError};
+use crate::adc::{record_scaling, scale_pair, ChannelScaling, SampleError};
 use crate::align::{electrical_angle, wrap_pi, ShiftMeter, Sweep};
 use crate::commissioning::{Adaptation, Setpoint};
 use crate::foc::{clarke, inverse_park, park, svpwm, CurrentLoop, CurrentLoopParams};
@@ -317,7 +317,11 @@ impl<T: Trig> ControlPeriod<T> {
                     .step(x, y, self.direction * self.torque_cmd_nm)
                     .map_err(Fault::Sensor)
             }
-            Err(SampleError::Railed) => Err(Fault::Sensor(mras::Fault::SensorSaturated)),
+            // The core holds its estimate through the period, as for a sample it refuses.
+            Err(SampleError::Railed) => Err(Fault::Sensor(
+                self.tracker.refuse(mras::Fault::SensorSaturated),
+            )),
+            // A misconfigured converter, not a sensor fault: latched, never ridden through.
             Err(SampleError::OutOfRange) => Err(Fault::AdcOutOfRange),
         };
         if cmd.measure_shift {
@@ -552,6 +556,13 @@ impl<T: Trig> ControlPeriod<T> {
 
     pub fn config(&self) -> &DriveConfig {
         &self.cfg
+    }
+
+    /// `calib_record::config_hash` of what gives a stored calibration its meaning here:
+    /// the core's configuration, the motor's pole pairs and the sensor's ADC scaling.
+    pub fn calibration_hash(&self) -> u32 {
+        let input = record_scaling(&self.cfg.sensor_x, &self.cfg.sensor_y);
+        calib_record::config_hash(self.tracker.config(), self.cfg.motor.pole_pairs, &input)
     }
 
     /// The scaled sensor vector of the last period that had a valid one.

@@ -145,6 +145,13 @@ fn riding_through_keeps_the_bridge_off_only_while_unlocked() {
     assert!(!p.step(&broken, &cmd).enable);
     assert_eq!(p.latched(), None);
     assert!(p.snapshot().unlocked);
+    // A railed channel is refused before the core, which still counts the period and
+    // holds its estimate (its drift check needs the time that passed).
+    let index = p.tracker().index();
+    assert!(!p.step(&Sample { y: 0, ..sample(th) }, &cmd).enable);
+    assert_eq!(p.tracker().index(), index + 1);
+    assert!(p.tracker().faults().contains(mras::Fault::SensorSaturated));
+    assert_eq!(p.latched(), None);
     // Back, but half a sensor period away: the lock is lost and re-acquired.
     th += std::f32::consts::PI;
     let mut off = 0;

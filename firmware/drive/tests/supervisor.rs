@@ -2,7 +2,7 @@
 //! once the control period accepted them, stores carry the alignment, failures are named.
 
 use calib_record::{
-    config_hash, Alignment, Calibration, FlashSlots, RamFlash, RamFlashError, Slot,
+    config_hash, Alignment, Calibration, FlashSlots, InputScaling, RamFlash, RamFlashError, Slot,
 };
 use drive::commissioning::{Cause, Params, Setpoint, State};
 use drive::supervisor::{NamedError, Supervisor, RECORD_DIVIDER};
@@ -51,7 +51,7 @@ fn ram(e: RamFlashError) -> FlashError {
 const POLE_PAIRS: u16 = 4;
 
 fn hash() -> u32 {
-    config_hash(&Config::default(), POLE_PAIRS)
+    config_hash(&Config::default(), POLE_PAIRS, &InputScaling::IDENTITY)
 }
 
 fn supervisor() -> Supervisor {

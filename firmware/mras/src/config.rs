@@ -68,31 +68,6 @@ impl PathKind {
     }
 }
 
-/// Raw ADC units to the sensor's nominal unit vector: `x = (x_raw - offset_x) · gain_x`.
-#[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Deserialize))]
-#[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
-pub struct InputScaling {
-    pub offset_x: f32,
-    pub offset_y: f32,
-    pub gain_x: f32,
-    pub gain_y: f32,
-    /// |raw| at or above this is a railed (saturated) ADC channel; `f32::INFINITY` disables.
-    pub raw_limit: f32,
-}
-
-impl Default for InputScaling {
-    fn default() -> Self {
-        Self {
-            offset_x: 0.0,
-            offset_y: 0.0,
-            gain_x: 1.0,
-            gain_y: 1.0,
-            raw_limit: f32::INFINITY,
-        }
-    }
-}
-
 /// The Luenberger motion observer (paper Fig. 5).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Deserialize))]
@@ -244,7 +219,6 @@ pub struct Config {
     /// Sensor periods per mechanical revolution N (2 for the KMZ41, pole pairs of a
     /// resolver, lines of a sin/cos encoder).
     pub sensor_periods: u16,
-    pub input: InputScaling,
     pub observer: ObserverConfig,
     /// The harmonic path bank; `path_count` entries of `paths` are used.
     pub paths: [PathKind; MAX_PATHS],
@@ -264,7 +238,6 @@ impl Default for Config {
         let mut c = Self {
             sample_period_s: 50.0e-6,
             sensor_periods: 2,
-            input: InputScaling::default(),
             observer: ObserverConfig::default(),
             paths: [PathKind::Offset; MAX_PATHS],
             path_count: 0,
@@ -361,21 +334,6 @@ impl Config {
         if self.sensor_periods == 0 {
             return Err(ConfigError::new("sensor_periods", "must be >= 1"));
         }
-        let i = &self.input;
-        for (v, f) in [
-            (i.offset_x, "input.offset_x"),
-            (i.offset_y, "input.offset_y"),
-        ] {
-            if !v.is_finite() {
-                return Err(ConfigError::new(f, "must be finite"));
-            }
-        }
-        for (v, f) in [(i.gain_x, "input.gain_x"), (i.gain_y, "input.gain_y")] {
-            if !(v.is_finite() && v != 0.0) {
-                return Err(ConfigError::new(f, "must be finite and non-zero"));
-            }
-        }
-        positive_limit(i.raw_limit, "input.raw_limit")?;
 
         let ev = self.observer.eigenvalues_hz;
         for v in ev {

@@ -7,7 +7,8 @@ pub enum Fault {
     NonFiniteInput,
     /// |Z| below `health.amplitude_min`: sensor disconnected or unpowered. Sample dropped.
     SensorLost,
-    /// |Z| above `health.amplitude_max`, or a raw channel at `input.raw_limit`. Sample dropped.
+    /// |Z| above `health.amplitude_max`, or a railed ADC channel (refused by the front end
+    /// through `Tracker::refuse`). Sample dropped.
     SensorSaturated,
     /// The decoupled vector and the reference are more than `health.lock_threshold_rad`
     /// apart: the observer may slip a sensor period. Reported once per loss; the core

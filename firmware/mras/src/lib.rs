@@ -28,8 +28,8 @@ pub use adapter::Adapter;
 pub use coefficients::{Coefficients, CoefficientsError, Convergence, PaperForm};
 pub use complex::Cplx;
 pub use config::{
-    AdaptationLaw, Config, ConfigError, ConvergenceConfig, Gates, HealthConfig, InputScaling,
-    ObserverConfig, PathKind, MAX_PATHS,
+    AdaptationLaw, Config, ConfigError, ConvergenceConfig, Gates, HealthConfig, ObserverConfig,
+    PathKind, MAX_PATHS,
 };
 pub use decoupler::{AdaptSample, InjectionUpdate, UPDATE_LATENCY_PERIODS};
 pub use health::{Fault, Faults};

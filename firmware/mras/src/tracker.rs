@@ -228,36 +228,27 @@ impl<T: Trig> Front<T> {
         &self.trig
     }
 
-    /// One control period: raw ADC values and the torque feedforward T* (N·m).
+    /// One control period: the sensor vector in scaled units (the front end's
+    /// `(raw - offset) · gain`, nominal |Z| = 1) and the torque feedforward T* (N·m).
     ///
-    /// On `Err` for bad input (non-finite, |Z| out of band, railed ADC) nothing but the
-    /// latched fault set changes. `Err(LossOfLock)` comes once, on the sample where a
-    /// locked observer lost its lock: the observer has still advanced, re-acquires by
-    /// itself, and adaptation pauses until [`Self::is_locked`] again.
+    /// On `Err` for bad input (non-finite, |Z| out of band) nothing but the latched
+    /// fault set changes. `Err(LossOfLock)` comes once, on the sample where a locked
+    /// observer lost its lock: the observer has still advanced, re-acquires by itself,
+    /// and adaptation pauses until [`Self::is_locked`] again.
     ///
     /// An accepted sample (`Ok`, or `Err(LossOfLock)`) leaves its [`AdaptSample`] for
     /// [`Self::handoff`]. Updates due by this period must have been applied first.
-    pub fn step(&mut self, x_raw: f32, y_raw: f32, torque_ff_nm: f32) -> Result<Estimate, Fault> {
+    pub fn step(&mut self, x: f32, y: f32, torque_ff_nm: f32) -> Result<Estimate, Fault> {
         self.index = self.index.wrapping_add(1);
         self.handed = false;
-        let inp = &self.cfg.input;
-        // One comparison each rejects NaN, ±inf and railed values; which of them it was
-        // is sorted out on the rejecting path only.
-        if !(libm::fabsf(x_raw) < inp.raw_limit
-            && libm::fabsf(y_raw) < inp.raw_limit
+        // One comparison each rejects NaN and ±inf.
+        if !(libm::fabsf(x) < f32::INFINITY
+            && libm::fabsf(y) < f32::INFINITY
             && libm::fabsf(torque_ff_nm) < f32::INFINITY)
         {
-            let finite = x_raw.is_finite() && y_raw.is_finite() && torque_ff_nm.is_finite();
-            return self.reject(if finite {
-                Fault::SensorSaturated
-            } else {
-                Fault::NonFiniteInput
-            });
+            return self.reject(Fault::NonFiniteInput);
         }
-        let z = Cplx::new(
-            (x_raw - inp.offset_x) * inp.gain_x,
-            (y_raw - inp.offset_y) * inp.gain_y,
-        );
+        let z = Cplx::new(x, y);
         let z2 = z.norm_sqr();
         // Written so that a NaN also lands on the rejecting side.
         let below_max = z2 <= self.amplitude2_band[1];
@@ -345,6 +336,17 @@ impl<T: Trig> Front<T> {
         } else {
             Ok(est)
         }
+    }
+
+    /// A control period whose sample the front end refused (a railed ADC channel:
+    /// `SensorSaturated`; an open input: `SensorLost`): counted, the estimate held and
+    /// `f` latched, as when the core refuses a sample itself. Without it the held-drift
+    /// check would not see the time that passed.
+    pub fn refuse(&mut self, f: Fault) -> Fault {
+        self.index = self.index.wrapping_add(1);
+        self.handed = false;
+        let _ = self.reject(f);
+        f
     }
 
     fn reject(&mut self, f: Fault) -> Result<Estimate, Fault> {
@@ -682,11 +684,11 @@ impl<T: Trig> Tracker<T> {
         })
     }
 
-    /// One control period: raw ADC values and the torque feedforward T* (N·m); see
-    /// [`Front::step`].
-    pub fn step(&mut self, x_raw: f32, y_raw: f32, torque_ff_nm: f32) -> Result<Estimate, Fault> {
+    /// One control period: the scaled sensor vector and the torque feedforward T* (N·m);
+    /// see [`Front::step`].
+    pub fn step(&mut self, x: f32, y: f32, torque_ff_nm: f32) -> Result<Estimate, Fault> {
         self.front.apply_due(&mut self.pending);
-        let result = self.front.step(x_raw, y_raw, torque_ff_nm);
+        let result = self.front.step(x, y, torque_ff_nm);
         // `adapting` stays that of the last accepted sample, as the estimate does.
         if let Some(&s) = self.front.handoff() {
             let (adapting, update) = self.adapter.step(&s);
@@ -706,6 +708,12 @@ impl<T: Trig> Tracker<T> {
             adapting: self.adapting,
             ..e
         })
+    }
+
+    /// A period whose sample the front end refused; see [`Front::refuse`].
+    pub fn refuse(&mut self, f: Fault) -> Fault {
+        self.front.apply_due(&mut self.pending);
+        self.front.refuse(f)
     }
 
     pub fn front(&self) -> &Front<T> {

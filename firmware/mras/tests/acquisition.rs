@@ -8,6 +8,7 @@ use mras_sim::{wrap_pi, SensorModel, SpatialError};
 use std::f64::consts::TAU;
 
 /// What a sample of the constant-speed drive fed the core.
+#[derive(Clone, Copy, Debug)]
 enum Feed {
     Sensor,
     /// Both channels at mid-scale: a disconnected sensor (refused as `SensorLost`).
@@ -15,6 +16,8 @@ enum Feed {
     /// A vector of nominal amplitude at a random angle: a sensor that reads garbage
     /// the core cannot refuse by its amplitude.
     Garbage,
+    /// A railed ADC channel: refused by the front end, never reaching `step`.
+    Railed,
 }
 
 /// A rotor at constant speed from the first sample (no spin-up), the extreme sensor
@@ -62,8 +65,12 @@ impl Spin {
             }
             Feed::Dropout => (0.0, 0.0),
             Feed::Garbage => (self.garbage)(),
+            Feed::Railed => (f64::NAN, f64::NAN),
         };
-        let r = self.tracker.step(x as f32, y as f32, 0.0);
+        let r = match feed {
+            Feed::Railed => Err(self.tracker.refuse(Fault::SensorSaturated)),
+            _ => self.tracker.step(x as f32, y as f32, 0.0),
+        };
         let est = r.unwrap_or_else(|_| self.tracker.last_estimate());
         let n = self.sensor.sensor_periods as f64;
         let err = wrap_pi(n * (est.theta_unwrapped_rad() - th)) / n;
@@ -159,7 +166,7 @@ fn flying_start_locks_and_converges_at_any_speed() {
 #[test]
 fn dropout_at_speed_reacquires_within_a_revolution() {
     for (i, speed_rev_s) in [100.0, -100.0, 70.0, -70.0, 30.0].into_iter().enumerate() {
-        for feed in [0, 1] {
+        for feed in [Feed::Dropout, Feed::Garbage, Feed::Railed] {
             let mut s = Spin::new(speed_rev_s, 1.0, 100 + i as u64);
             for _ in 0..10 {
                 s.revolution();
@@ -172,11 +179,7 @@ fn dropout_at_speed_reacquires_within_a_revolution() {
             let coefs = s.tracker.coefficients();
             let dropout = (5.0e-3 / T_S) as u64;
             for _ in 0..dropout {
-                let _ = s.step(if feed == 0 {
-                    Feed::Dropout
-                } else {
-                    Feed::Garbage
-                });
+                let _ = s.step(feed);
             }
             let per_rev = s.samples_per_rev();
             let mut back = None;
@@ -186,7 +189,7 @@ fn dropout_at_speed_reacquires_within_a_revolution() {
                     back = Some(k);
                 }
             }
-            let what = if feed == 0 { "dropout" } else { "garbage" };
+            let what = format!("{feed:?}");
             let back = back.unwrap_or_else(|| {
                 panic!("{speed_rev_s} rev/s, {what}: not adapting within a revolution")
             });

@@ -32,9 +32,6 @@ fn each_bad_field_is_named() {
     c.sensor_periods = 0;
     assert_eq!(field_of(c), "sensor_periods");
     c = d();
-    c.input.gain_y = 0.0;
-    assert_eq!(field_of(c), "input.gain_y");
-    c = d();
     c.observer.eigenvalues_hz = [100.0, -10.0, 1.0];
     assert_eq!(field_of(c), "observer.eigenvalues_hz");
     c = d();

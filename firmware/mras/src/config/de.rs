@@ -5,7 +5,7 @@
 //! the scenario sets it. Ranges are [`Config::validate`]'s job, not the parser's.
 
 use super::{AdaptationLaw, Config, ConfigError, MAX_PATHS};
-use super::{ConvergenceConfig, Gates, HealthConfig, InputScaling, ObserverConfig, PathKind};
+use super::{ConvergenceConfig, Gates, HealthConfig, ObserverConfig, PathKind};
 use core::fmt;
 use serde::de::{Deserializer, Error, SeqAccess, Visitor};
 
@@ -82,7 +82,6 @@ impl<'de> serde::Deserialize<'de> for PathBank {
 #[serde(deny_unknown_fields)]
 pub(super) struct ConfigFile {
     sensor_periods: Option<u16>,
-    input: Option<InputScaling>,
     observer: Option<ObserverConfig>,
     paths: Option<PathBank>,
     law: Option<AdaptationLaw>,
@@ -97,7 +96,6 @@ impl From<ConfigFile> for Config {
         let PathBank(paths, path_count) = f.paths.unwrap_or(PathBank(d.paths, d.path_count));
         Self {
             sensor_periods: f.sensor_periods.unwrap_or(d.sensor_periods),
-            input: f.input.unwrap_or(d.input),
             observer: f.observer.unwrap_or(d.observer),
             paths,
             path_count,
