@@ -8,7 +8,7 @@
 //! when everything succeeded, so a failing run never leaves a partial OUT.csv behind nor
 //! destroys an existing one.
 
-use crate::core_config::{path_toml_name, CoreConfigFile};
+use crate::core_config::CoreConfigFile;
 use crate::front_end::FrontEnd;
 use crate::input_error::InputError;
 use crate::pending::Pending;
@@ -334,6 +334,15 @@ fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<(Config, Front
         located
     })?;
     Ok((cfg, front, estimated))
+}
+
+/// A path's name in the TOML `paths` list: `offset`, `amplitude-quadrature`, `h4`, `h-2`.
+pub fn path_toml_name(kind: PathKind) -> String {
+    match kind {
+        PathKind::Offset => "offset".into(),
+        PathKind::AmplitudeQuadrature => "amplitude-quadrature".into(),
+        PathKind::Harmonic(h) => format!("h{h}"),
+    }
 }
 
 /// Column name of a path in OUT.csv: `offset`, `amplitude_quadrature`, `h4`, `h-2`.

@@ -29,6 +29,7 @@ mod plan;
 mod population;
 pub mod report;
 pub mod stats;
+mod tables;
 
 use crate::baselines::{constant_speed_reference, Corrector, Ellipse, Lut, MinMax, Raw};
 use crate::plant::{Cogging, LoadStep, MotorParams, Plant};

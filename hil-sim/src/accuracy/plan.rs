@@ -1,6 +1,7 @@
 //! The phases every sensor's run goes through.
 
-use super::SAMPLE_PERIOD_S;
+use super::{BINS, SAMPLE_PERIOD_S, SENSOR_PERIODS};
+use crate::plant::MotorParams;
 
 /// A plan the run cannot execute: the rule it breaks.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -101,7 +102,42 @@ impl Plan {
         });
         let head = "| phase | speed | ramp | duration | scored from | what else |\n\
                     |---|---:|---:|---:|---:|---|";
-        super::page::table(head, rows)
+        super::tables::table(head, rows)
+    }
+
+    /// The plan's figures the results page names (`plan.*`, `spectrum.phase`).
+    pub fn figures(&self) -> Vec<(&'static str, String)> {
+        // The observer's angle lag under an unmodelled torque step: ΔT/K_so, with
+        // K_so = Ĵ(λ1λ2 + λ1λ3 + λ2λ3) of the default observer and this motor's J.
+        let motor = MotorParams::default();
+        let steps = self.evaluation().iter().flat_map(|p| &p.load_steps);
+        let step = steps.map(|(_, pu)| pu.abs()).fold(0.0, f64::max);
+        let step_nm = step * motor.rated_torque_nm;
+        let [l1, l2, l3] = mras::Config::default()
+            .observer
+            .eigenvalues_hz
+            .map(|f| std::f64::consts::TAU * f as f64);
+        let k_so = motor.j_kg_m2 * (l1 * l2 + l1 * l3 + l2 * l3);
+        let cogging = self
+            .cogging
+            .iter()
+            .map(|(h, pu)| format!("{:.0} % at harmonic {h}", pu * 100.0));
+        let bin_deg = 360 / (BINS * SENSOR_PERIODS as usize);
+        vec![
+            ("plan.n", SENSOR_PERIODS.to_string()),
+            ("plan.bins", BINS.to_string()),
+            ("plan.bin_deg", bin_deg.to_string()),
+            ("plan.cal_revs", self.calibration_revs.to_string()),
+            ("plan.speed_loop_hz", self.speed_loop_hz.to_string()),
+            ("plan.cogging", cogging.collect::<Vec<_>>().join(", ")),
+            ("plan.step_nm", format!("{step_nm:.2}")),
+            ("plan.k_so", format!("{k_so:.1}")),
+            ("plan.lag_mrad", format!("{:.0}", 1e3 * step_nm / k_so)),
+            (
+                "spectrum.phase",
+                self.evaluation()[SPECTRUM_PHASE].name.into(),
+            ),
+        ]
     }
 
     /// The published run: 4 s simulated per sensor. The other speed is +40 rev/s: the

@@ -163,6 +163,6 @@ impl Distribution {
             ],
         ];
         let rows = rows.map(|r| r.map(String::from).to_vec());
-        super::page::table("| parameter | range |\n|---|---|", rows)
+        super::tables::table("| parameter | range |\n|---|---|", rows)
     }
 }

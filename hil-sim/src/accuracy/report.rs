@@ -1,10 +1,12 @@
 //! The `bench-accuracy` command: run the suite, write the results page (docs/results.md),
 //! its plots and the per-sensor CSV.
 
-use super::page::{main_table, markdown};
+use super::page::markdown;
 use super::stats::{summarise, Summary};
+use super::tables::main_table;
 use super::{
-    charts, run_suite, Method, Plan, SensorResult, SPECTRUM_HARMONICS_OF_THETA_S, SPECTRUM_PHASE,
+    charts, run_suite, Method, Plan, SensorResult, SAMPLE_PERIOD_S, SPECTRUM_HARMONICS_OF_THETA_S,
+    SPECTRUM_PHASE,
 };
 use crate::pending::Pending;
 use anyhow::{bail, Context, Result};
@@ -64,6 +66,28 @@ impl RunInfo {
             c += " --reduced";
         }
         c
+    }
+
+    /// The run's figures the results page names (`run.*`).
+    pub(crate) fn figures(&self, s: &Summary, plan: &Plan) -> Vec<(&'static str, String)> {
+        let mut note = String::new();
+        if self.reduced {
+            note += " **Reduced variant** (CI size): the published page has 500 sensors.";
+        }
+        if let Some(n) = s.fit_failures.iter().max().filter(|n| **n > 0) {
+            note +=
+                &format!(" Offline fits failed on up to {n} sensors per method (no value there).");
+        }
+        vec![
+            ("run.command", self.command()),
+            ("run.sensors", self.sensors.to_string()),
+            ("run.seed", self.seed.to_string()),
+            ("run.duration_s", format!("{:.2}", plan.duration_s())),
+            ("run.rate_khz", format!("{:.0}", 1e-3 / SAMPLE_PERIOD_S)),
+            ("run.wall_s", format!("{:.0}", self.wall_s)),
+            ("run.threads", self.threads.to_string()),
+            ("run.note", note),
+        ]
     }
 }
 
