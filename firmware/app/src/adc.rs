@@ -7,6 +7,22 @@ use cortex_m::peripheral::DWT;
 use drive::control::Sample;
 use stm32g4xx_hal::stm32::{ADC1, ADC12_COMMON, ADC2, RCC};
 
+/// Arms the conversions, from `idle`: it runs once init's resources are in place and
+/// interrupts are on, so the first trigger's interrupt runs at once. (Armed in init, a
+/// 40 kHz trigger could come twice while init's resources were still being moved.)
+pub struct Start(());
+
+impl Start {
+    /// §21.4.18: JADSTART = 1 lets the master's injected trigger (TIM1 TRGO2) start the
+    /// sequence; in dual mode the slave follows.
+    pub fn conversions(&mut self) {
+        // SAFETY: one read-modify-write of ADC1_CR. Its other writer (init) has
+        // finished, and the control task reads JDRx and writes ISR, never CR.
+        let adc1 = unsafe { &*ADC1::ptr() };
+        adc1.cr().modify(|_, w| w.jadstart().set_bit());
+    }
+}
+
 pub struct Adcs {
     adc1: ADC1,
     adc2: ADC2,
@@ -65,7 +81,8 @@ fn power_up_and_calibrate(adc: &stm32g4xx_hal::stm32::adc1::RegisterBlock, n: u8
 }
 
 impl Adcs {
-    pub fn new(adc1: ADC1, adc2: ADC2, common: ADC12_COMMON) -> Self {
+    /// Configured, not converting: [`Start`] arms the trigger.
+    pub fn new(adc1: ADC1, adc2: ADC2, common: ADC12_COMMON) -> (Self, Start) {
         // SAFETY: init-time enable of the ADC12 clock.
         let rcc = unsafe { &*RCC::ptr() };
         rcc.ahb2enr().modify(|_, w| w.adc12en().set_bit());
@@ -102,8 +119,7 @@ impl Adcs {
         });
         // End of the injected sequence on the master raises ADC1_2.
         adc1.ier().write(|w| w.jeosie().set_bit());
-        adc1.cr().modify(|_, w| w.jadstart().set_bit());
-        Self { adc1, adc2 }
+        (Self { adc1, adc2 }, Start(()))
     }
 
     /// Read the sequence and acknowledge the interrupt (counts; the hardware flags of the

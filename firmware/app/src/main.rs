@@ -41,7 +41,7 @@ fn panic(_: &core::panic::PanicInfo) -> ! {
 
 #[rtic::app(device = stm32g4xx_hal::stm32, dispatchers = [USART1, USART2])]
 mod app {
-    use crate::adc::Adcs;
+    use crate::adc::{self, Adcs};
     use crate::pwm::Pwm;
     use crate::{board, calibration, fault_record};
     use cortex_m::peripheral::DWT;
@@ -86,6 +86,7 @@ mod app {
         supervisor: Supervisor,
         flash: calibration::Flash,
         watchdog: IndependentWatchdog,
+        adc_start: adc::Start,
     }
 
     /// Queue sizes (one slot is kept free): samples `adapt` may lag behind by, and the
@@ -156,10 +157,10 @@ mod app {
             board::SENSOR_PERIODS,
             board::POLE_PAIRS
         );
-        // Last: from here TRGO2 starts a conversion every period, and init runs masked;
-        // the logging above takes longer than a 40 kHz period.
+        // The conversions start in `idle`, after init: it runs masked, and the logging
+        // above takes longer than a 40 kHz period.
         let (adc1, adc2, adc12) = hw.adc;
-        let adcs = Adcs::new(adc1, adc2, adc12);
+        let (adcs, adc_start) = Adcs::new(adc1, adc2, adc12);
         (
             Shared {
                 command: Command::OFF,
@@ -180,8 +181,19 @@ mod app {
                 supervisor,
                 flash: hw.flash,
                 watchdog,
+                adc_start,
             },
         )
+    }
+
+    /// Arms the ADC trigger: the first control interrupt follows the next TRGO2.
+    #[idle(local = [adc_start])]
+    fn idle(cx: idle::Context) -> ! {
+        cx.local.adc_start.conversions();
+        // RTIC's own idle when there is none: a branch to itself (`b .`), which the
+        // emulator also takes for idle.
+        #[allow(clippy::empty_loop)]
+        loop {}
     }
 
     /// The control period: highest priority, bound to the end of the injected sequence.
