@@ -13,6 +13,7 @@
 //! corrected angle is `θs + φx1` (a constant offset, like a mounting error).
 
 use core::f64::consts::{PI, TAU};
+use mras_sim::wrap_pi;
 use nalgebra::{Matrix5, Vector5};
 
 /// Error when a calibration cannot be fitted from the data given.
@@ -68,19 +69,6 @@ pub trait Corrector: Send + Sync {
     /// Never panics; a non-finite input may give NaN.
     fn angle_rad(&self, x: f32, y: f32) -> f64;
     fn name(&self) -> &'static str;
-}
-
-/// Wrap into (-π, π]; NaN stays NaN.
-fn wrap_pi(a: f64) -> f64 {
-    if a > -PI && a <= PI {
-        return a;
-    }
-    let r = a.rem_euclid(TAU);
-    if r > PI {
-        r - TAU
-    } else {
-        r
-    }
 }
 
 /// `atan2` with the result in (-π, π] (atan2(-0, -1) is -π).
