@@ -59,8 +59,8 @@ pub struct Supervisor {
 
 impl Supervisor {
     /// `cfg_hash`: the control period's `calibration_hash` (the core's configuration,
-    /// the motor and the sensor's scaling); `control_rate_hz` and `divider`: the control rate and the control periods
-    /// per supervisor step.
+    /// the motor and the sensor's scaling); `control_rate_hz` and `divider`: the control
+    /// rate and the control periods per supervisor step.
     pub fn new(params: Params, cfg_hash: u32, control_rate_hz: u32, divider: u32) -> Self {
         let divider = divider.max(1);
         Self {
