@@ -21,6 +21,7 @@ pub mod config;
 mod decoupler;
 mod health;
 pub mod observer;
+pub mod survey;
 mod tracker;
 mod trig;
 

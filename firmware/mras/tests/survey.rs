@@ -1,0 +1,220 @@
+//! The error survey: with adaptation frozen, the spectrum of ε against θ̂s (the
+//! observer's transfer undone) is the sensor's angle-error spectrum, and a bank given to
+//! the harmonics it finds removes what the fixed default bank leaves.
+
+use mras::survey::{allocate, path_for, ErrorSurvey, SURVEY_HARMONICS};
+use mras::{Config, PathKind, Tracker};
+use mras_sim::wrap_pi;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use std::f64::consts::TAU;
+
+const T_S: f64 = 50.0e-6;
+const SPEED_REV_S: f64 = 5.0;
+
+/// An N = 1 sensor whose angle error is exactly Σ e_m cos(m θ + φ_m): (m, e_m rad).
+struct AngleError(Vec<(u8, f64, f64)>);
+
+impl AngleError {
+    fn rad(&self, theta_rad: f64) -> f64 {
+        let terms = self.0.iter();
+        terms
+            .map(|&(m, e, phi)| e * (m as f64 * theta_rad + phi).cos())
+            .sum()
+    }
+
+    fn vector(&self, theta_rad: f64) -> (f32, f32) {
+        let a = theta_rad + self.rad(theta_rad);
+        (a.cos() as f32, a.sin() as f32)
+    }
+}
+
+/// Spread over the orders a fixed bank covers (m ≤ 7) and those it does not.
+fn sensor() -> AngleError {
+    AngleError(vec![
+        (1, 4.0e-3, 0.3),
+        (3, 2.0e-3, -1.0),
+        (6, 0.8e-3, 2.0),
+        (9, 1.5e-3, 0.7),
+        (12, 1.0e-3, -2.5),
+        (16, 0.6e-3, 1.2),
+    ])
+}
+
+fn config(paths: Option<&[PathKind]>) -> Config {
+    let mut c = Config {
+        sensor_periods: 1,
+        ..Config::default()
+    };
+    if let Some(p) = paths {
+        c.set_paths(p).unwrap();
+    }
+    c
+}
+
+/// Drive `t` at constant speed from angle 0 for `revs`, with white angle noise of
+/// `noise_rad` RMS; `each(estimate, θ)` per accepted sample.
+fn spin(t: &mut Tracker, revs: f64, noise_rad: f64, mut each: impl FnMut(&mras::Estimate, f64)) {
+    let s = sensor();
+    let omega = TAU * SPEED_REV_S;
+    let n = (revs / (SPEED_REV_S * T_S)).round() as u64;
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let normal = Normal::new(0.0, noise_rad.max(1e-300)).unwrap();
+    for k in 0..n {
+        let th = omega * k as f64 * T_S;
+        let (x, y) = s.vector(
+            th + if noise_rad > 0.0 {
+                normal.sample(&mut rng)
+            } else {
+                0.0
+            },
+        );
+        if let Ok(e) = t.step(x, y, 0.0) {
+            each(&e, th);
+        }
+    }
+}
+
+fn survey(noise_rad: f64) -> (Tracker, ErrorSurvey) {
+    let mut t = Tracker::new(config(None)).unwrap();
+    t.set_frozen(true);
+    let mut survey = ErrorSurvey::default();
+    // One second settles the observer (its slowest pole, 1 Hz, to e^-6); then four
+    // whole sensor periods.
+    let mut k = 0;
+    spin(&mut t, 10.0, noise_rad, |e, _| {
+        k += 1;
+        if k as f64 * T_S > 1.0 && survey.periods() < 4.0 {
+            survey.add(e.theta_e_rad, e.epsilon_rad, e.omega_rad_s);
+        }
+    });
+    (t, survey)
+}
+
+#[test]
+fn the_survey_measures_the_sensors_angle_error_spectrum() {
+    let (t, survey) = survey(0.0);
+    assert!(
+        (survey.periods() - 4.0).abs() < 1e-3,
+        "{}",
+        survey.periods()
+    );
+    let spec = survey.spectrum(t.gains()).expect("four periods at speed");
+    let truth = sensor();
+    for m in 1..=SURVEY_HARMONICS as u8 {
+        let want = truth.0.iter().find(|h| h.0 == m).map_or(0.0, |h| h.1);
+        let got = spec.amplitude_rad[m as usize - 1] as f64;
+        eprintln!(
+            "m = {m:2}: {:7.1} µrad (true {:7.1}), floor {:.2} µrad",
+            got * 1e6,
+            want * 1e6,
+            spec.floor_rad * 1e6
+        );
+        // Beside a large harmonic, a small one: θ̂s, the DFT's angle, carries the part of
+        // the error the observer follows (mostly m = 1), which modulates its neighbours.
+        assert!(
+            (got - want).abs() < 0.03 * want + 30e-6,
+            "m = {m}: {:.1} µrad measured, {:.1} µrad true",
+            got * 1e6,
+            want * 1e6
+        );
+    }
+}
+
+#[test]
+fn the_noise_floor_separates_the_harmonics_from_the_noise() {
+    let (t, survey) = survey(2.0e-3);
+    let spec = survey.spectrum(t.gains()).unwrap();
+    let truth = sensor();
+    for m in 1..=SURVEY_HARMONICS as u8 {
+        let (a, floor) = (spec.amplitude_rad[m as usize - 1], spec.floor_rad);
+        let present = truth.0.iter().any(|h| h.0 == m);
+        eprintln!(
+            "m = {m:2}: {:7.1} µrad, floor {:5.1} µrad",
+            a * 1e6,
+            floor * 1e6
+        );
+        assert!(
+            floor > 0.0 && (a > floor) == present,
+            "m = {m}: {a} against {floor}"
+        );
+    }
+    let chosen = allocate(&spec, 8, 0.0);
+    let want: Vec<PathKind> = [1, 3, 6, 9, 12, 16].map(|m| path_for(m).unwrap()).into();
+    assert_eq!(chosen.paths.as_slice(), want.as_slice());
+}
+
+#[test]
+fn the_bank_goes_to_the_largest_harmonics_and_names_what_it_left() {
+    let (t, survey) = survey(0.0);
+    let spec = survey.spectrum(t.gains()).unwrap();
+    let all = allocate(&spec, 8, 50e-6);
+    let want: Vec<PathKind> = [1, 3, 6, 9, 12, 16].map(|m| path_for(m).unwrap()).into();
+    assert_eq!(all.paths.as_slice(), want.as_slice());
+    assert!(all.unobserved.is_empty());
+    // A bank of three: m = 1, 3 and 9 (4, 2 and 1.5 mrad); 12, 6 and 16 left.
+    let three = allocate(&spec, 3, 50e-6);
+    let want: Vec<PathKind> = [1, 3, 9].map(|m| path_for(m).unwrap()).into();
+    assert_eq!(three.paths.as_slice(), want.as_slice());
+    assert_eq!(three.unobserved.as_slice(), &[6, 12, 16]);
+    // Every chosen bank is one the core accepts.
+    config(Some(&all.paths)).validate().unwrap();
+}
+
+#[test]
+fn every_harmonic_has_a_path_the_core_accepts() {
+    for m in 1..=SURVEY_HARMONICS as u8 {
+        let k = path_for(m).unwrap();
+        assert_eq!(k.error_harmonic(), m);
+        config(Some(&[k])).validate().unwrap();
+    }
+    assert_eq!(path_for(0), None);
+    assert_eq!(path_for(17), None);
+}
+
+/// Error of θ̂ against the true angle over the last revolution of `revs`, pk-pk (rad).
+fn residual_pk_pk_rad(paths: &[PathKind], revs: f64) -> f64 {
+    let mut t = Tracker::new(config(Some(paths))).unwrap();
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    let last_from = ((revs - 1.0) / (SPEED_REV_S * T_S)) as u64;
+    let mut k = 0;
+    // θ̂ carries the constant lag of the observer; pk-pk removes it.
+    spin(&mut t, revs, 0.0, |e, th| {
+        k += 1;
+        if k > last_from {
+            let d = wrap_pi(e.theta_unwrapped_rad() - th);
+            (lo, hi) = (lo.min(d), hi.max(d));
+        }
+    });
+    hi - lo
+}
+
+#[test]
+fn a_bank_from_the_data_removes_what_the_default_bank_leaves() {
+    let (t, survey) = survey(0.0);
+    let chosen = allocate(&survey.spectrum(t.gains()).unwrap(), 8, 50e-6);
+    let default = *Config::default().paths().last().unwrap();
+    assert_eq!(
+        default,
+        PathKind::Harmonic(8),
+        "the default bank ends at m = 7"
+    );
+    let raw = {
+        let s = sensor();
+        let e: Vec<f64> = (0..3600).map(|i| s.rad(TAU * i as f64 / 3600.0)).collect();
+        e.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+            - e.iter().cloned().fold(f64::INFINITY, f64::min)
+    };
+    let fixed = residual_pk_pk_rad(Config::default().paths(), 20.0);
+    let from_data = residual_pk_pk_rad(&chosen.paths, 20.0);
+    eprintln!(
+        "raw {:.2} mrad pk-pk; default bank {:.3} mrad; bank from the data {:.3} mrad",
+        raw * 1e3,
+        fixed * 1e3,
+        from_data * 1e3
+    );
+    // The default bank cannot touch m = 9, 12, 16 (3.1 mrad of amplitude).
+    assert!(fixed > 0.3 * raw, "{fixed} of {raw}");
+    assert!(from_data < raw / 30.0, "{from_data} of {raw}");
+}
