@@ -116,6 +116,9 @@ fn replay_reproduces_the_live_estimate_bit_exactly() {
     );
     assert_eq!(rep["rows"], rows.len());
     assert_eq!(rep["input_scaling"]["source"], "config");
+    // A 20 rev/s recording at 20 kHz keeps the default observer the live tracker ran,
+    // which the bit-exact comparison below confirms.
+    assert_eq!(rep["observer"]["source"], "default");
     assert_eq!(rep["faults_total"], 0);
 
     let mut rdr = csv::Reader::from_path(&output).unwrap();
@@ -215,6 +218,17 @@ fn default_config_commissions_a_recording_in_adc_counts() {
     let rep = report(&report_path);
     assert_eq!(rep["input_scaling"]["source"], "estimated from min/max");
     assert_eq!(rep["sensor_periods"], 2);
+    let obs = &rep["observer"];
+    assert_eq!(obs["source"], "default", "{stdout}");
+    assert_eq!(obs["eigenvalues_hz"], serde_json::json!([100.0, 10.0, 1.0]));
+    assert_eq!(obs["sample_rate_hz"].as_f64().unwrap().round(), 20_000.0);
+    // Median over time: the ramp to 20 rev/s takes 63 ms of the 0.8 s.
+    let speed_rev_s = obs["speed_rev_s"].as_f64().unwrap();
+    assert!((speed_rev_s - 20.0).abs() < 0.01, "{speed_rev_s} rev/s");
+    assert!(
+        stdout.contains("observer eigenvalues [100.0, 10.0, 1.0] Hz (default)"),
+        "{stdout}"
+    );
     let coefs = rep["final_coefficients"].as_array().unwrap();
     // The default bank: the extreme sensor's h = 2..5 load the first four paths; it has
     // no error at m = 5..7, so h6..h8 stay near zero.
@@ -395,5 +409,163 @@ fn unknown_config_field_is_named_with_its_line() {
         &good_csv(400),
         Some("sensor_periods = 2\n[gates]\nmin_spead_rad_s = 1.0\n"),
         &["CFG.toml:3:", "`gates.min_spead_rad_s`", "unknown field"],
+    );
+}
+
+/// `revs` revolutions of the extreme sensor on an N = 1 encoder at a constant
+/// `speed_rev_s` from the first row (mid-flight, at an arbitrary angle), sampled at
+/// `rate_hz` by the 12-bit converter and written in its counts, as a bench records them.
+fn encoder_recording(rate_hz: f64, speed_rev_s: f64, revs: f64) -> String {
+    let mut sensor = SensorModel::extreme();
+    sensor.sensor_periods = 1;
+    let lsb = 2.0 * ADC.full_scale / 4096.0;
+    let counts = |v: f64| (ADC.quantise(v) / lsb).round() + 2048.0;
+    let rows = (revs / speed_rev_s.abs() * rate_hz).round() as usize;
+    let mut text = String::from("t_s,x,y,theta_rad\n");
+    for k in 0..rows {
+        let t = k as f64 / rate_hz;
+        let th = 0.7 + std::f64::consts::TAU * speed_rev_s * t;
+        let (x, y) = sensor.vector(th);
+        writeln!(text, "{t},{},{},{th}", counts(x), counts(y)).unwrap();
+    }
+    text
+}
+
+/// Replay `text` with N = 1 and, when given, `config`; the report and stdout.
+fn replay_encoder(text: &str, config: Option<&str>) -> (serde_json::Value, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let (input, output, cfg_path, report_path) = (
+        dir.path().join("IN.csv"),
+        dir.path().join("OUT.csv"),
+        dir.path().join("CFG.toml"),
+        dir.path().join("REPORT.json"),
+    );
+    std::fs::write(&input, text).unwrap();
+    let mut args = vec![
+        "replay",
+        "--input",
+        path_str(&input),
+        "--output",
+        path_str(&output),
+        "--report",
+        path_str(&report_path),
+        "--sensor-periods",
+        "1",
+    ];
+    if let Some(c) = config {
+        std::fs::write(&cfg_path, c).unwrap();
+        args.extend(["--config", path_str(&cfg_path)]);
+    }
+    let out = hil_sim(&args);
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (report(&report_path), stdout)
+}
+
+fn eigenvalues_hz(rep: &serde_json::Value) -> Vec<f64> {
+    rep["observer"]["eigenvalues_hz"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect()
+}
+
+fn reduction(rep: &serde_json::Value) -> f64 {
+    rep["spatial_error"]["reduction"].as_f64().unwrap()
+}
+
+#[test]
+fn a_1_khz_recording_without_config_gets_eigenvalues_chosen_from_it() {
+    let (rep, stdout) = replay_encoder(&encoder_recording(1000.0, 1.0, 40.0), None);
+    eprintln!("{stdout}");
+    let obs = &rep["observer"];
+    assert_eq!(obs["source"], "chosen from the recording", "{stdout}");
+    assert!(stdout.contains("chosen from the recording"), "{stdout}");
+    let speed_rev_s = obs["speed_rev_s"].as_f64().unwrap();
+    assert!((speed_rev_s - 1.0).abs() < 0.01, "{speed_rev_s} rev/s");
+    let f_e_hz = obs["lowest_error_harmonic_hz"].as_f64().unwrap();
+    assert!(
+        (f_e_hz - speed_rev_s).abs() < 1e-9,
+        "m = 1, N = 1: {f_e_hz}"
+    );
+    // The default scaled to put its middle eigenvalue on the lowest error harmonic (the
+    // sample rate alone would allow 15.9 Hz for the fastest), the 10:1 spacing kept.
+    assert_eq!(eigenvalues_hz(&rep), [10.0, 1.0, 0.1], "{stdout}");
+    let ev = eigenvalues_hz(&rep);
+    let period_s = rep["sample_period_s"].as_f64().unwrap();
+    assert!(std::f64::consts::TAU * ev[0] * period_s <= 0.1, "{ev:?}");
+
+    assert_eq!(rep["faults_total"], 0, "{stdout}");
+    assert_eq!(rep["convergence"]["converged"], true, "{stdout}");
+    let e = &rep["spatial_error"];
+    assert!(e["raw"]["pk_pk_mrad"].as_f64().unwrap() > 300.0, "{e}");
+    // Measured: 328 → 0.24 mrad pk-pk, 1 371x (per revolution: 10x from the 5th, 100x
+    // from the 8th, ~1 970x from the 12th). The default is refused at 1 kHz.
+    assert!(reduction(&rep) > 500.0, "{stdout}");
+}
+
+#[test]
+fn a_slow_shaft_at_10_khz_gets_a_slower_observer_than_the_default() {
+    // 2 rev/s on N = 1: the error harmonics from 2 Hz up. The default is valid at 10 kHz
+    // but its middle eigenvalue (10 Hz) is above them: |H(2 Hz)| = 0.0035, below the
+    // gate min_h, so with it the MRAS would not see the lowest one at all.
+    let text = encoder_recording(10_000.0, 2.0, 20.0);
+    let (chosen, stdout) = replay_encoder(&text, None);
+    eprintln!("{stdout}");
+    assert_eq!(chosen["observer"]["source"], "chosen from the recording");
+    let ev = eigenvalues_hz(&chosen);
+    assert!(ev[1] <= 2.0 && ev[1] >= 1.8, "{ev:?}");
+    let (default, stdout_d) = replay_encoder(
+        &text,
+        Some("[observer]\neigenvalues_hz = [100.0, 10.0, 1.0]\n"),
+    );
+    eprintln!("{stdout_d}");
+    assert_eq!(default["observer"]["source"], "config");
+    // Measured: 3 303x with the chosen set, 4x with the default (its offset path never
+    // adapts: |H| below min_h).
+    assert!(reduction(&chosen) > 1000.0, "{stdout}");
+    assert!(reduction(&default) < 10.0, "{stdout_d}");
+}
+
+#[test]
+fn eigenvalues_a_config_sets_are_used_as_given() {
+    let text = encoder_recording(1000.0, 1.0, 10.0);
+    let (rep, stdout) = replay_encoder(
+        &text,
+        Some("[observer]\neigenvalues_hz = [20.0, 2.0, 0.2]\n"),
+    );
+    assert_eq!(rep["observer"]["source"], "config", "{stdout}");
+    assert_eq!(eigenvalues_hz(&rep), [20.0, 2.0, 0.2]);
+    // A set the file gives is not second-guessed: too fast for 1 kHz, it is refused as
+    // before, naming the key.
+    let text = encoder_recording(1000.0, 1.0, 2.0);
+    assert_refused(
+        &text,
+        Some("[observer]\neigenvalues_hz = [100.0, 10.0, 1.0]\n"),
+        &[
+            "CFG.toml:2:",
+            "`observer.eigenvalues_hz`",
+            "too close to the sample rate",
+        ],
+    );
+}
+
+#[test]
+fn a_shaft_too_slow_to_adapt_at_1_khz_is_refused() {
+    // 0.1 rev/s = 0.63 rad/s, below the core's adaptation gate (1 rad/s): no observer
+    // makes the MRAS adapt, and the default is too fast for 1 kHz.
+    assert_refused(
+        &encoder_recording(1000.0, 0.1, 1.0),
+        None,
+        &[
+            "IN.csv: the default observer eigenvalues",
+            "too slow for the MRAS to adapt with any observer (gates.min_speed_rad_s = 1 rad/s)",
+            "set [observer] eigenvalues_hz in a --config file",
+        ],
     );
 }
