@@ -12,6 +12,7 @@ use crate::core_config::CoreConfigFile;
 use crate::front_end::FrontEnd;
 use crate::input_error::InputError;
 use crate::pending::Pending;
+use crate::survey::{self, Samples, SurveyReport};
 use anyhow::{anyhow, bail, Context, Result};
 use mras::{Config, Fault, PathKind, Tracker};
 use mras_sim::{wrap_pi, SpatialError};
@@ -47,6 +48,12 @@ pub struct Args {
     /// the observer's eigenvalues and, with theta_rad, the raw and corrected spatial error.
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// Choose the path bank from the recording: survey the sensor's error spectrum
+    /// (m = 1..16) with adaptation frozen over the first whole sensor periods of a
+    /// settled lock, then give the bank's 8 paths to the largest harmonics (the summary
+    /// and report name them and what was left). Not with `paths` in --config.
+    #[arg(long)]
+    pub paths_from_data: bool,
 }
 
 /// Rows above which progress is printed to stderr.
@@ -516,15 +523,20 @@ fn observer_eigenvalues(
     Ok(report)
 }
 
+/// What replay runs: the core configuration, the front end and how each was chosen.
+struct Setup {
+    cfg: Config,
+    front: FrontEnd,
+    /// The scaling estimated from the recording (not given by `[input]`).
+    estimated: bool,
+    observer: ObserverReport,
+    survey: Option<SurveyReport>,
+}
+
 /// The core configuration: `--config` (or the defaults), N from the file or the flag,
-/// observer eigenvalues from the file or chosen from the recording; and the front end,
-/// its scaling from the file or estimated. Returns both, whether the scaling was
-/// estimated and how the eigenvalues were chosen.
-fn build_config(
-    a: &Args,
-    r: &Recording,
-    period_s: f64,
-) -> Result<(Config, FrontEnd, bool, ObserverReport)> {
+/// observer eigenvalues from the file or chosen from the recording, paths from the file
+/// or the survey; and the front end, its scaling from the file or estimated.
+fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<Setup> {
     let file = match &a.config {
         Some(p) => {
             let origin = p.display().to_string();
@@ -570,7 +582,29 @@ fn build_config(
     front.validate().map_err(locate)?;
     let observer = observer_eigenvalues(&file, &mut cfg, &front, r, period_s)?;
     cfg.validate().map_err(locate)?;
-    Ok((cfg, front, estimated, observer))
+    let survey = match (a.paths_from_data, file.sets("paths")) {
+        (false, _) => None,
+        (true, true) => bail!("--paths-from-data and `paths` in the --config file: choose one"),
+        (true, false) => {
+            let samples = Samples {
+                t_s: &r.t_s,
+                x: &r.x,
+                y: &r.y,
+                torque_nm: &r.torque_nm,
+            };
+            let s = survey::survey(&cfg, &front, &samples).context(r.name.clone())?;
+            cfg.set_paths(&s.kinds).map_err(locate)?;
+            cfg.validate().map_err(locate)?;
+            Some(s)
+        }
+    };
+    Ok(Setup {
+        cfg,
+        front,
+        estimated,
+        observer,
+        survey,
+    })
 }
 
 /// A path's name in the TOML `paths` list: `offset`, `amplitude-quadrature`, `h4`, `h-2`.
@@ -714,6 +748,9 @@ struct Report {
     paths: Vec<String>,
     input_scaling: InputScalingReport,
     observer: ObserverReport,
+    /// With --paths-from-data: the error spectrum the bank was chosen from.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    survey: Option<SurveyReport>,
     faults: FaultCounts,
     faults_total: u64,
     /// Line of the first loss of lock (adaptation pauses until the core has re-acquired
@@ -813,7 +850,13 @@ pub fn run(a: &Args) -> Result<()> {
         bail!("--report and --output name the same file");
     }
     let period_s = control_period_s(&rec)?;
-    let (cfg, front, estimated, observer) = build_config(a, &rec, period_s)?;
+    let Setup {
+        cfg,
+        front,
+        estimated,
+        observer,
+        survey,
+    } = build_config(a, &rec, period_s)?;
     let mut tracker = Tracker::new(cfg)?;
     let paths: Vec<PathKind> = cfg.paths().to_vec();
     let rows = rec.rows();
@@ -907,6 +950,7 @@ pub fn run(a: &Args) -> Result<()> {
             gain_y: front.gain_y,
         },
         observer,
+        survey,
         faults,
         faults_total: faults.total(),
         first_loss_of_lock_line: first_lock_loss,
@@ -985,6 +1029,25 @@ fn print_summary(a: &Args, r: &Report, period_s: f64) {
             ))
     );
     println!("  paths: {}", r.paths.join(", "));
+    if let Some(s) = &r.survey {
+        let spectrum: Vec<String> = s.error_mrad.iter().map(|e| format!("{e:.3}")).collect();
+        println!(
+            "  paths chosen from the data: survey of {:.1} sensor periods from t = {:.3} s, \
+             error m = 1..16 [mrad]: {}",
+            s.periods,
+            s.from_t_s,
+            spectrum.join(" ")
+        );
+        let left = match s.unobserved.as_slice() {
+            [] => "none".to_string(),
+            m => format!("m = {m:?} (the bank holds {} paths)", mras::MAX_PATHS),
+        };
+        println!(
+            "    floors: noise {:.3} mrad, 1 % of the largest {:.3} mrad; left without a path: \
+             {left}",
+            s.floor_mrad, s.min_mrad
+        );
+    }
     println!("  faults: {}", r.faults.summary());
     if let Some(line) = r.first_loss_of_lock_line {
         println!(

@@ -7,7 +7,7 @@ mod common;
 use common::{hil_sim, path_str, report, ADC, IDENTITY_CONFIG, SAMPLE_PERIOD_S};
 use hil_sim::core_config::CoreConfigFile;
 use mras::{Config, Tracker};
-use mras_sim::{Kinematic, SensorModel, Trajectory};
+use mras_sim::{Kinematic, SensorHarmonic, SensorModel, Trajectory};
 use std::fmt::Write as _;
 
 const INERTIA_KG_M2: f64 = 1.0e-4;
@@ -418,6 +418,11 @@ fn unknown_config_field_is_named_with_its_line() {
 fn encoder_recording(rate_hz: f64, speed_rev_s: f64, revs: f64) -> String {
     let mut sensor = SensorModel::extreme();
     sensor.sensor_periods = 1;
+    sensor_recording(&sensor, rate_hz, speed_rev_s, revs)
+}
+
+/// `sensor` through the 12-bit converter at constant speed, in counts.
+fn sensor_recording(sensor: &SensorModel, rate_hz: f64, speed_rev_s: f64, revs: f64) -> String {
     let lsb = 2.0 * ADC.full_scale / 4096.0;
     let counts = |v: f64| (ADC.quantise(v) / lsb).round() + 2048.0;
     let rows = (revs / speed_rev_s.abs() * rate_hz).round() as usize;
@@ -433,6 +438,14 @@ fn encoder_recording(rate_hz: f64, speed_rev_s: f64, revs: f64) -> String {
 
 /// Replay `text` with N = 1 and, when given, `config`; the report and stdout.
 fn replay_encoder(text: &str, config: Option<&str>) -> (serde_json::Value, String) {
+    replay_encoder_with(text, config, &[])
+}
+
+fn replay_encoder_with(
+    text: &str,
+    config: Option<&str>,
+    flags: &[&str],
+) -> (serde_json::Value, String) {
     let dir = tempfile::tempdir().unwrap();
     let (input, output, cfg_path, report_path) = (
         dir.path().join("IN.csv"),
@@ -456,6 +469,7 @@ fn replay_encoder(text: &str, config: Option<&str>) -> (serde_json::Value, Strin
         std::fs::write(&cfg_path, c).unwrap();
         args.extend(["--config", path_str(&cfg_path)]);
     }
+    args.extend(flags);
     let out = hil_sim(&args);
     let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
     assert!(
@@ -568,4 +582,76 @@ fn a_shaft_too_slow_to_adapt_at_1_khz_is_refused() {
             "set [observer] eigenvalues_hz in a --config file",
         ],
     );
+}
+
+/// An N = 1 sensor with error harmonics beyond the default bank's m = 1..7: the extreme
+/// sensor plus h = 10 and 13 (m = 9 and 12) at 1 % and 0.6 %.
+fn sensor_beyond_the_default_bank() -> SensorModel {
+    let mut sensor = SensorModel::extreme();
+    sensor.sensor_periods = 1;
+    sensor
+        .with_harmonic(SensorHarmonic::equal(10, 0.010, 0.4))
+        .with_harmonic(SensorHarmonic::equal(13, 0.006, -1.1))
+}
+
+#[test]
+fn paths_from_the_data_cover_harmonics_the_default_bank_lacks() {
+    let text = sensor_recording(&sensor_beyond_the_default_bank(), 20_000.0, 10.0, 30.0);
+    let (fixed, _) = replay_encoder(&text, None);
+    let (chosen, stdout) = replay_encoder_with(&text, None, &["--paths-from-data"]);
+    eprintln!("{stdout}");
+    assert!(fixed.get("survey").is_none());
+    let survey = &chosen["survey"];
+    let paths: Vec<&str> = survey["paths"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p.as_str().unwrap())
+        .collect();
+    assert_eq!(chosen["paths"], survey["paths"]);
+    assert!(
+        paths.contains(&"h10") && paths.contains(&"h13"),
+        "{paths:?}"
+    );
+    let error_mrad: Vec<f64> = survey["error_mrad"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    // Equal x/y harmonics of amplitude b: an angle error of about b rad at m = h - 1
+    // (to first order: the extreme sensor's large h = 2..5 modulate it by several %).
+    for (m, want) in [(9, 10.0), (12, 6.0)] {
+        let got = error_mrad[m - 1];
+        assert!((got - want).abs() < 0.15 * want, "m = {m}: {got} mrad");
+    }
+    assert!(stdout.contains("paths chosen from the data"), "{stdout}");
+    let (r_fixed, r_chosen) = (reduction(&fixed), reduction(&chosen));
+    eprintln!("reduction: default bank {r_fixed:.1}x, bank from the data {r_chosen:.1}x");
+    assert!(r_chosen > 5.0 * r_fixed, "{r_chosen} against {r_fixed}");
+}
+
+#[test]
+fn paths_from_the_data_and_paths_in_the_config_are_refused_together() {
+    let text = sensor_recording(&sensor_beyond_the_default_bank(), 20_000.0, 10.0, 2.0);
+    let dir = tempfile::tempdir().unwrap();
+    let (input, cfg) = (dir.path().join("IN.csv"), dir.path().join("CFG.toml"));
+    std::fs::write(&input, &text).unwrap();
+    std::fs::write(&cfg, "paths = [\"offset\"]\n").unwrap();
+    let out_csv = dir.path().join("OUT.csv");
+    let args = [
+        "replay",
+        "--input",
+        path_str(&input),
+        "--output",
+        path_str(&out_csv),
+        "--config",
+        path_str(&cfg),
+        "--paths-from-data",
+    ];
+    let out = hil_sim(&args);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("--paths-from-data and `paths`"), "{stderr}");
+    assert!(!out_csv.exists());
 }
