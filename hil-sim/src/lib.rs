@@ -22,6 +22,7 @@ pub mod scenario;
 pub mod sensor;
 pub mod stream;
 pub mod study;
+pub mod truth_spectrum;
 pub mod vector;
 
 use clap::ValueEnum;
