@@ -104,18 +104,27 @@ pub fn scenario(a: &ScenarioArgs) -> Result<()> {
     }
     if f.commissioning.is_some() {
         let (first, second) = crate::power_up::run(&sc, duration)?;
-        let text = crate::power_up::report(
-            &sc,
-            &[
-                ("1 (flash erased)", &first),
-                ("2 (calibration in flash)", &second),
-            ],
-        );
+        let boots = [
+            ("1 (flash erased)", &first),
+            ("2 (calibration in flash)", &second),
+        ];
+        let text = crate::power_up::report(&sc, &boots);
         print!("{text}");
         std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
         std::fs::write(dir.join("summary.txt"), &text)
             .with_context(|| dir.display().to_string())?;
-        println!("  output: {}", dir.join("summary.txt").display());
+        if f.truth_spectrum.is_some() {
+            let json = crate::power_up::summary_json(&sc, duration, &boots)?;
+            let path = dir.join("summary.json");
+            std::fs::write(&path, json).with_context(|| path.display().to_string())?;
+            println!(
+                "  output: {}, {}",
+                dir.join("summary.txt").display(),
+                path.display()
+            );
+        } else {
+            println!("  output: {}", dir.join("summary.txt").display());
+        }
         write_streams(a, &sc, &dir, &[&first, &second])?;
         return Ok(());
     }

@@ -23,6 +23,7 @@ pub mod sensor;
 pub mod stream;
 pub mod study;
 pub mod survey;
+pub mod truth_spectrum;
 pub mod vector;
 
 use clap::ValueEnum;

@@ -6,6 +6,7 @@
 
 use crate::rig::{Rig, SimFlash, Step, Streamed};
 use crate::scenario::{NamedCoefficient, Probe, Scenario, Window, WindowStats};
+use crate::truth_spectrum::{Recorder, TruthSpectrum};
 use anyhow::{anyhow, Result};
 use calib_record::{Alignment, RamFlash};
 use drive::commissioning::{Cause, State};
@@ -44,6 +45,9 @@ pub struct Boot {
     pub missed_periods: u64,
     /// Records and events, with the time they came out.
     pub streamed: Vec<(f64, Streamed)>,
+    /// The scenario's `[truth_spectrum]` over the end of Run (None without the table, or
+    /// when the window was not all in Run).
+    pub truth_spectrum: Option<TruthSpectrum>,
 }
 
 impl Boot {
@@ -115,6 +119,7 @@ pub fn run_boot(rig: &mut Rig, sc: &Scenario, duration_s: f64, mut hook: Option<
     let p = rig.plant.motor.pole_pairs as f64;
     let k = (p / probe.sensor_periods) as f32;
     let mut adapt_start: Option<(f64, f64)> = None;
+    let mut spectrum = Recorder::new(sc, &rig.plant.sensor, duration_s);
     let (mut adapt_s, mut adapt_revs) = (None, None);
     // States as the supervisor published them (a flash operation delays its output).
     let (mut state, mut seen) = (State::CheckSensor, 0);
@@ -150,6 +155,9 @@ pub fn run_boot(rig: &mut Rig, sc: &Scenario, duration_s: f64, mut hook: Option<
             }
             State::Run => {
                 run.add(&s, &probe);
+                if let Some(r) = spectrum.as_mut() {
+                    r.add(&s);
+                }
                 if s.truth.t_s >= run_from {
                     let i = rig.plant.currents_ab();
                     torque_sum += s.torque_nm;
@@ -197,6 +205,7 @@ pub fn run_boot(rig: &mut Rig, sc: &Scenario, duration_s: f64, mut hook: Option<
         missed_periods: rig.missed_periods,
         streamed: rig.streamed().to_vec(),
         transitions,
+        truth_spectrum: spectrum.and_then(|r| r.finish()),
     }
 }
 
@@ -243,6 +252,52 @@ fn describe(e: &Event) -> String {
             format!("electrical offset moved onto the corrected angle: {offset_e_rad:+.3} rad")
         }
     }
+}
+
+/// One power-up in `summary.json` (scenarios with `[truth_spectrum]`).
+#[derive(serde::Serialize)]
+struct BootJson<'a> {
+    power_up: &'a str,
+    final_state: &'static str,
+    cause: Option<String>,
+    loaded_from_flash: bool,
+    adapt_s: Option<f64>,
+    adapt_revs: Option<f64>,
+    faulted_samples: u32,
+    run_speed_rev_s: Option<f64>,
+    coefficients: &'a [NamedCoefficient],
+    truth_spectrum: Option<&'a TruthSpectrum>,
+}
+
+/// `summary.json` of a power-up scenario: per power-up, the figures of its report that a
+/// script compares (the per-harmonic spectra in full).
+pub fn summary_json(sc: &Scenario, duration_s: f64, boots: &[(&str, &Boot)]) -> Result<String> {
+    #[derive(serde::Serialize)]
+    struct Summary<'a> {
+        scenario: &'a str,
+        duration_s: f64,
+        power_ups: Vec<BootJson<'a>>,
+    }
+    let power_ups = boots
+        .iter()
+        .map(|(title, b)| BootJson {
+            power_up: title,
+            final_state: b.final_state.name(),
+            cause: b.cause.map(|c| format!("{c:?}")),
+            loaded_from_flash: b.loaded_from_flash,
+            adapt_s: b.adapt_s,
+            adapt_revs: b.adapt_revs,
+            faulted_samples: b.faulted_samples,
+            run_speed_rev_s: b.run_speed_rad_s.map(|w| w / TAU),
+            coefficients: &b.coefficients,
+            truth_spectrum: b.truth_spectrum.as_ref(),
+        })
+        .collect();
+    Ok(serde_json::to_string_pretty(&Summary {
+        scenario: &sc.file.name,
+        duration_s,
+        power_ups,
+    })?)
 }
 
 /// The printed report.
@@ -309,6 +364,17 @@ pub fn report(sc: &Scenario, boots: &[(&str, &Boot)]) -> String {
             "    faulted periods: {}, missed control periods: {}",
             b.faulted_samples, b.missed_periods
         );
+        if sc.file.truth_spectrum.is_some() {
+            match &b.truth_spectrum {
+                Some(t) => s += &t.text("    "),
+                None => {
+                    let _ = writeln!(
+                        s,
+                        "    against the true rotor: not measured (the window was not all in Run)"
+                    );
+                }
+            }
+        }
         let coefs: Vec<String> = b
             .coefficients
             .iter()

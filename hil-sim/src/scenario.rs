@@ -74,6 +74,9 @@ pub struct ScenarioFile {
     pub cases: Vec<CaseToml>,
     /// Present: run the firmware's power-up state machine (two power-ups).
     pub commissioning: Option<CommissioningToml>,
+    /// Present: each power-up also reports its Run's spatial harmonics against the true
+    /// rotor and the oracle, and the rotor's motion ripple ([`crate::truth_spectrum`]).
+    pub truth_spectrum: Option<crate::truth_spectrum::TruthSpectrumToml>,
 }
 
 /// `drive::commissioning::Params` in the scenario file (defaults from there).
@@ -503,6 +506,9 @@ impl Scenario {
         for c in &f.cases {
             c.sensor.to_params()?;
         }
+        if let Some(t) = f.truth_spectrum {
+            t.window_s(self)?;
+        }
         Ok(())
     }
 
@@ -583,7 +589,7 @@ impl Probe {
     }
 
     /// The magnet's angle for a rotor angle (mechanical).
-    fn magnet_rad(&self, theta_rad: f64) -> f64 {
+    pub(crate) fn magnet_rad(&self, theta_rad: f64) -> f64 {
         if self.mount.reversed {
             self.mount.offset_rad - theta_rad
         } else {
