@@ -88,6 +88,7 @@ pub struct CommissioningToml {
     pub adapt_timeout_s: Option<f64>,
     pub verify_residual_rad: Option<f64>,
     pub slow_tracking: Option<bool>,
+    pub tracking_min_speed_ratio: Option<f64>,
 }
 
 impl CommissioningToml {
@@ -101,6 +102,9 @@ impl CommissioningToml {
                 .verify_residual_rad
                 .map_or(d.verify_residual_rad, |v| v as f32),
             slow_tracking: self.slow_tracking.unwrap_or(d.slow_tracking),
+            tracking_min_speed_ratio: self
+                .tracking_min_speed_ratio
+                .map_or(d.tracking_min_speed_ratio, |v| v as f32),
             ..d
         }
     }

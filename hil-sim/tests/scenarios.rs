@@ -237,11 +237,11 @@ fn commissioning_with_a_dead_sensor_ends_safe() {
 
 /// The ripple scenarios (N = 1 sensor, torque ripple at once and twice per revolution)
 /// at CI length: both power-ups reach Run and measure their spectra against the true
-/// rotor. Asserted is what the drive does today, not the target: the MRAS takes the
-/// rotor's real motion at m = 1, 2 for sensor error, so θ̂ follows a constant-speed
-/// motion and its error against the rotor is the motion itself, thousands of times the
-/// oracle (the target is within 1.5x of it). When the MRAS learns to tell the two apart,
-/// the second half of these asserts is what changes.
+/// rotor. Commissioned at 20 rev/s, where the ripple barely moves the rotor, and run
+/// at 1 or 5 rev/s, below half that speed, where Run does not track: the corrected
+/// angle (arg Zd) keeps the sensor correction and does not learn the rotor's motion.
+/// Not met yet: the target of 1.5x the oracle at m = 1, 2 (what the commissioning's
+/// convergence leaves, 0.2-2.6 mrad, is hundreds of times the oracle).
 fn ripple_scenario_reports_motion_and_spectra(name: &str) {
     let sc = Scenario::load(name).unwrap();
     let (first, second) = hil_sim::power_up::run(&sc, sc.file.ci_duration_s.unwrap()).unwrap();
@@ -277,32 +277,27 @@ fn ripple_scenario_reports_motion_and_spectra(name: &str) {
             // The oracle is the noise floor: well under the sensor's own error.
             assert!(r.oracle_mrad < 0.05 * r.raw_mrad, "{what}: {r:?}");
         }
-        // Today: at m = 1, 2 θ̂'s error against the rotor is the rotor's motion (within
-        // 25 %), far above the oracle.
+        // The sensor error at m = 1, 2 is corrected (learning the motion made it worse
+        // than raw), and the larger motion, at m = 2, is not learned as sensor error.
         for m in [1, 2] {
             let r = t.row(m).unwrap();
-            assert!(
-                (r.estimate_mrad / r.motion_mrad - 1.0).abs() < 0.25,
-                "{what}: m = {m}: θ̂ {} vs motion {} mrad",
-                r.estimate_mrad,
-                r.motion_mrad
-            );
-            assert!(r.estimate_over_oracle > 100.0, "{what}: {r:?}");
+            assert!(r.decoupled_mrad < 0.7 * r.raw_mrad, "{what}: {r:?}");
         }
-        // Where there is no motion and the bank has a path (m = 3..8), the sensor error
-        // is removed: θ̂ within 0.1 mrad of the rotor per harmonic.
+        let r = t.row(2).unwrap();
+        assert!(r.decoupled_mrad < 0.5 * r.motion_mrad, "{what}: {r:?}");
+        // Where the bank has a path (m = 3..8) the sensor error is removed.
         for r in t.harmonics.iter().filter(|r| r.m >= 3 && r.in_path_bank) {
-            assert!(r.estimate_mrad < 0.1, "{what}: {r:?}");
+            assert!(r.decoupled_mrad < 0.2, "{what}: {r:?}");
         }
     }
 }
 
 #[test]
-fn ripple_1rev_motion_is_absorbed_at_m1_m2() {
+fn ripple_1rev_motion_is_not_learned_as_sensor_error() {
     ripple_scenario_reports_motion_and_spectra("ripple-1rev");
 }
 
 #[test]
-fn ripple_5rev_motion_is_absorbed_at_m1_m2() {
+fn ripple_5rev_motion_is_not_learned_as_sensor_error() {
     ripple_scenario_reports_motion_and_spectra("ripple-5rev");
 }

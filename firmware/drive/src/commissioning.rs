@@ -136,6 +136,13 @@ pub struct Params {
     pub verify_residual_rad: f32,
     /// After a loaded calibration or a commissioning: keep adapting slowly in Run.
     pub slow_tracking: bool,
+    /// ...while |ω̂| (low-passed) is at least this share of `speed_rad_s`. A sensor
+    /// error is fixed in angle; the position ripple a torque ripple (cogging, load)
+    /// makes falls as 1/(J·ω²), and at one speed the MRAS cannot tell the two apart: it
+    /// would learn the ripple as sensor error and the corrected angle would follow a
+    /// motion the shaft did not make. At half the commissioning speed or more, that
+    /// ripple is at most 4x what it was while commissioning adapted and verified.
+    pub tracking_min_speed_ratio: f32,
     /// In Run, how long the core may go without a locked estimate (a sensor dropout, a
     /// loss of lock being re-acquired) before the drive goes to the safe state: the
     /// bridge is off meanwhile and the core re-acquires by itself, typically within a
@@ -160,6 +167,7 @@ impl Default for Params {
             verify_s: 0.2,
             verify_residual_rad: 3.0e-3,
             slow_tracking: true,
+            tracking_min_speed_ratio: 0.5,
             reacquire_timeout_s: 0.05,
         }
     }
@@ -481,15 +489,16 @@ impl Commissioning {
             // The calibration pages are in the flash bank the code does not run from
             // (read-while-write): the control period keeps running through the erase.
             State::Store => (speed, Adaptation::Frozen, Request::StoreCalibration),
-            State::Run => (
-                Setpoint::Application,
-                if p.slow_tracking {
+            State::Run => {
+                let fast = libm::fabsf(self.speed_lp_rad_s)
+                    >= p.tracking_min_speed_ratio * libm::fabsf(p.speed_rad_s);
+                let adaptation = if p.slow_tracking && fast {
                     Adaptation::Tracking
                 } else {
                     Adaptation::Frozen
-                },
-                Request::None,
-            ),
+                };
+                (Setpoint::Application, adaptation, Request::None)
+            }
             State::Safe => (Setpoint::Off, Adaptation::Frozen, Request::None),
         };
         Outputs {

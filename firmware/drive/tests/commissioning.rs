@@ -124,6 +124,29 @@ fn stored_calibration_skips_commissioning() {
     assert_eq!(o.adaptation, Adaptation::Tracking);
 }
 
+/// Below half the commissioning speed a torque ripple moves the rotor 4x or more than
+/// while commissioning: Run holds the coefficients there, and tracks again above.
+#[test]
+fn run_tracks_only_at_half_the_commissioning_speed_or_more() {
+    let mut c = drive_to(State::Run);
+    let at = |c: &mut Commissioning, share: f32| {
+        // 0.5 s: ten times the speed filter's time constant.
+        for _ in 0..(0.5 / DT) as usize {
+            c.step(&Inputs {
+                omega_rad_s: share * params().speed_rad_s,
+                ..healthy()
+            });
+        }
+        c.outputs().adaptation
+    };
+    assert_eq!(at(&mut c, 1.0), Adaptation::Tracking);
+    assert_eq!(at(&mut c, -0.6), Adaptation::Tracking, "either direction");
+    assert_eq!(at(&mut c, 0.4), Adaptation::Frozen);
+    assert_eq!(at(&mut c, 0.05), Adaptation::Frozen);
+    assert_eq!(at(&mut c, 0.55), Adaptation::Tracking);
+    assert_eq!(c.state(), State::Run);
+}
+
 #[test]
 fn slow_tracking_can_be_disabled() {
     let mut c = Commissioning::new(Params {
