@@ -64,6 +64,7 @@ const MAX_PERIOD_DEVIATION: f64 = 0.10;
 const ERROR_BINS: usize = 360;
 
 /// The recording, column by column (validated: finite, t_s strictly increasing).
+#[derive(Default)]
 struct Recording {
     name: String,
     t_s: Vec<f64>,
@@ -180,12 +181,7 @@ fn read_recording(path: &Path) -> Result<Recording> {
 
     let mut r = Recording {
         name: name.clone(),
-        t_s: Vec::new(),
-        x: Vec::new(),
-        y: Vec::new(),
-        torque_nm: Vec::new(),
-        theta_rad: Vec::new(),
-        line: Vec::new(),
+        ..Recording::default()
     };
     let mut rec = csv::StringRecord::new();
     let mut prev: Option<(f64, u64)> = None;
@@ -1123,12 +1119,7 @@ mod tests {
         let period_s = 1.0e-4;
         let mut r = Recording {
             name: "test".into(),
-            t_s: Vec::new(),
-            x: Vec::new(),
-            y: Vec::new(),
-            torque_nm: Vec::new(),
-            theta_rad: Vec::new(),
-            line: Vec::new(),
+            ..Recording::default()
         };
         let rest = 10_000;
         let rows = rest + (turning_s / period_s) as usize;

@@ -309,34 +309,68 @@ fn with_line(text: &str, line: usize, new: &str) -> String {
     lines.join("\n") + "\n"
 }
 
+/// One replay run's files in a temporary directory: IN.csv (and CFG.toml) written,
+/// OUT.csv and REPORT.json named.
+struct Files {
+    dir: tempfile::TempDir,
+    input: std::path::PathBuf,
+    output: std::path::PathBuf,
+    config: Option<std::path::PathBuf>,
+    report: std::path::PathBuf,
+}
+
+impl Files {
+    fn new(input_text: &str, config_text: Option<&str>) -> Self {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("IN.csv");
+        std::fs::write(&input, input_text).unwrap();
+        let config = config_text.map(|c| {
+            let p = dir.path().join("CFG.toml");
+            std::fs::write(&p, c).unwrap();
+            p
+        });
+        Self {
+            input,
+            output: dir.path().join("OUT.csv"),
+            config,
+            report: dir.path().join("REPORT.json"),
+            dir,
+        }
+    }
+
+    /// `replay` over these files, then `extra`.
+    fn args<'a>(&'a self, extra: &[&'a str]) -> Vec<&'a str> {
+        let mut args = vec!["replay", "--input", path_str(&self.input)];
+        args.extend(["--output", path_str(&self.output)]);
+        args.extend(["--report", path_str(&self.report)]);
+        if let Some(c) = &self.config {
+            args.extend(["--config", path_str(c)]);
+        }
+        args.extend(extra);
+        args
+    }
+}
+
 /// Run replay on `input_text` (and `config_text`) twice, without and with a pre-existing
 /// OUT.csv: it must fail with every `expected` fragment in its message, create nothing
 /// and leave the existing output untouched.
 fn assert_refused(input_text: &str, config_text: Option<&str>, expected: &[&str]) {
+    assert_refused_with(input_text, config_text, &[], expected);
+}
+
+/// [`assert_refused`] with `flags` added to the command.
+fn assert_refused_with(
+    input_text: &str,
+    config_text: Option<&str>,
+    flags: &[&str],
+    expected: &[&str],
+) {
     for pre_existing in [false, true] {
-        let dir = tempfile::tempdir().unwrap();
-        let (input, output, config, report_path) = (
-            dir.path().join("IN.csv"),
-            dir.path().join("OUT.csv"),
-            dir.path().join("CFG.toml"),
-            dir.path().join("REPORT.json"),
-        );
-        std::fs::write(&input, input_text).unwrap();
-        let mut args = vec![
-            "replay",
-            "--input",
-            path_str(&input),
-            "--output",
-            path_str(&output),
-            "--report",
-            path_str(&report_path),
-        ];
-        if let Some(c) = config_text {
-            std::fs::write(&config, c).unwrap();
-            args.extend(["--config", path_str(&config)]);
-        }
+        let files = Files::new(input_text, config_text);
+        let (dir, output) = (&files.dir, &files.output);
+        let args = files.args(flags);
         if pre_existing {
-            std::fs::write(&output, "precious\n").unwrap();
+            std::fs::write(output, "precious\n").unwrap();
         }
         let out = hil_sim(&args);
         let stderr = String::from_utf8_lossy(&out.stderr);
@@ -355,7 +389,7 @@ fn assert_refused(input_text: &str, config_text: Option<&str>, expected: &[&str]
         }
         if pre_existing {
             want.push("OUT.csv".into());
-            assert_eq!(std::fs::read_to_string(&output).unwrap(), "precious\n");
+            assert_eq!(std::fs::read_to_string(output).unwrap(), "precious\n");
         }
         assert_eq!(left, want, "files left behind; stderr: {stderr}");
     }
@@ -446,30 +480,8 @@ fn replay_encoder_with(
     config: Option<&str>,
     flags: &[&str],
 ) -> (serde_json::Value, String) {
-    let dir = tempfile::tempdir().unwrap();
-    let (input, output, cfg_path, report_path) = (
-        dir.path().join("IN.csv"),
-        dir.path().join("OUT.csv"),
-        dir.path().join("CFG.toml"),
-        dir.path().join("REPORT.json"),
-    );
-    std::fs::write(&input, text).unwrap();
-    let mut args = vec![
-        "replay",
-        "--input",
-        path_str(&input),
-        "--output",
-        path_str(&output),
-        "--report",
-        path_str(&report_path),
-        "--sensor-periods",
-        "1",
-    ];
-    if let Some(c) = config {
-        std::fs::write(&cfg_path, c).unwrap();
-        args.extend(["--config", path_str(&cfg_path)]);
-    }
-    args.extend(flags);
+    let files = Files::new(text, config);
+    let args = files.args(&[&["--sensor-periods", "1"], flags].concat());
     let out = hil_sim(&args);
     let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
     assert!(
@@ -477,7 +489,7 @@ fn replay_encoder_with(
         "{stdout}\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    (report(&report_path), stdout)
+    (report(&files.report), stdout)
 }
 
 fn eigenvalues_hz(rep: &serde_json::Value) -> Vec<f64> {
@@ -634,24 +646,10 @@ fn paths_from_the_data_cover_harmonics_the_default_bank_lacks() {
 #[test]
 fn paths_from_the_data_and_paths_in_the_config_are_refused_together() {
     let text = sensor_recording(&sensor_beyond_the_default_bank(), 20_000.0, 10.0, 2.0);
-    let dir = tempfile::tempdir().unwrap();
-    let (input, cfg) = (dir.path().join("IN.csv"), dir.path().join("CFG.toml"));
-    std::fs::write(&input, &text).unwrap();
-    std::fs::write(&cfg, "paths = [\"offset\"]\n").unwrap();
-    let out_csv = dir.path().join("OUT.csv");
-    let args = [
-        "replay",
-        "--input",
-        path_str(&input),
-        "--output",
-        path_str(&out_csv),
-        "--config",
-        path_str(&cfg),
-        "--paths-from-data",
-    ];
-    let out = hil_sim(&args);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success());
-    assert!(stderr.contains("--paths-from-data and `paths`"), "{stderr}");
-    assert!(!out_csv.exists());
+    assert_refused_with(
+        &text,
+        Some("paths = [\"offset\"]\n"),
+        &["--paths-from-data"],
+        &["--paths-from-data and `paths`"],
+    );
 }
