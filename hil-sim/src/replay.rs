@@ -695,6 +695,9 @@ struct ConvergenceReport {
     residual_rad: Vec<f32>,
     /// Per path, relative to |Z|.
     change_per_rev: Vec<f32>,
+    /// Paths that did not see their error lately (|H| below `gates.min_h` at this speed):
+    /// not converged, whatever their residual reads.
+    unseen_paths: Vec<String>,
 }
 
 #[derive(Clone, Copy, Serialize)]
@@ -963,6 +966,10 @@ pub fn run(a: &Args) -> Result<()> {
             converged: conv.converged,
             residual_rad: conv.residual_rad[..n_paths].to_vec(),
             change_per_rev: conv.change_per_rev[..n_paths].to_vec(),
+            unseen_paths: (paths.iter().enumerate())
+                .filter(|(i, _)| conv.unseen_paths & (1 << i) != 0)
+                .map(|(_, k)| path_toml_name(*k))
+                .collect(),
         },
         spatial_error: spatial,
         spatial_error_note: (!has_theta).then(|| {
@@ -1057,6 +1064,13 @@ fn print_summary(a: &Args, r: &Report, period_s: f64) {
         r.convergence.revs_adapted,
         if r.convergence.converged { "yes" } else { "no" }
     );
+    if !r.convergence.unseen_paths.is_empty() {
+        println!(
+            "  note: no error seen lately by {} (|H| below gates.min_h at this speed; \
+             slower observer eigenvalues make it visible)",
+            r.convergence.unseen_paths.join(", ")
+        );
+    }
     match &r.spatial_error {
         Some(e) => {
             println!(

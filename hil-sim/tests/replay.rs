@@ -556,6 +556,12 @@ fn a_slow_shaft_at_10_khz_gets_a_slower_observer_than_the_default() {
     // adapts: |H| below min_h).
     assert!(reduction(&chosen) > 1000.0, "{stdout}");
     assert!(reduction(&default) < 10.0, "{stdout_d}");
+    // And it says so: the offset path never saw its error, so nothing converged.
+    let conv = &default["convergence"];
+    assert_eq!(conv["converged"], false, "{stdout_d}");
+    let unseen = conv["unseen_paths"].as_array().unwrap();
+    assert!(unseen.iter().any(|p| p == "offset"), "{conv}");
+    assert_eq!(chosen["convergence"]["unseen_paths"], serde_json::json!([]));
 }
 
 #[test]

@@ -74,6 +74,7 @@ impl Adapter {
             change_per_rev: [0.0; MAX_PATHS],
             len: self.bank.len as u8,
             revs_adapted: self.bank.revs_adapted,
+            unseen_paths: 0,
             converged: false,
         };
         let mut all_small = true;
@@ -81,12 +82,18 @@ impl Adapter {
             .residual_rad
             .iter_mut()
             .zip(out.change_per_rev.iter_mut());
-        for (s, (residual, change)) in self.bank.state.iter().take(self.bank.len).zip(per_path) {
+        let revs = self.bank.revs_adapted;
+        let states = self.bank.state.iter().take(self.bank.len);
+        for (i, (s, (residual, change))) in states.zip(per_path).enumerate() {
             *residual = s.residual.abs();
             *change = s.change_last_rev;
             all_small &= *residual < cc.residual_rad && *change < cc.change_per_rev;
+            if s.visible_rev.is_none_or(|r| r.saturating_add(1) < revs) {
+                out.unseen_paths |= 1 << i;
+            }
         }
-        out.converged = all_small && self.bank.revs_adapted >= cc.min_revs as u32;
+        out.converged =
+            all_small && out.unseen_paths == 0 && self.bank.revs_adapted >= cc.min_revs as u32;
         out
     }
 

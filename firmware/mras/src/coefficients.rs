@@ -112,7 +112,11 @@ pub struct Convergence {
     pub len: u8,
     /// Mechanical revolutions of adaptation so far.
     pub revs_adapted: u32,
-    /// `revs_adapted >= min_revs` and every residual and change below its threshold
-    /// (`ConvergenceConfig`).
+    /// Bit i: path i has not seen its error in this or the previous revolution of
+    /// adaptation (|H| below `gates.min_h` at this speed), so its residual and change
+    /// say nothing.
+    pub unseen_paths: u8,
+    /// `revs_adapted >= min_revs`, no unseen path, and every residual and change below
+    /// its threshold (`ConvergenceConfig`).
     pub converged: bool,
 }

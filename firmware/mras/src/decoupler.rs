@@ -49,6 +49,9 @@ pub(crate) struct PathState {
     pub change_last_rev: f32,
     /// The bank's revolution count this path last measured its change at.
     pub rev_seen: u32,
+    /// The bank's revolution count when this path last saw its error (|H| ≥
+    /// `gates.min_h`); `None` before it first did.
+    pub visible_rev: Option<u32>,
 }
 
 impl Default for PathState {
@@ -61,6 +64,7 @@ impl Default for PathState {
             g_filtered: Cplx::ZERO,
             change_last_rev: 0.0,
             rev_seen: 0,
+            visible_rev: None,
         }
     }
 }
@@ -666,6 +670,7 @@ impl PathBank {
         // Not finite only at ω̂ = 0, which the speed gate excludes unless it is set to 0.
         let visible = q <= k.inv_min_h2 && q < f32::INFINITY;
         if visible {
+            s.visible_rev = Some(self.revs_adapted);
             let comp = if q <= k.inv_h_floor2 {
                 r.scale(2.0)
             } else {

@@ -48,6 +48,22 @@ fn minimum_h_gate_is_per_path() {
         assert!(!moved(&t, kind), "{kind:?} adapted below its |H| gate");
     }
     assert!(moved(&t, PathKind::Harmonic(5)));
+    // The gated paths never saw their error: their zero residual says nothing, and the
+    // bank is not converged however long it runs.
+    let (t, _, _) = commission(cfg, &run(extreme_sensor(), 5.0), 12, no_noise());
+    let c = t.convergence();
+    assert_eq!(c.unseen_paths, 0b0111, "{c:?}");
+    assert!(!c.converged, "{c:?}");
+    // Without the gate every path sees its error, and the bank converges.
+    let (t, _, _) = commission(
+        Config::default(),
+        &run(extreme_sensor(), 5.0),
+        12,
+        no_noise(),
+    );
+    let c = t.convergence();
+    assert_eq!(c.unseen_paths, 0, "{c:?}");
+    assert!(c.converged, "{c:?}");
 }
 
 /// Constant speed with a torque feedforward that is off by `bias_nm`: the observer's
