@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{hil_sim, path_str, report, ADC, IDENTITY_CONFIG, SAMPLE_PERIOD_S};
+use common::{hil_sim, report, Files, ADC, IDENTITY_CONFIG, SAMPLE_PERIOD_S};
 use hil_sim::core_config::CoreConfigFile;
 use mras::{Config, Tracker};
 use mras_sim::{Kinematic, SensorHarmonic, SensorModel, Trajectory};
@@ -66,13 +66,6 @@ fn replay_reproduces_the_live_estimate_bit_exactly() {
         .unwrap();
     let rows = simulate(cfg, 0.6);
 
-    let dir = tempfile::tempdir().unwrap();
-    let (input, output, config, report_path) = (
-        dir.path().join("IN.csv"),
-        dir.path().join("OUT.csv"),
-        dir.path().join("CFG.toml"),
-        dir.path().join("REPORT.json"),
-    );
     // Columns in a shuffled order with an ignored extra column. f32 and f64 `Display`
     // print the shortest string that parses back to the same value, so replay sees
     // exactly the samples the live tracker saw.
@@ -85,29 +78,11 @@ fn replay_reproduces_the_live_estimate_bit_exactly() {
         )
         .unwrap();
     }
-    std::fs::write(&input, text).unwrap();
-    std::fs::write(&config, IDENTITY_CONFIG).unwrap();
-
-    let out = hil_sim(&[
-        "replay",
-        "--input",
-        path_str(&input),
-        "--output",
-        path_str(&output),
-        "--config",
-        path_str(&config),
-        "--report",
-        path_str(&report_path),
-    ]);
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let files = Files::new(&text, Some(IDENTITY_CONFIG));
+    let stdout = files.run(&[]);
     assert!(stdout.contains("corrected"), "{stdout}");
 
-    let rep = report(&report_path);
+    let rep = report(&files.report);
     // t_s = k·T exactly; replay's (t_last - t_first)/(n - 1) in f64 is within an ulp or
     // two of T, which rounds to the same f32: the same control period as the live core.
     assert_eq!(
@@ -121,7 +96,7 @@ fn replay_reproduces_the_live_estimate_bit_exactly() {
     assert_eq!(rep["observer"]["source"], "default");
     assert_eq!(rep["faults_total"], 0);
 
-    let mut rdr = csv::Reader::from_path(&output).unwrap();
+    let mut rdr = csv::Reader::from_path(&files.output).unwrap();
     let header: Vec<String> = rdr.headers().unwrap().iter().map(String::from).collect();
     assert_eq!(
         header,
@@ -193,29 +168,9 @@ fn default_config_commissions_a_recording_in_adc_counts() {
         )
         .unwrap();
     }
-    let dir = tempfile::tempdir().unwrap();
-    let (input, output, report_path) = (
-        dir.path().join("IN.csv"),
-        dir.path().join("OUT.csv"),
-        dir.path().join("REPORT.json"),
-    );
-    std::fs::write(&input, text).unwrap();
-    let out = hil_sim(&[
-        "replay",
-        "--input",
-        path_str(&input),
-        "--output",
-        path_str(&output),
-        "--report",
-        path_str(&report_path),
-    ]);
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let rep = report(&report_path);
+    let files = Files::new(&text, None);
+    let stdout = files.run(&[]);
+    let rep = report(&files.report);
     assert_eq!(rep["input_scaling"]["source"], "estimated from min/max");
     assert_eq!(rep["sensor_periods"], 2);
     let obs = &rep["observer"];
@@ -251,37 +206,24 @@ fn default_config_commissions_a_recording_in_adc_counts() {
 
 #[test]
 fn without_reference_angle_the_report_says_why() {
-    let dir = tempfile::tempdir().unwrap();
-    let (input, output, report_path) = (
-        dir.path().join("IN.csv"),
-        dir.path().join("OUT.csv"),
-        dir.path().join("REPORT.json"),
-    );
     let mut text = String::from("t_s,x,y\n");
     for k in 0..2000 {
         let th = 2.0e-3 * k as f64; // rad electrical: 20 rad/s at 10 kHz, ideal sensor
         writeln!(text, "{},{},{}", k as f64 * 1e-4, th.cos(), th.sin()).unwrap();
     }
-    std::fs::write(&input, text).unwrap();
-    let out = hil_sim(&[
-        "replay",
-        "--input",
-        path_str(&input),
-        "--output",
-        path_str(&output),
-        "--report",
-        path_str(&report_path),
-    ]);
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success(), "{stdout}");
+    let files = Files::new(&text, None);
+    let stdout = files.run(&[]);
     assert!(stdout.contains("no theta_rad column"), "{stdout}");
-    let rep = report(&report_path);
+    let rep = report(&files.report);
     assert!(rep["spatial_error"].is_null());
     assert!(rep["spatial_error_note"]
         .as_str()
         .unwrap()
         .contains("theta_rad"));
-    let n = csv::Reader::from_path(&output).unwrap().records().count();
+    let n = csv::Reader::from_path(&files.output)
+        .unwrap()
+        .records()
+        .count();
     assert_eq!(n, 2000);
 }
 
@@ -309,48 +251,6 @@ fn with_line(text: &str, line: usize, new: &str) -> String {
     lines.join("\n") + "\n"
 }
 
-/// One replay run's files in a temporary directory: IN.csv (and CFG.toml) written,
-/// OUT.csv and REPORT.json named.
-struct Files {
-    dir: tempfile::TempDir,
-    input: std::path::PathBuf,
-    output: std::path::PathBuf,
-    config: Option<std::path::PathBuf>,
-    report: std::path::PathBuf,
-}
-
-impl Files {
-    fn new(input_text: &str, config_text: Option<&str>) -> Self {
-        let dir = tempfile::tempdir().unwrap();
-        let input = dir.path().join("IN.csv");
-        std::fs::write(&input, input_text).unwrap();
-        let config = config_text.map(|c| {
-            let p = dir.path().join("CFG.toml");
-            std::fs::write(&p, c).unwrap();
-            p
-        });
-        Self {
-            input,
-            output: dir.path().join("OUT.csv"),
-            config,
-            report: dir.path().join("REPORT.json"),
-            dir,
-        }
-    }
-
-    /// `replay` over these files, then `extra`.
-    fn args<'a>(&'a self, extra: &[&'a str]) -> Vec<&'a str> {
-        let mut args = vec!["replay", "--input", path_str(&self.input)];
-        args.extend(["--output", path_str(&self.output)]);
-        args.extend(["--report", path_str(&self.report)]);
-        if let Some(c) = &self.config {
-            args.extend(["--config", path_str(c)]);
-        }
-        args.extend(extra);
-        args
-    }
-}
-
 /// Run replay on `input_text` (and `config_text`) twice, without and with a pre-existing
 /// OUT.csv: it must fail with every `expected` fragment in its message, create nothing
 /// and leave the existing output untouched.
@@ -367,7 +267,7 @@ fn assert_refused_with(
 ) {
     for pre_existing in [false, true] {
         let files = Files::new(input_text, config_text);
-        let (dir, output) = (&files.dir, &files.output);
+        let (dir, output) = (files.input.parent().unwrap(), &files.output);
         let args = files.args(flags);
         if pre_existing {
             std::fs::write(output, "precious\n").unwrap();
@@ -378,7 +278,7 @@ fn assert_refused_with(
         for e in expected {
             assert!(stderr.contains(e), "`{e}` not in: {stderr}");
         }
-        let mut left: Vec<String> = std::fs::read_dir(dir.path())
+        let mut left: Vec<String> = std::fs::read_dir(dir)
             .unwrap()
             .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
             .collect();
@@ -481,14 +381,7 @@ fn replay_encoder_with(
     flags: &[&str],
 ) -> (serde_json::Value, String) {
     let files = Files::new(text, config);
-    let args = files.args(&[&["--sensor-periods", "1"], flags].concat());
-    let out = hil_sim(&args);
-    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let stdout = files.run(&[&["--sensor-periods", "1"], flags].concat());
     (report(&files.report), stdout)
 }
 

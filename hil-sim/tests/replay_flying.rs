@@ -4,12 +4,11 @@
 
 mod common;
 
-use common::{hil_sim, path_str, report, ADC, IDENTITY_CONFIG, SAMPLE_PERIOD_S};
+use common::{report, Files, ADC, IDENTITY_CONFIG, SAMPLE_PERIOD_S};
 use mras_sim::{wrap_pi, SensorModel};
 use serde_json::Value;
 use std::f64::consts::TAU;
 use std::fmt::Write as _;
-use std::path::Path;
 
 /// `revs` revolutions of the extreme sensor at a constant speed from the first row (the
 /// recording starts mid-flight, at an arbitrary angle), with a 12-bit converter. Rows in
@@ -35,33 +34,11 @@ fn recording(speed_rev_s: f64, revs: f64, dropout: Option<std::ops::Range<usize>
 }
 
 /// Replay `text` with the identity scaling; the report and the estimates (θ̂ per row).
-fn replay(dir: &Path, name: &str, text: &str) -> (Value, Vec<f64>) {
-    let input = dir.join(format!("{name}.csv"));
-    let output = dir.join(format!("{name}-out.csv"));
-    let config = dir.join("identity.toml");
-    let report_path = dir.join(format!("{name}.json"));
-    std::fs::write(&input, text).unwrap();
-    std::fs::write(&config, IDENTITY_CONFIG).unwrap();
-    let p = path_str;
-    let out = hil_sim(&[
-        "replay",
-        "--input",
-        p(&input),
-        "--output",
-        p(&output),
-        "--config",
-        p(&config),
-        "--report",
-        p(&report_path),
-    ]);
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let rep = report(&report_path);
-    let mut rdr = csv::Reader::from_path(&output).unwrap();
+fn replay(text: &str) -> (Value, Vec<f64>) {
+    let files = Files::new(text, Some(IDENTITY_CONFIG));
+    files.run(&[]);
+    let rep = report(&files.report);
+    let mut rdr = csv::Reader::from_path(&files.output).unwrap();
     let theta_hat = rdr
         .records()
         .map(|r| r.unwrap()[1].parse::<f64>().unwrap())
@@ -101,10 +78,9 @@ fn revolution_pk_pk(text: &str, theta_hat: &[f64], speed_rev_s: f64, rev: usize)
 /// 10-20), and most of the revolutions adapted.
 #[test]
 fn replay_of_a_recording_that_starts_at_speed_adapts() {
-    let dir = tempfile::tempdir().unwrap();
     for speed_rev_s in [100.0, -100.0, 70.0, -70.0] {
         let text = recording(speed_rev_s, 20.0, None);
-        let (rep, theta_hat) = replay(dir.path(), "flying", &text);
+        let (rep, theta_hat) = replay(&text);
         assert_eq!(rep["faults_total"], 0, "{speed_rev_s}: {}", rep["faults"]);
         assert!(rep["first_loss_of_lock_line"].is_null());
         let e = &rep["spatial_error"];
@@ -137,12 +113,11 @@ fn replay_of_a_recording_that_starts_at_speed_adapts() {
 /// dropout's), and reaches the same accuracy as without the dropout.
 #[test]
 fn replay_reacquires_after_a_dropout_at_speed() {
-    let dir = tempfile::tempdir().unwrap();
     let speed_rev_s = 100.0;
     let start = (2.5 / speed_rev_s / SAMPLE_PERIOD_S) as usize;
     let dropout = start..start + (5.0e-3 / SAMPLE_PERIOD_S) as usize;
     let text = recording(speed_rev_s, 20.0, Some(dropout.clone()));
-    let (rep, theta_hat) = replay(dir.path(), "dropout", &text);
+    let (rep, theta_hat) = replay(&text);
     assert_eq!(rep["faults"]["sensor_lost"], dropout.len());
     let revs = rep["convergence"]["revs_adapted"].as_u64().unwrap();
     assert!(revs >= 17, "{revs} revolutions adapted");

@@ -37,3 +37,58 @@ pub fn report(path: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).expect("report written"))
         .expect("report is JSON")
 }
+
+/// One replay run's files in a temporary directory: IN.csv (and CFG.toml) written,
+/// OUT.csv and REPORT.json named.
+pub struct Files {
+    /// Keeps the directory (removed when dropped).
+    _dir: tempfile::TempDir,
+    pub input: std::path::PathBuf,
+    pub output: std::path::PathBuf,
+    pub config: Option<std::path::PathBuf>,
+    pub report: std::path::PathBuf,
+}
+
+impl Files {
+    pub fn new(input_text: &str, config_text: Option<&str>) -> Self {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("IN.csv");
+        std::fs::write(&input, input_text).unwrap();
+        let config = config_text.map(|c| {
+            let p = dir.path().join("CFG.toml");
+            std::fs::write(&p, c).unwrap();
+            p
+        });
+        Self {
+            input,
+            output: dir.path().join("OUT.csv"),
+            config,
+            report: dir.path().join("REPORT.json"),
+            _dir: dir,
+        }
+    }
+
+    /// `replay` over these files, then `extra`.
+    pub fn args<'a>(&'a self, extra: &[&'a str]) -> Vec<&'a str> {
+        let mut args = vec!["replay", "--input", path_str(&self.input)];
+        args.extend(["--output", path_str(&self.output)]);
+        args.extend(["--report", path_str(&self.report)]);
+        if let Some(c) = &self.config {
+            args.extend(["--config", path_str(c)]);
+        }
+        args.extend(extra);
+        args
+    }
+
+    /// Run replay over these files with `extra`; it must succeed. Its stdout.
+    pub fn run(&self, extra: &[&str]) -> String {
+        let out = hil_sim(&self.args(extra));
+        let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+        assert!(
+            out.status.success(),
+            "{stdout}\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        stdout
+    }
+}
