@@ -98,11 +98,10 @@ fn default_mras_reaches_the_noise_floor_and_tracks_drift() {
         Method::Lut256,
         Method::Lut360,
     ];
-    for (c, p) in s.phases.iter().zip(plan.evaluation()) {
-        if p.kind == PhaseKind::LoadSteps {
-            continue;
-        }
-        // The median target (1.5x the oracle) holds in every phase but the load steps...
+    for c in &s.phases {
+        // The median target (1.5x the oracle) holds in every phase, the load steps
+        // included: the adaptation pauses through the observer's torque transients
+        // (docs/theory.md §3), so only the placement still sees the lag.
         let ours = med(c, Method::Ours);
         assert!(
             ours <= 1.5 * med(c, Method::Oracle),
@@ -114,18 +113,8 @@ fn default_mras_reaches_the_noise_floor_and_tracks_drift() {
             assert!(ours < med(c, m), "{}: {ours} vs {}", c.name, m.label());
         }
     }
-    // ...where the correction rides on the observer's lagging angle; that phase alone
-    // keeps the target from being met (docs/results.md, targets).
-    let load = phase(s, plan, PhaseKind::LoadSteps);
+    assert!(s.worst_phase.ratio_to_oracle(Method::Ours) <= 1.5);
     let steady = &s.phases[SPECTRUM_PHASE];
-    assert!(
-        load.ratio_to_oracle(Method::Ours) > 1.5
-            && med(load, Method::Ours) > 1.5 * med(steady, Method::Ours),
-        "load {} steady {}",
-        med(load, Method::Ours),
-        med(steady, Method::Ours)
-    );
-    assert!(s.worst_phase.ratio_to_oracle(Method::Ours) > 1.5);
     // Drift: offline calibrations go stale, the MRAS follows.
     let drift = phase(s, plan, PhaseKind::Drift);
     for m in [Method::Lut128, Method::Lut256, Method::Lut360] {

@@ -33,7 +33,16 @@ impl Adapter {
     /// block it completed, if any.
     #[inline]
     pub fn step(&mut self, s: &AdaptSample) -> (bool, Option<InjectionUpdate>) {
-        self.bank.step(s)
+        let revs = self.bank.revs_adapted;
+        let out = self.bank.step(s);
+        // Once a revolution until armed: a converged bank arms the transient gate.
+        if self.bank.revs_adapted != revs
+            && !self.bank.transient_gate_armed()
+            && self.convergence().converged
+        {
+            self.bank.arm_transient_gate();
+        }
+        out
     }
 
     /// Snapshot of the persistent coefficients (proportional parts excluded).

@@ -9,6 +9,7 @@
 use crate::complex::Cplx;
 use crate::config::{AdaptationLaw, Config, PathKind, MAX_PATHS};
 use crate::observer::ObserverGains;
+use crate::transient::TransientGate;
 use crate::trig::{max_f32, min_f32, sqrt_inline_f32};
 use core::f32::consts::{PI, TAU};
 
@@ -458,6 +459,8 @@ pub(crate) struct PathBank {
     /// Sensor-electrical angle adapted over since the last revolution boundary.
     pub angle_this_rev_rad: f32,
     pub revs_adapted: u32,
+    /// Keeps the observer's torque transients out of the correlation (our law only).
+    transient: TransientGate,
 }
 
 impl PathBank {
@@ -501,6 +504,10 @@ impl PathBank {
             k: Constants::new(cfg, gains, stride),
             angle_this_rev_rad: 0.0,
             revs_adapted: 0,
+            transient: TransientGate::new(
+                cfg,
+                matches!(cfg.law, AdaptationLaw::Compensated { .. }),
+            ),
         }
     }
 
@@ -508,6 +515,7 @@ impl PathBank {
     /// measured speed after a flying start) and the blocks.
     pub fn restart(&mut self, omega_rad_s: f32, amplitude: f32) {
         self.smooth = Smoothed::reset(omega_rad_s, amplitude);
+        self.transient.reset();
         self.speed_ok = false;
         self.omega_window = [0.0; 2];
         self.phase = 0;
@@ -515,6 +523,15 @@ impl PathBank {
         self.amplitude_sum = 0.0;
         self.adapted_samples = 0;
         self.discard_blocks();
+    }
+
+    /// Let torque transients close the adaptation's gate (once converged).
+    pub fn arm_transient_gate(&mut self) {
+        self.transient.arm();
+    }
+
+    pub fn transient_gate_armed(&self) -> bool {
+        self.transient.is_armed()
     }
 
     /// Drop the partial block sums (after new coefficients, a re-acquisition ...).
@@ -547,6 +564,7 @@ impl PathBank {
             self.restart(x.omega_rad_s, x.restart_amplitude);
         }
         self.update_powers(x.u);
+        let calm = self.transient.step(x.eps_e_rad);
         let k = &self.k;
         self.omega_sum += x.omega_rad_s;
         self.amplitude_sum += x.amplitude;
@@ -556,9 +574,10 @@ impl PathBank {
             && x.omega_rad_s <= self.omega_window[1]
             && libm::fabsf(x.disturbance_nm) <= k.max_disturbance_nm
             && libm::fabsf(x.torque_ff_nm) <= k.max_torque_nm
+            && calm
             && self.len > 0;
         if open {
-            let eps = x.eps_e_rad;
+            let eps = self.transient.high_passed(x.eps_e_rad);
             for (a, &m) in self.acc.iter_mut().zip(&self.m).take(self.len) {
                 let p = self.pw[m as usize & POWER_MASK];
                 a.re += p.re * eps;
@@ -608,6 +627,8 @@ impl PathBank {
         self.smooth.update(omega_mean, amplitude_mean, alpha);
         let w_f = self.smooth.omega_rad_s;
         let w_f_abs = libm::fabsf(w_f);
+        self.transient
+            .set_lowest_harmonic(w_f_abs * k.rev_rad * (1.0 / TAU));
         self.speed_ok = w_f_abs >= k.min_speed_rad_s;
         let dev = k.max_speed_deviation * w_f_abs;
         self.omega_window = [w_f - dev, w_f + dev];
@@ -664,8 +685,11 @@ impl PathBank {
         }
         // Mean coherent power of the MRE over the block: ε·e^{-j m θ̂s}, mean H·G/(2j).
         let cp = sum.scale(self.inv_block);
-        // G = 2j·cp/H, with |H| floored: 2j·cp·(1/H)·min(1, |H|/floor).
-        let r = ObserverGains::inverse_error_transfer_of(k.sigma, m_n * self.smooth.omega_rad_s);
+        // G = 2j·cp/H, with |H| floored: 2j·cp·(1/H)·min(1, |H|/floor). H includes the
+        // high-pass the correlation sees ε through.
+        let w_m = m_n * self.smooth.omega_rad_s;
+        let r = ObserverGains::inverse_error_transfer_of(k.sigma, w_m)
+            * self.transient.inverse_high_pass(w_m);
         let q = r.norm_sqr();
         // Not finite only at ω̂ = 0, which the speed gate excludes unless it is set to 0.
         let visible = q <= k.inv_min_h2 && q < f32::INFINITY;

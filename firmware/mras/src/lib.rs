@@ -23,6 +23,7 @@ mod health;
 pub mod observer;
 pub mod survey;
 mod tracker;
+mod transient;
 mod trig;
 
 pub use adapter::Adapter;
