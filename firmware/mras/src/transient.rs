@@ -8,13 +8,14 @@
 //! every step, un-learnt only over the next revolutions (docs/theory.md §3, *Torque
 //! transients*).
 //!
-//! Two defences, both in the adaptation (the control interrupt is untouched):
-//! - the paths correlate ε through a second-order high-pass two octaves below the lowest
-//!   error harmonic (at λ2 at most), and their compensation includes it, so what is left
-//!   of a lag after the gate reopens does not leak;
-//! - once the bank has converged, a jump of ε's band between λ2 and λ1 far above its
+//! Two defences, both in the adaptation (the control interrupt is untouched), and both
+//! only after such a transient: until then the adaptation is exactly what it was.
+//! - Once the bank has converged, a jump of ε's band between λ2 and λ1 far above its
 //!   recent envelope closes the adaptation's gate for 1.5/λ3, the disturbance estimate's
 //!   settling, counted from the band's last jump.
+//! - For 5/λ3 after the jump the paths correlate ε through a second-order high-pass two
+//!   octaves below the lowest error harmonic (at λ2 at most), their compensation
+//!   including it, so that what is left of the lag when the gate reopens does not leak.
 
 use crate::complex::Cplx;
 use crate::config::Config;
@@ -36,6 +37,10 @@ const HOLD_TIME_CONSTANTS: f32 = 1.5;
 /// hold time, so that a transient cannot raise its own threshold while a lasting change
 /// of the ripple (another speed) is accepted within about the hold time.
 const ENVELOPE_FALL_TIME_CONSTANTS: f32 = 3.0;
+/// After a jump the correlation runs through the high-pass for this many time constants
+/// of the slowest eigenvalue (the lag has decayed to e^-5, under 1 %), then through
+/// none again, as before the jump.
+const HIGH_PASS_TIME_CONSTANTS: f32 = 5.0;
 /// The high-pass corner sits this far below the lowest error harmonic's frequency N·ω̂:
 /// it passes that harmonic at 0.94 (second order).
 const HIGH_PASS_BELOW_LOWEST: f32 = 0.25;
@@ -50,9 +55,11 @@ pub(crate) struct TransientGate {
     envelope_rad2: f32,
     /// Samples until the gate reopens.
     hold_left: u32,
-    /// Trips, and high-passes, only once the bank has converged since the last
-    /// (re)start: before, the band carries the sensor error itself, whose level follows
-    /// the speed through H, and commissioning adapts as it always did.
+    /// Samples the correlation still runs through the high-pass after a jump.
+    high_pass_left: u32,
+    high_pass_samples: u32,
+    /// Trips only once the bank has converged since the last (re)start: before, the band
+    /// carries the sensor error itself, whose level follows the speed through H.
     armed: bool,
     /// The two low-pass stages the high-pass subtracts (rad).
     hp_rad: [f32; 2],
@@ -83,6 +90,12 @@ impl TransientGate {
             slow_rad: 0.0,
             envelope_rad2: ENVELOPE_START_RAD2,
             hold_left: 0,
+            high_pass_left: 0,
+            high_pass_samples: if enabled {
+                (HIGH_PASS_TIME_CONSTANTS / slowest / t) as u32
+            } else {
+                0
+            },
             armed: false,
             hp_rad: [0.0; 2],
             corner_rad_s: 0.0,
@@ -103,6 +116,7 @@ impl TransientGate {
         self.slow_rad = 0.0;
         self.envelope_rad2 = ENVELOPE_START_RAD2;
         self.hold_left = 0;
+        self.high_pass_left = 0;
         self.armed = false;
         self.hp_rad = [0.0; 2];
     }
@@ -135,6 +149,7 @@ impl TransientGate {
             && band2 > TRIP_VARIANCE_RATIO * self.envelope_rad2 + TRIP_FLOOR_RAD * TRIP_FLOOR_RAD
         {
             self.hold_left = self.hold_samples;
+            self.high_pass_left = self.high_pass_samples;
         }
         let a = if band2 > self.envelope_rad2 {
             self.a_rise
@@ -147,13 +162,15 @@ impl TransientGate {
         *s2 += (eps_e_rad - *s1 - *s2) * self.a_hp;
         let calm = self.hold_left == 0;
         self.hold_left = self.hold_left.saturating_sub(1);
+        self.high_pass_left = self.high_pass_left.saturating_sub(1);
         calm
     }
 
-    /// ε through the high-pass once armed (after [`Self::step`] with the same ε).
+    /// ε, through the high-pass while a lag may remain (after [`Self::step`] with the
+    /// same ε).
     #[inline(always)]
     pub fn high_passed(&self, eps_e_rad: f32) -> f32 {
-        if self.armed {
+        if self.high_pass_left != 0 {
             eps_e_rad - self.hp_rad[0] - self.hp_rad[1]
         } else {
             eps_e_rad
@@ -164,7 +181,7 @@ impl TransientGate {
     /// path compensation multiplies `1/H` by it.
     #[inline(always)]
     pub fn inverse_high_pass(&self, w_rad_s: f32) -> Cplx {
-        if !self.armed {
+        if self.high_pass_left == 0 {
             return Cplx::ONE;
         }
         let h = Cplx::new(1.0, -self.corner_rad_s / w_rad_s);
