@@ -19,6 +19,7 @@
 
 use crate::complex::Cplx;
 use crate::config::Config;
+use crate::trig::min_f32;
 use core::f32::consts::TAU;
 
 /// A jump is this many times the envelope's variance (4σ) ...
@@ -133,8 +134,8 @@ impl TransientGate {
     /// Place the high-pass below the lowest error harmonic, at `w_rad_s` = N·|ω̂|.
     #[inline(always)]
     pub fn set_lowest_harmonic(&mut self, w_rad_s: f32) {
-        self.corner_rad_s = (HIGH_PASS_BELOW_LOWEST * w_rad_s).min(self.max_corner_rad_s);
-        self.a_hp = (self.corner_rad_s * self.sample_period_s).min(1.0);
+        self.corner_rad_s = min_f32(HIGH_PASS_BELOW_LOWEST * w_rad_s, self.max_corner_rad_s);
+        self.a_hp = min_f32(self.corner_rad_s * self.sample_period_s, 1.0);
     }
 
     /// One sample's ε: whether the adaptation may use it (no jump of the band within
