@@ -435,6 +435,26 @@ impl Corrector for Lut {
     }
 }
 
+/// Least-squares line through the points, on centred coordinates (no cancellation in
+/// Σx²): the means of x and y, and the slope dy/dx.
+pub(crate) fn line_fit(points: impl Iterator<Item = (f64, f64)> + Clone) -> (f64, f64, f64) {
+    let (mut sx, mut sy, mut n) = (0.0, 0.0, 0usize);
+    for (x, y) in points.clone() {
+        sx += x;
+        sy += y;
+        n += 1;
+    }
+    let n = n.max(1) as f64;
+    let (x_mean, y_mean) = (sx / n, sy / n);
+    let (mut sxy, mut sxx) = (0.0, 0.0);
+    for (x, y) in points {
+        let dx = x - x_mean;
+        sxy += dx * (y - y_mean);
+        sxx += dx * dx;
+    }
+    (x_mean, y_mean, sxy / sxx)
+}
+
 /// Fewest samples [`constant_speed_reference`] accepts.
 pub const CONSTANT_SPEED_MIN_SAMPLES: usize = 16;
 
@@ -463,17 +483,8 @@ pub fn constant_speed_reference(samples: &[(f32, f32)]) -> Result<Vec<f64>, FitE
             "record covers less than half a revolution; spin whole revolutions",
         ));
     }
-    // Least squares on centred indices (no cancellation in Σi²).
-    let n = unwrapped.len() as f64;
-    let i_mean = (n - 1.0) / 2.0;
-    let theta_mean = unwrapped.iter().sum::<f64>() / n;
-    let (mut sxy, mut sxx) = (0.0, 0.0);
-    for (i, &t) in unwrapped.iter().enumerate() {
-        let di = i as f64 - i_mean;
-        sxy += di * (t - theta_mean);
-        sxx += di * di;
-    }
-    let omega = sxy / sxx;
+    let (i_mean, theta_mean, omega) =
+        line_fit(unwrapped.iter().enumerate().map(|(i, &t)| (i as f64, t)));
     let theta0 = theta_mean - omega * i_mean;
     Ok((0..unwrapped.len())
         .map(|i| theta0 + omega * i as f64)

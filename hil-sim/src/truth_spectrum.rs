@@ -14,6 +14,7 @@
 //! leaves is noise and quantisation.
 
 use crate::accuracy::oracle_angle_rad;
+use crate::baselines::line_fit;
 use crate::exact::wrap_pi;
 use crate::rig::{Reference, Step};
 use crate::scenario::{Probe, Scenario, SPECTRUM_HARMONICS_OF_THETA_RM};
@@ -263,14 +264,8 @@ impl Recorder {
         if first.t_s > self.from_s + 0.5 * self.period_s || self.samples.len() + 1 < expected {
             return None;
         }
-        let (t_mean, th_mean) = mean2(self.samples.iter().map(|s| (s.t_s, s.theta_rad)));
-        let (mut stt, mut sth) = (0.0, 0.0);
-        for s in &self.samples {
-            let dt = s.t_s - t_mean;
-            stt += dt * dt;
-            sth += dt * (s.theta_rad - th_mean);
-        }
-        let slope_rad_s = sth / stt;
+        let (t_mean, th_mean, slope_rad_s) =
+            line_fit(self.samples.iter().map(|s| (s.t_s, s.theta_rad)));
         let mut bins: [SpatialError<360>; 5] = Default::default();
         for s in &self.samples {
             let motion = s.theta_rad - th_mean - slope_rad_s * (s.t_s - t_mean);
@@ -325,16 +320,4 @@ impl Recorder {
             harmonics,
         })
     }
-}
-
-/// Means of the pairs.
-fn mean2(it: impl Iterator<Item = (f64, f64)>) -> (f64, f64) {
-    let (mut a, mut b, mut n) = (0.0, 0.0, 0usize);
-    for (x, y) in it {
-        a += x;
-        b += y;
-        n += 1;
-    }
-    let n = n.max(1) as f64;
-    (a / n, b / n)
 }
