@@ -111,20 +111,16 @@ pub fn scenario(a: &ScenarioArgs) -> Result<()> {
         let text = crate::power_up::report(&sc, &boots);
         print!("{text}");
         std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
-        std::fs::write(dir.join("summary.txt"), &text)
-            .with_context(|| dir.display().to_string())?;
+        let mut outputs = vec![dir.join("summary.txt")];
+        std::fs::write(&outputs[0], &text).with_context(|| dir.display().to_string())?;
         if f.truth_spectrum.is_some() {
             let json = crate::power_up::summary_json(&sc, duration, &boots)?;
             let path = dir.join("summary.json");
             std::fs::write(&path, json).with_context(|| path.display().to_string())?;
-            println!(
-                "  output: {}, {}",
-                dir.join("summary.txt").display(),
-                path.display()
-            );
-        } else {
-            println!("  output: {}", dir.join("summary.txt").display());
+            outputs.push(path);
         }
+        let outputs: Vec<String> = outputs.iter().map(|p| p.display().to_string()).collect();
+        println!("  output: {}", outputs.join(", "));
         write_streams(a, &sc, &dir, &[&first, &second])?;
         return Ok(());
     }

@@ -64,7 +64,7 @@ pub(crate) struct TransientGate {
     armed: bool,
     /// The two low-pass stages the high-pass subtracts (rad).
     hp_rad: [f32; 2],
-    /// The high-pass corner (rad/s) and its per-sample gain; 0 when disabled.
+    /// The high-pass corner (rad/s) and its per-sample gain.
     corner_rad_s: f32,
     a_hp: f32,
     max_corner_rad_s: f32,
@@ -101,7 +101,7 @@ impl TransientGate {
             hp_rad: [0.0; 2],
             corner_rad_s: 0.0,
             a_hp: 0.0,
-            max_corner_rad_s: if enabled { mid } else { 0.0 },
+            max_corner_rad_s: mid,
             a_fast: alpha(1.0 / fastest),
             a_slow: alpha(1.0 / mid),
             a_rise: alpha(hold_s),
