@@ -224,6 +224,10 @@ pub fn event_lines(b: &Boot) -> Vec<String> {
         .filter_map(|(t, s)| match s {
             Streamed::Event(e) => Some(format!("{t:8.3} s  {}", describe(e))),
             Streamed::Record(_) => None,
+            Streamed::Paths(b) => Some(format!(
+                "{t:8.3} s  paths: {}",
+                drive::telemetry::bank_names(b.as_slice())
+            )),
         })
         .collect()
 }

@@ -1035,10 +1035,10 @@ fn print_summary(a: &Args, r: &Report, period_s: f64) {
     if let Some(s) = &r.survey {
         let spectrum: Vec<String> = s.error_mrad.iter().map(|e| format!("{e:.3}")).collect();
         println!(
-            "  paths chosen from the data: survey of {:.1} sensor periods from t = {:.3} s, \
+            "  paths chosen from the data: survey of {:.1} sensor periods until t = {:.3} s, \
              error m = 1..16 [mrad]: {}",
             s.periods,
-            s.from_t_s,
+            s.until_t_s,
             spectrum.join(" ")
         );
         let left = match s.unobserved.as_slice() {
@@ -1047,9 +1047,15 @@ fn print_summary(a: &Args, r: &Report, period_s: f64) {
         };
         println!(
             "    floors: noise {:.3} mrad, 1 % of the largest {:.3} mrad; left without a path: \
-             {left}",
-            s.floor_mrad, s.min_mrad
+             {left}; {} survey round(s)",
+            s.floor_mrad, s.min_mrad, s.rounds
         );
+        if !s.complete {
+            println!(
+                "    note: the recording ended before the grown bank converged and was surveyed \
+                 again: the bank is the last round's (a longer recording lets the rounds finish)"
+            );
+        }
     }
     println!("  faults: {}", r.faults.summary());
     if let Some(line) = r.first_loss_of_lock_line {

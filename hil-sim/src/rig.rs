@@ -210,6 +210,8 @@ impl FlashSlots for SimFlash {
 pub enum Streamed {
     Record(Record),
     Event(Event),
+    /// A new `mras-paths` line: the core's bank changed.
+    Paths(mras::Bank),
 }
 
 /// The supervisor task on the host.
@@ -441,6 +443,8 @@ impl<T: Trig> Rig<T> {
         if out.install.is_some() {
             self.mailbox = out.install;
         }
+        self.streamed
+            .extend(out.paths.map(|b| (t, Streamed::Paths(b))));
         self.streamed
             .extend(out.events.iter().map(|e| (t, Streamed::Event(*e))));
         if let Some(r) = out.record {

@@ -396,6 +396,9 @@ pub fn encode_streamed(
             Streamed::Event(e) => {
                 formats.encode(e.kind(), e.fields().into_iter().map(named), &mut out)?
             }
+            Streamed::Paths(b) => {
+                formats.encode_paths(&drive::telemetry::bank_names(b.as_slice()), &mut out)?
+            }
         }
     }
     Ok(out)

@@ -287,3 +287,64 @@ fn a_store_that_hits_a_flash_error_ends_safe_with_its_cause() {
         again.transitions
     );
 }
+
+/// A bank from the data through the firmware's power-up: commissioning grows the bank
+/// from the configured first stage (the stream names each new bank), verifies and stores
+/// it; the next power-up installs the stored bank and runs on it.
+#[test]
+fn a_bank_from_the_data_is_commissioned_stored_and_loaded_again() {
+    let mut sc = scenario(0.0, false);
+    sc.file.core.set_paths(&mras::survey::FIRST_STAGE).unwrap();
+    sc.file.core.paths_from_data = true;
+    let flash = SimFlash::new(RamFlash::default());
+    let (first, flash) = power_up::boot(&sc, flash, sc.file.seed, 6.0, None).unwrap();
+    let what = format!("{:?} cause {:?}", first.transitions, first.cause);
+    assert_eq!(first.final_state, State::Run, "{what}");
+    assert!(!first.loaded_from_flash);
+    let banks = |b: &Boot| -> Vec<mras::Bank> {
+        b.streamed
+            .iter()
+            .filter_map(|(_, s)| match s {
+                Streamed::Paths(bank) => Some(*bank),
+                _ => None,
+            })
+            .collect()
+    };
+    let grown = banks(&first);
+    let bank = *grown.last().expect("the stream names the grown bank");
+    assert!(bank.as_slice().len() > 2, "{bank:?}");
+    assert!(bank.as_slice().starts_with(&mras::survey::FIRST_STAGE));
+    let named: Vec<String> = first.coefficients.iter().map(|c| c.0.clone()).collect();
+    let want: Vec<String> = drive::telemetry::bank_names(bank.as_slice())
+        .split(',')
+        .map(String::from)
+        .collect();
+    assert_eq!(named, want, "the stored coefficients are the grown bank's");
+    let first_run = first
+        .run
+        .as_ref()
+        .expect("a Run window")
+        .estimate_pk_pk_mrad;
+
+    let (second, _) = power_up::boot(&sc, flash, sc.file.seed + 1, 2.0, None).unwrap();
+    let what = format!("{:?} cause {:?}", second.transitions, second.cause);
+    assert_eq!(second.final_state, State::Run, "{what}");
+    assert!(second.loaded_from_flash, "{what}");
+    assert_eq!(
+        banks(&second),
+        vec![bank],
+        "the install names the stored bank once"
+    );
+    let second_run = second
+        .run
+        .as_ref()
+        .expect("a Run window")
+        .estimate_pk_pk_mrad;
+    let raw = second.run.as_ref().unwrap().raw_pk_pk_mrad;
+    eprintln!(
+        "bank {:?}: Run {first_run:.3} mrad pk-pk after commissioning, {second_run:.3} after \
+         loading it (raw {raw:.1})",
+        bank.as_slice()
+    );
+    assert!(second_run < raw / 20.0, "{second_run} of raw {raw}");
+}

@@ -42,6 +42,7 @@ fn full_file_parses_and_every_field_arrives() {
             PathKind::Harmonic(-4),
         ]
     );
+    assert!(c.paths_from_data);
     assert_eq!(
         c.law,
         AdaptationLaw::Compensated {

@@ -507,7 +507,8 @@ fn sensor_beyond_the_default_bank() -> SensorModel {
 
 #[test]
 fn paths_from_the_data_cover_harmonics_the_default_bank_lacks() {
-    let text = sensor_recording(&sensor_beyond_the_default_bank(), 20_000.0, 10.0, 30.0);
+    // Long enough for the survey's rounds: the large m = 3, 4 first, then m = 12.
+    let text = sensor_recording(&sensor_beyond_the_default_bank(), 20_000.0, 10.0, 60.0);
     let (fixed, _) = replay_encoder(&text, None);
     let (chosen, stdout) = replay_encoder_with(&text, None, &["--paths-from-data"]);
     eprintln!("{stdout}");
@@ -537,6 +538,8 @@ fn paths_from_the_data_cover_harmonics_the_default_bank_lacks() {
         assert!((got - want).abs() < 0.15 * want, "m = {m}: {got} mrad");
     }
     assert!(stdout.contains("paths chosen from the data"), "{stdout}");
+    assert_eq!(survey["complete"], true, "{stdout}");
+    assert!(survey["rounds"].as_u64().unwrap() >= 2, "{stdout}");
     let (r_fixed, r_chosen) = (reduction(&fixed), reduction(&chosen));
     eprintln!("reduction: default bank {r_fixed:.1}x, bank from the data {r_chosen:.1}x");
     assert!(r_chosen > 5.0 * r_fixed, "{r_chosen} against {r_fixed}");

@@ -93,6 +93,10 @@ fn the_release_format_round_trips_and_the_coefficients_move_during_adapt() {
                         })
                 );
             }
+            Streamed::Paths(b) => {
+                let names = drive::telemetry::bank_names(b.as_slice());
+                assert_eq!(line.paths().unwrap().join(","), names.as_str());
+            }
         }
     }
     assert_eq!(lines.len(), first.streamed.len() + 1);

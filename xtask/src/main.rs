@@ -21,8 +21,10 @@ pub(crate) const FIRMWARE: &str = "drive-fw";
 const QEMU_IMAGE: &str = "mras-qemu";
 /// The firmware-in-the-loop emulator (GPL-2.0, links Unicorn); its tests run in release.
 const EMULATOR: &str = "drive-emu";
-/// Budgets of the size report.
-const FLASH_BUDGET_BYTES: u64 = 64 * 1024;
+/// Budgets of the size report: growth is a decision, not an accident. The part has
+/// 256 KiB in the bank the code runs from (memory.x); 96 KiB leaves room for the
+/// application beside a core that chooses its bank from the data (78 KB today).
+const FLASH_BUDGET_BYTES: u64 = 96 * 1024;
 const RAM_BUDGET_BYTES: u64 = 16 * 1024;
 
 const HELP: &str = "\

@@ -269,6 +269,9 @@ mod app {
             cx.shared.mailbox.lock(|m| *m = out.install);
         }
         l.watchdog.feed();
+        if let Some(b) = &out.paths {
+            telemetry::log_paths(&telemetry::bank_names(b.as_slice()));
+        }
         for e in &out.events {
             telemetry::log_event(e);
         }

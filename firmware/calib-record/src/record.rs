@@ -139,8 +139,8 @@ impl InputScaling {
 ///
 /// CRC-32/ISO-HDLC over, little-endian: `sensor_periods` (u16); `pole_pairs` (u16);
 /// `offset_x`, `offset_y`, `gain_x`, `gain_y` (f32 bits, `-0.0` as `0.0`); path count
-/// (u8); per path its (tag, h) bytes as in the record. Changing this requires a new
-/// [`FORMAT_VERSION`].
+/// (u8); per path its (tag, h) bytes as in the record; then, for a bank from the data
+/// (`paths_from_data`), one byte 1. Changing this requires a new [`FORMAT_VERSION`].
 pub fn config_hash(cfg: &Config, pole_pairs: u16, input: &InputScaling) -> u32 {
     let mut d = CRC32.digest();
     d.update(&cfg.sensor_periods.to_le_bytes());
@@ -154,6 +154,11 @@ pub fn config_hash(cfg: &Config, pole_pairs: u16, input: &InputScaling) -> u32 {
     d.update(&[paths.len() as u8]);
     for &k in paths {
         d.update(&kind_bytes(k));
+    }
+    // A bank from the data: the paths above are its first stage, the record's list says
+    // what the survey added. One byte more, so that fixed banks keep their hashes.
+    if cfg.paths_from_data {
+        d.update(&[1]);
     }
     d.finalize()
 }

@@ -609,6 +609,12 @@ fn config_hash_covers_the_meaning_of_the_coefficients_only() {
         c.set_paths(paths).unwrap();
         variants.push((c, 4, id));
     }
+    // A bank from the data with the same first stage as a fixed bank.
+    let mut c = base;
+    c.set_paths(&DEFAULT_PATHS[..2]).unwrap();
+    variants.push((c, 4, id));
+    c.paths_from_data = true;
+    variants.push((c, 4, id));
     let mut seen = vec![h];
     for (v, pole_pairs, i) in &variants {
         let hv = config_hash(v, *pole_pairs, i);

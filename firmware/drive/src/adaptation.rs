@@ -12,7 +12,7 @@
 //! once per snapshot ([`mras::AdaptSample::REPORT`]), not in the control interrupt.
 
 use crate::telemetry::{Install, InstallAck, Telemetry};
-use mras::{AdaptSample, Adapter, Coefficients, ConfigError, InjectionUpdate};
+use mras::{AdaptSample, Adapter, Bank, Change, Coefficients, ConfigError, InjectionUpdate};
 
 /// What the adaptation reports to the supervisor (merged into its [`Telemetry`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -74,16 +74,25 @@ impl AdaptationTask {
         update
     }
 
-    /// Coefficients loaded from flash: validated by the core; if accepted, every path's
-    /// term goes to the control period through `send`, in force at once.
+    /// Coefficients loaded from flash: validated by the core; if accepted, the bank and
+    /// every path's term go to the control period through `send`, in force at once.
     pub fn install(&mut self, i: &Install, mut send: impl FnMut(InjectionUpdate)) {
         let accepted = self.adapter.set_coefficients(&i.coefficients).is_ok();
         if accepted {
+            // The bank first (a record's bank from the data may differ from the one in
+            // use), then every term.
+            let bank = Bank::new(self.adapter.config().paths());
+            send(InjectionUpdate {
+                apply_at: self.last_index,
+                change: Change::Bank(bank),
+            });
             for (path, (_, value)) in i.coefficients.iter().enumerate() {
                 send(InjectionUpdate {
                     apply_at: self.last_index,
-                    path: path as u8,
-                    value,
+                    change: Change::Term {
+                        path: path as u8,
+                        value,
+                    },
                 });
             }
         }

@@ -16,6 +16,7 @@ use crate::commissioning::{
 use crate::telemetry::{Command, Event, Install, Record, Telemetry};
 use calib_record::{Alignment, Calibration, FlashSlots, StoreError};
 use heapless::Vec;
+use mras::{Bank, Coefficients};
 
 /// A record every this many supervisor steps (100 Hz at a 1 kHz supervisor).
 pub const RECORD_DIVIDER: u32 = 10;
@@ -37,6 +38,9 @@ pub struct Output {
     /// A stream record, every [`RECORD_DIVIDER`] steps.
     pub record: Option<Record>,
     pub events: Vec<Event, MAX_EVENTS>,
+    /// The core's bank changed (a bank from the data grew, or a record's was installed):
+    /// stream a new `mras-paths` line before the record, as init streams the first.
+    pub paths: Option<Bank>,
 }
 
 #[derive(Clone, Debug)]
@@ -55,6 +59,8 @@ pub struct Supervisor {
     last_state: State,
     steps: u32,
     pending_events: Vec<Event, MAX_EVENTS>,
+    /// The bank of the coefficients last seen (None before the first report).
+    bank: Option<Bank>,
 }
 
 impl Supervisor {
@@ -78,6 +84,7 @@ impl Supervisor {
             last_state: State::CheckSensor,
             steps: 0,
             pending_events: Vec::new(),
+            bank: None,
         }
     }
 
@@ -266,6 +273,19 @@ impl Supervisor {
             install,
             record,
             events,
+            paths: self.bank_change(&tm.coefficients),
+        }
+    }
+
+    /// The bank, if it differs from the last one seen (the first is init's to stream).
+    fn bank_change(&mut self, c: &Coefficients) -> Option<Bank> {
+        if c.is_empty() {
+            return None;
+        }
+        let bank = Bank::new(c.kinds());
+        match self.bank.replace(bank) {
+            Some(last) if last != bank => Some(bank),
+            _ => None,
         }
     }
 

@@ -464,7 +464,8 @@ pub fn log_event(e: &Event) {
     }
 }
 
-/// The path names line, once at boot: names the `coef` columns of the records.
+/// The path names line, at boot and whenever the bank changes: names the `coef` columns
+/// of the records that follow.
 #[cfg(feature = "defmt")]
 pub fn log_paths(names: &str) {
     defmt::info!("mras-paths {=str}", names);
@@ -482,8 +483,13 @@ pub fn write_path_name(kind: mras::PathKind, w: &mut impl core::fmt::Write) -> c
 
 /// The comma-separated path names of a configuration (the `mras-paths` line).
 pub fn path_names(cfg: &mras::Config) -> heapless::String<128> {
+    bank_names(cfg.paths())
+}
+
+/// The comma-separated names of a bank's paths.
+pub fn bank_names(paths: &[mras::PathKind]) -> heapless::String<128> {
     let mut s = heapless::String::new();
-    for (i, k) in cfg.paths().iter().enumerate() {
+    for (i, k) in paths.iter().enumerate() {
         // 8 names of at most 20 characters fit: the writes cannot fail.
         if i > 0 {
             let _ = s.push(',');

@@ -8,7 +8,7 @@ use drive::commissioning::{Adaptation, Setpoint};
 use drive::control::{ControlPeriod, CurrentSensing, DriveConfig, MotorConfig, Sample};
 use drive::motion::LoopMode;
 use drive::telemetry::{Command, Fault, Install};
-use mras::{Coefficients, Config, Cplx, Front, PathKind};
+use mras::{Bank, Change, Coefficients, Config, Cplx, Front, PathKind};
 
 const T: f32 = 50e-6;
 const AMPLITUDE: f32 = 1600.0;
@@ -288,9 +288,16 @@ fn installs_are_acknowledged_with_their_generation() {
     let ack = task.report().install.unwrap();
     assert_eq!((ack.generation, ack.accepted), (7, true));
     assert_eq!(task.report().coefficients, good);
-    // Every path's term goes to the control period, due at once.
-    assert_eq!(sent.len(), good.len());
-    assert_eq!(sent[0].value, Cplx::new(0.05, -0.02));
+    // The bank, then every path's term go to the control period, due at once.
+    assert_eq!(sent.len(), 1 + good.len());
+    assert_eq!(sent[0].change, Change::Bank(Bank::new(paths.paths())));
+    assert_eq!(
+        sent[1].change,
+        Change::Term {
+            path: 0,
+            value: Cplx::new(0.05, -0.02)
+        }
+    );
     let mut p = period();
     assert!(sent.iter().all(|u| p.apply(u)));
     // Another path list: refused, the coefficients stay, nothing is sent.

@@ -47,6 +47,11 @@ impl Coefficients {
         }
     }
 
+    /// The paths' kinds, in path order.
+    pub fn kinds(&self) -> &[PathKind] {
+        self.kinds.get(..self.len()).unwrap_or(&self.kinds)
+    }
+
     pub fn len(&self) -> usize {
         self.len as usize
     }

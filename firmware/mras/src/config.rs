@@ -68,6 +68,33 @@ impl PathKind {
     }
 }
 
+/// A path bank as the core runs it: kinds in path order (a path's index is its place
+/// here).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Bank {
+    kinds: [PathKind; MAX_PATHS],
+    len: u8,
+}
+
+impl Bank {
+    /// The first [`MAX_PATHS`] of `paths`.
+    pub fn new(paths: &[PathKind]) -> Self {
+        let mut kinds = [PathKind::Offset; MAX_PATHS];
+        let len = paths.len().min(MAX_PATHS);
+        for (k, p) in kinds.iter_mut().zip(paths) {
+            *k = *p;
+        }
+        Self {
+            kinds,
+            len: len as u8,
+        }
+    }
+
+    pub fn as_slice(&self) -> &[PathKind] {
+        self.kinds.get(..self.len as usize).unwrap_or(&self.kinds)
+    }
+}
+
 /// The Luenberger motion observer (paper Fig. 5).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Deserialize))]
@@ -223,6 +250,12 @@ pub struct Config {
     /// The harmonic path bank; `path_count` entries of `paths` are used.
     pub paths: [PathKind; MAX_PATHS],
     pub path_count: u8,
+    /// Complete the bank from the sensor's own error spectrum (`crate::survey`): `paths`
+    /// adapt first, until they converge; then, with adaptation paused, the spectrum of
+    /// what remains is measured over [`crate::survey::SURVEY_PERIODS`] sensor periods,
+    /// and the rest of the bank (up to [`MAX_PATHS`]) goes to the largest harmonics above
+    /// the noise floor. A fixed bank (false) adapts `paths` only.
+    pub paths_from_data: bool,
     pub law: AdaptationLaw,
     pub gates: Gates,
     pub health: HealthConfig,
@@ -241,6 +274,7 @@ impl Default for Config {
             observer: ObserverConfig::default(),
             paths: [PathKind::Offset; MAX_PATHS],
             path_count: 0,
+            paths_from_data: false,
             law: AdaptationLaw::DEFAULT_COMPENSATED,
             gates: Gates::default(),
             health: HealthConfig::default(),
@@ -365,6 +399,12 @@ impl Config {
                     "two paths null the same error harmonic m = |k-1| (e.g. h = 4 and h = -2); keep one",
                 ));
             }
+        }
+        if self.paths_from_data && paths.len() >= MAX_PATHS {
+            return Err(ConfigError::new(
+                "paths_from_data",
+                "needs room in the bank: give at most 7 `paths` (the first stage)",
+            ));
         }
 
         match self.law {

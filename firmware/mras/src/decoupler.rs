@@ -7,7 +7,7 @@
 //! `H(j m N ω̂)·G`, so the mean of `ε·e^{-j m θ̂s}` is `H·G/(2j)`.
 
 use crate::complex::Cplx;
-use crate::config::{AdaptationLaw, Config, PathKind, MAX_PATHS};
+use crate::config::{AdaptationLaw, Bank, Config, PathKind, MAX_PATHS};
 use crate::observer::ObserverGains;
 use crate::transient::TransientGate;
 use crate::trig::{max_f32, min_f32, sqrt_inline_f32};
@@ -155,6 +155,23 @@ impl Injection {
         inj
     }
 
+    /// Another bank: the terms of kinds in both are kept, the others start at zero.
+    #[inline(never)]
+    pub(crate) fn rebank(&mut self, paths: &[PathKind]) {
+        let old = *self;
+        *self = Self::new(paths);
+        for (i, kind) in paths.iter().enumerate() {
+            let kept = old.kinds.iter().zip(&old.coef).take(old.len);
+            if let Some((_, &c)) = kept.into_iter().find(|(k, _)| *k == kind) {
+                self.set(i, c);
+            }
+        }
+    }
+
+    pub(crate) fn kinds(&self) -> &[PathKind] {
+        self.kinds.get(..self.len).unwrap_or(&self.kinds)
+    }
+
     /// Path `path`'s new term: the polynomial coefficients it feeds are summed again over
     /// the paths sharing them (no running sums: nothing drifts over millions of updates).
     pub(crate) fn set(&mut self, path: usize, coef: Cplx) {
@@ -286,15 +303,23 @@ impl AdaptSample {
     }
 }
 
-/// A new decoupling-vector term for one path, `coef + coef_p` (path order), and the
-/// front's period from which it is in force: a fixed latency after the sample that
-/// completed the path's block, so that where the adaptation runs (inline on the host,
-/// in a task on the target) does not change a single bit of the result.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// A change of the decoupling vector and the front's period from which it is in force:
+/// a fixed latency after the sample that caused it, so that where the adaptation runs
+/// (inline on the host, in a task on the target) does not change a single bit of the
+/// result.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct InjectionUpdate {
     pub apply_at: u32,
-    pub path: u8,
-    pub value: Cplx,
+    pub change: Change,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Change {
+    /// Path `path`'s new term, `coef + coef_p` (path order).
+    Term { path: u8, value: Cplx },
+    /// A new bank (the survey's, or a record's): the terms of kinds in both banks are
+    /// kept, the others start at zero. Later terms index the new bank.
+    Bank(Bank),
 }
 
 /// Control periods between the sample that completes a block and the period its update
@@ -464,6 +489,8 @@ pub(crate) struct PathBank {
 }
 
 impl PathBank {
+    /// (Not inlined: built at init and at a rebank only, one copy in flash.)
+    #[inline(never)]
     pub fn new(cfg: &Config, gains: &ObserverGains) -> Self {
         let paths = cfg.paths();
         let mut m = [0; MAX_PATHS];
@@ -523,6 +550,25 @@ impl PathBank {
         self.amplitude_sum = 0.0;
         self.adapted_samples = 0;
         self.discard_blocks();
+    }
+
+    /// Another bank (`cfg`'s paths): the states of kinds in both are kept, the others
+    /// start at zero; the smoothing carries on; the revolution count and the transient
+    /// gate start again, as the new paths have yet to converge.
+    pub fn rebank(&mut self, cfg: &Config, gains: &ObserverGains) {
+        let old = *self;
+        *self = Self::new(cfg, gains);
+        for (kind, state) in self.kinds.iter().zip(self.state.iter_mut()).take(self.len) {
+            let kept = old.kinds.iter().zip(&old.state).take(old.len);
+            if let Some((_, s)) = kept.into_iter().find(|(k, _)| *k == kind) {
+                *state = *s;
+            }
+        }
+        self.smooth = old.smooth;
+        self.speed_ok = old.speed_ok;
+        self.omega_window = old.omega_window;
+        self.transient = old.transient;
+        self.transient.disarm();
     }
 
     /// Let torque transients close the adaptation's gate (once converged).
@@ -652,8 +698,10 @@ impl PathBank {
         self.adapt_path(i, x, d_theta_e * self.block as f32);
         self.state.get(i).map(|s| InjectionUpdate {
             apply_at: x.index.wrapping_add(UPDATE_LATENCY_PERIODS),
-            path: i as u8,
-            value: s.coef + s.coef_p,
+            change: Change::Term {
+                path: i as u8,
+                value: s.coef + s.coef_p,
+            },
         })
     }
 
@@ -771,6 +819,14 @@ mod tests {
         }
     }
 
+    fn powers_of(u: Cplx) -> Powers {
+        let mut pw = [Cplx::ONE; 32];
+        for i in 1..32 {
+            pw[i] = pw[i - 1] * u;
+        }
+        pw
+    }
+
     /// The straight-line injection equals the per-kind definition, path by path.
     #[test]
     fn injection_vector_matches_the_path_definitions() {
@@ -788,6 +844,15 @@ mod tests {
             inj.set(i, *c);
         }
         let u = Cplx::new(libm::cosf(0.7), libm::sinf(0.7));
+        // Rebanked to a bank with some of the kinds, in another order: the kept terms
+        // follow their kinds, the new kind starts at zero.
+        let mut other = inj;
+        let other_kinds = [kinds[2], PathKind::Harmonic(9), kinds[0]];
+        other.rebank(&other_kinds);
+        let expect_other = injection(kinds[2], coefs[2], &powers_of(u))
+            + injection(kinds[0], coefs[0], &powers_of(u));
+        assert!((other.vector(u) - expect_other).abs() < 1e-7);
+        assert_eq!(other.kinds(), other_kinds);
         let mut pw = [Cplx::ONE; 32];
         for i in 1..32 {
             pw[i] = pw[i - 1] * u;

@@ -10,13 +10,26 @@
 //! spectrum the bank has to cover.
 
 use crate::complex::Cplx;
-use crate::config::{PathKind, MAX_PATHS};
+use crate::config::{Bank, PathKind, MAX_PATHS};
 use crate::observer::ObserverGains;
 use crate::trig::sqrt_f32;
 
 /// Error harmonics m = 1..=`SURVEY_HARMONICS` of θs are measured; a path exists for each
 /// (m = 16 is the largest a path reaches: h = -15).
 pub const SURVEY_HARMONICS: usize = 16;
+/// Whole sensor periods the survey covers: the noise floor from four DFT bins' worth of
+/// samples per harmonic, and leakage from a fractional period under 1/4 of a bin.
+pub const SURVEY_PERIODS: f32 = 4.0;
+/// Harmonics under this share of the largest get no path: what the observer follows of
+/// the largest phase-modulates its neighbours, by about 1 % of it (docs/theory.md §8).
+pub const MIN_SHARE: f32 = 0.01;
+/// The first stage of a bank from the data. Every sensor has an offset and an
+/// amplitude/quadrature error, and at the size they come in their products put error
+/// into every harmonic of the angle: they adapt first, and the survey measures what
+/// remains.
+pub const FIRST_STAGE: [PathKind; 2] = [PathKind::Offset, PathKind::AmplitudeQuadrature];
+/// Mechanical revolutions the first stage may adapt before the survey starts anyway.
+pub const FIRST_STAGE_MAX_REVS: u32 = 20;
 
 /// Accumulates ε against θ̂s while the observer tracks with adaptation frozen.
 #[derive(Clone, Debug)]
@@ -29,7 +42,8 @@ pub struct ErrorSurvey {
     samples: u32,
     /// θ̂s advance over the samples (rad, signed): whole sensor periods make the DFT exact.
     advance_rad: f32,
-    last_theta_e_rad: Option<f32>,
+    /// e^{jθ̂s} of the previous sample (`ZERO`: none yet).
+    last_u: Cplx,
 }
 
 /// What the survey measured: the sensor's angle error per harmonic m of θs (rad,
@@ -54,32 +68,28 @@ impl Default for ErrorSurvey {
             omega_e_sum: 0.0,
             samples: 0,
             advance_rad: 0.0,
-            last_theta_e_rad: None,
+            last_u: Cplx::ZERO,
         }
     }
 }
 
 impl ErrorSurvey {
-    /// One tracked sample: θ̂s (rad, sensor electrical), ε (rad) and ω̂s (rad/s, sensor
-    /// electrical, i.e. N·ω̂rm).
-    pub fn add(&mut self, theta_e_rad: f32, eps_rad: f32, omega_e_rad_s: f32) {
-        if !(theta_e_rad.is_finite() && eps_rad.is_finite() && omega_e_rad_s.is_finite()) {
+    /// One tracked sample: `u` = e^{jθ̂s} (the reference the paths demodulate with, as
+    /// [`crate::AdaptSample::u`]), ε (rad) and ω̂s (rad/s, sensor electrical, i.e.
+    /// N·ω̂rm).
+    pub fn add(&mut self, u: Cplx, eps_rad: f32, omega_e_rad_s: f32) {
+        let finite = [u.re, u.im, eps_rad, omega_e_rad_s];
+        if !finite.iter().all(|v| v.is_finite()) {
             return;
         }
-        if let Some(prev) = self.last_theta_e_rad {
-            let mut d = theta_e_rad - prev;
-            // θ̂s is wrapped to [0, 2π): unwrap the step.
-            if d > core::f32::consts::PI {
-                d -= core::f32::consts::TAU;
-            } else if d < -core::f32::consts::PI {
-                d += core::f32::consts::TAU;
-            }
-            self.advance_rad += d;
+        if self.last_u != Cplx::ZERO {
+            // The step from the previous sample: arg(u·conj(last)).
+            let d = u * self.last_u.conj();
+            self.advance_rad += libm::atan2f(d.im, d.re);
         }
-        self.last_theta_e_rad = Some(theta_e_rad);
-        let (s, c) = crate::trig::sin_cos_f32(theta_e_rad);
+        self.last_u = u;
         // e^{-j m θ} by repeated multiplication: one rotation per harmonic.
-        let step = Cplx::new(c, -s);
+        let step = u.conj();
         let mut rot = step;
         for sum in &mut self.sums {
             *sum += rot.scale(eps_rad);
@@ -97,6 +107,7 @@ impl ErrorSurvey {
 
     /// The spectrum, the observer's transfer undone at the mean speed; `None` before a
     /// sensor period or at standstill.
+    #[inline(never)]
     pub fn spectrum(&self, gains: &ObserverGains) -> Option<ErrorSpectrum> {
         let k = self.samples as f32;
         let omega_e = self.omega_e_sum / k.max(1.0);
@@ -149,17 +160,12 @@ pub struct Allocation {
 
 /// The `max_paths` (≤ [`MAX_PATHS`]) largest harmonics that clear their noise floor and
 /// `min_rad` (rad, sensor electrical), each given its path.
+#[inline(never)]
 pub fn allocate(spectrum: &ErrorSpectrum, max_paths: usize, min_rad: f32) -> Allocation {
     let mut order: [u8; SURVEY_HARMONICS] = core::array::from_fn(|m| m as u8 + 1);
     let amp = |m: u8| spectrum.amplitude_rad[m as usize - 1];
-    // Largest first; insertion sort (16 entries, no allocation, no panics).
-    for i in 1..order.len() {
-        let mut j = i;
-        while j > 0 && amp(order[j]) > amp(order[j - 1]) {
-            order.swap(j, j - 1);
-            j -= 1;
-        }
-    }
+    // Largest first.
+    insertion_sort_by(&mut order, |a, b| amp(a) > amp(b));
     let mut chosen: heapless::Vec<u8, MAX_PATHS> = heapless::Vec::new();
     let mut unobserved = heapless::Vec::new();
     for m in order {
@@ -173,11 +179,90 @@ pub fn allocate(spectrum: &ErrorSpectrum, max_paths: usize, min_rad: f32) -> All
             let _ = unobserved.push(m);
         }
     }
-    chosen.sort_unstable();
-    unobserved.sort_unstable();
+    // In order of m (not `sort_unstable`: its code is kilobytes in the firmware).
+    insertion_sort_by(&mut chosen, |a, b| a < b);
+    insertion_sort_by(&mut unobserved, |a, b| a < b);
     let mut paths = heapless::Vec::new();
     for k in chosen.iter().filter_map(|&m| path_for(m)) {
         let _ = paths.push(k);
     }
     Allocation { paths, unobserved }
+}
+
+/// A round gives paths only to harmonics at least this share of the largest one still
+/// without a path. What the observer follows of a large harmonic m' phase-modulates θ̂s,
+/// the survey's reference, and puts sidebands of up to ~m·|δ| (a tenth or more of a
+/// large harmonic m, docs/theory.md §8) at m ± m'; once the large ones are nulled, the
+/// next round's survey sees no sidebands of them.
+pub const ROUND_SHARE: f32 = 0.25;
+
+/// What the surveys chose: the first round's spectrum (the error the first stage left),
+/// the share-of-the-largest floor, the bank (the first stage's paths, then the
+/// allocated ones), the harmonics left without a path, and the rounds it took.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SurveyOutcome {
+    pub spectrum: ErrorSpectrum,
+    pub min_rad: f32,
+    pub bank: Bank,
+    pub unobserved: heapless::Vec<u8, SURVEY_HARMONICS>,
+    pub rounds: u8,
+}
+
+/// One round of a bank from the data: `spectrum` was measured with `bank` adapted and
+/// frozen; `min_rad` is the first round's share-of-the-largest floor. The bank grows by
+/// the harmonics above the noise floor, `min_rad` and [`ROUND_SHARE`] of the largest
+/// without a path, as many as it has room for. Returns the new bank, whether it is
+/// complete (nothing added, or full), and, when complete, the harmonics above the
+/// floors left without a path.
+#[inline(never)]
+pub fn next_round(
+    spectrum: &ErrorSpectrum,
+    bank: &[PathKind],
+    min_rad: f32,
+) -> (Bank, bool, heapless::Vec<u8, SURVEY_HARMONICS>) {
+    let mut rest = *spectrum;
+    for p in bank {
+        if let Some(a) = rest
+            .amplitude_rad
+            .get_mut((p.error_harmonic() as usize).wrapping_sub(1))
+        {
+            *a = 0.0;
+        }
+    }
+    let largest = rest.amplitude_rad.iter().fold(0.0f32, |a, &b| a.max(b));
+    let room = MAX_PATHS.saturating_sub(bank.len());
+    let chosen = allocate(&rest, room, min_rad.max(ROUND_SHARE * largest));
+    let mut kinds: heapless::Vec<PathKind, MAX_PATHS> = heapless::Vec::new();
+    for k in bank.iter().chain(&chosen.paths) {
+        let _ = kinds.push(*k);
+    }
+    let complete = chosen.paths.is_empty() || kinds.len() >= MAX_PATHS;
+    let mut unobserved = heapless::Vec::new();
+    if complete {
+        for (i, &a) in rest.amplitude_rad.iter().enumerate() {
+            let m = i as u8 + 1;
+            let pathed = path_for(m).is_some_and(|k| kinds.contains(&k));
+            if a > spectrum.floor_rad && a > min_rad && !pathed {
+                let _ = unobserved.push(m);
+            }
+        }
+    }
+    (Bank::new(&kinds), complete, unobserved)
+}
+
+/// The share-of-the-largest floor of a first round's spectrum ([`MIN_SHARE`]).
+pub fn min_rad_of(spectrum: &ErrorSpectrum) -> f32 {
+    MIN_SHARE * spectrum.amplitude_rad.iter().fold(0.0f32, |a, &b| a.max(b))
+}
+
+/// Sort `v` so that `before(v[i], v[j])` holds for i < j where it decides: a few
+/// entries, no allocation, no panics.
+fn insertion_sort_by(v: &mut [u8], before: impl Fn(u8, u8) -> bool) {
+    for i in 1..v.len() {
+        let mut j = i;
+        while j > 0 && before(v[j], v[j - 1]) {
+            v.swap(j, j - 1);
+            j -= 1;
+        }
+    }
 }

@@ -6,7 +6,7 @@ use crate::adapter::Adapter;
 use crate::coefficients::{CoefficientsError, Convergence};
 use crate::complex::Cplx;
 use crate::config::{Config, ConfigError};
-use crate::decoupler::{AdaptSample, Injection, InjectionUpdate};
+use crate::decoupler::{AdaptSample, Change, Injection, InjectionUpdate};
 use crate::health::{Fault, Faults};
 use crate::observer::{DiscreteGains, ObserverGains, ObserverState};
 use crate::trig::{inv_sqrt_f32, sin_cos_f32, F32Trig, Trig};
@@ -627,7 +627,10 @@ impl<T: Trig> Front<T> {
         // Wrapping comparison: due when apply_at - (index + 1) is "not positive".
         let due = (u.apply_at.wrapping_sub(self.index.wrapping_add(1)) as i32) <= 0;
         if due {
-            self.inject.set(u.path as usize, u.value);
+            match u.change {
+                Change::Term { path, value } => self.inject.set(path as usize, value),
+                Change::Bank(b) => self.inject.rebank(b.as_slice()),
+            }
         }
         due
     }
@@ -647,6 +650,10 @@ impl<T: Trig> Front<T> {
     /// Every path's decoupling-vector term at once (coefficients loaded from flash, which
     /// the [`Adapter`] has validated).
     pub fn load_injection(&mut self, c: &Coefficients) {
+        let kinds = c.kinds.get(..c.len()).unwrap_or(&c.kinds);
+        if kinds != self.inject.kinds() {
+            self.inject.rebank(kinds);
+        }
         for (i, (_, v)) in c.iter().enumerate() {
             self.inject.set(i, v);
         }

@@ -127,6 +127,11 @@ impl TransientGate {
         self.armed = true;
     }
 
+    /// A new bank has yet to converge: no trips until it has.
+    pub fn disarm(&mut self) {
+        self.armed = false;
+    }
+
     pub fn is_armed(&self) -> bool {
         self.armed
     }

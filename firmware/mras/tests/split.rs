@@ -97,3 +97,25 @@ fn a_task_past_its_deadline_still_converges() {
     );
     assert!(late.last().unwrap().1 > 5);
 }
+
+/// A bank from the data reaches the front through the update queue like a path's term:
+/// split or inline, the rounds, the grown bank and every estimate are the same bits.
+#[test]
+fn a_bank_grown_from_the_data_changes_no_bit_when_split() {
+    let mut cfg = Config::default();
+    cfg.set_paths(&mras::survey::FIRST_STAGE).unwrap();
+    cfg.paths_from_data = true;
+    let xs = samples(20.0, 60_000);
+    let inline = inline_run(cfg, &xs);
+    let split = split_run(cfg, &xs, UPDATE_LATENCY_PERIODS as usize);
+    for (k, (a, (b, _))) in inline.iter().zip(&split).enumerate() {
+        assert_eq!(a, b, "period {k}");
+    }
+    let mut t = Tracker::new(cfg).unwrap();
+    for &(x, y) in &xs {
+        let _ = t.step(x, y, 0.0);
+    }
+    let o = t.adapter().survey().expect("a survey ran");
+    assert!(o.bank.as_slice().len() > 2, "the bank grew: {:?}", o.bank);
+    assert!(!t.adapter().surveying(), "and is complete");
+}

@@ -2,8 +2,8 @@
 //! observer's transfer undone) is the sensor's angle-error spectrum, and a bank given to
 //! the harmonics it finds removes what the fixed default bank leaves.
 
-use mras::survey::{allocate, path_for, ErrorSurvey, SURVEY_HARMONICS};
-use mras::{Config, PathKind, Tracker};
+use mras::survey::{allocate, path_for, ErrorSurvey, FIRST_STAGE, SURVEY_HARMONICS};
+use mras::{Coefficients, Config, Cplx, PathKind, Tracker};
 use mras_sim::wrap_pi;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -86,7 +86,8 @@ fn survey(noise_rad: f64) -> (Tracker, ErrorSurvey) {
     spin(&mut t, 10.0, noise_rad, |e, _| {
         k += 1;
         if k as f64 * T_S > 1.0 && survey.periods() < 4.0 {
-            survey.add(e.theta_e_rad, e.epsilon_rad, e.omega_rad_s);
+            let (sin, cos) = mras::sin_cos_f32(e.theta_e_rad);
+            survey.add(Cplx::new(cos, sin), e.epsilon_rad, e.omega_rad_s);
         }
     });
     (t, survey)
@@ -217,4 +218,81 @@ fn a_bank_from_the_data_removes_what_the_default_bank_leaves() {
     // The default bank cannot touch m = 9, 12, 16 (3.1 mrad of amplitude).
     assert!(fixed > 0.3 * raw, "{fixed} of {raw}");
     assert!(from_data < raw / 30.0, "{from_data} of {raw}");
+}
+
+/// The core choosing its bank by itself (`paths_from_data`): offset and C/D adapt, the
+/// survey finds m = 3, 6, 9, 12, 16, the bank grows in place (the front follows through
+/// the update queue) and the whole error goes.
+#[test]
+fn a_core_with_paths_from_data_chooses_its_bank_and_nulls_the_error() {
+    let mut cfg = config(Some(&FIRST_STAGE));
+    cfg.paths_from_data = true;
+    let mut t = Tracker::new(cfg).unwrap();
+    let s = sensor();
+    let omega = TAU * SPEED_REV_S;
+    let revs = 30.0;
+    let n = (revs / (SPEED_REV_S * T_S)).round() as u64;
+    let last_from = ((revs - 1.0) / (SPEED_REV_S * T_S)) as u64;
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    let mut chosen_at_rev = None;
+    for k in 0..n {
+        let th = omega * k as f64 * T_S;
+        let (x, y) = s.vector(th);
+        let e = t.step(x, y, 0.0).unwrap();
+        let surveying = t.adapter().surveying();
+        assert!(
+            !(surveying && t.convergence().converged),
+            "converged before the bank was complete"
+        );
+        if !surveying && chosen_at_rev.is_none() {
+            chosen_at_rev = Some(th / TAU);
+        }
+        if k > last_from {
+            let d = wrap_pi(e.theta_unwrapped_rad() - th);
+            (lo, hi) = (lo.min(d), hi.max(d));
+        }
+    }
+    let o = t.adapter().survey().expect("the survey completed");
+    let want: Vec<PathKind> = [1, 2, 3, 6, 9, 12, 16].map(|m| path_for(m).unwrap()).into();
+    assert_eq!(o.bank.as_slice(), want.as_slice());
+    assert_eq!(
+        t.config().paths(),
+        FIRST_STAGE,
+        "the front's configuration is as given"
+    );
+    assert_eq!(t.adapter().config().paths(), want.as_slice());
+    assert!(o.unobserved.is_empty());
+    assert!(t.convergence().converged);
+    eprintln!(
+        "bank chosen at revolution {:.1}; residual {:.3} mrad pk-pk",
+        chosen_at_rev.unwrap(),
+        (hi - lo) * 1e3
+    );
+    assert!(hi - lo < 0.2e-3, "{} mrad", (hi - lo) * 1e3);
+}
+
+/// A record's bank from the data is taken (it starts with the first stage); another
+/// bank is refused, and so is any bank other than the configured one with a fixed bank.
+#[test]
+fn coefficients_of_a_bank_from_the_data_are_installed_with_their_bank() {
+    let mut cfg = config(Some(&FIRST_STAGE));
+    cfg.paths_from_data = true;
+    let bank = [1, 2, 3, 9, 16].map(|m| path_for(m).unwrap());
+    let mut c = Coefficients::zeros(&bank);
+    c.set(path_for(9).unwrap(), Cplx::new(1e-3, -2e-3));
+    let mut t = Tracker::new(cfg).unwrap();
+    t.set_coefficients(&c).unwrap();
+    assert_eq!(t.adapter().config().paths(), bank);
+    assert!(!t.adapter().surveying());
+    assert_eq!(t.coefficients(), c);
+    let wrong_start = Coefficients::zeros(&[PathKind::Offset, PathKind::Harmonic(4)]);
+    assert_eq!(
+        Tracker::new(cfg).unwrap().set_coefficients(&wrong_start),
+        Err(mras::CoefficientsError::PathMismatch)
+    );
+    let fixed = config(Some(&FIRST_STAGE));
+    assert_eq!(
+        Tracker::new(fixed).unwrap().set_coefficients(&c),
+        Err(mras::CoefficientsError::PathMismatch)
+    );
 }

@@ -48,7 +48,9 @@ use std::f64::consts::TAU;
 pub use oracle::oracle_angle_rad;
 use plan::steps;
 pub use plan::{Phase, PhaseKind, Plan, SPECTRUM_PHASE};
-pub use population::{draw_sensor, Distribution, SensorCase, DISTRIBUTION};
+pub use population::{
+    draw_sensor, draw_sensor_in, Distribution, Harmonics, SensorCase, DISTRIBUTION, DISTRIBUTION_N1,
+};
 
 /// Control period (20 kHz, the core's default).
 pub const SAMPLE_PERIOD_S: f64 = 50e-6;
@@ -80,11 +82,14 @@ pub enum Method {
     /// Ours with the paper's four paths only (offset, C/D, h = 4, h = 5: m = 1..4), to
     /// show what the larger bank buys.
     OursPaperBank,
+    /// Ours choosing its bank from the data (`mras::Config::paths_from_data`): offset and
+    /// C/D first, then the harmonics the survey finds.
+    OursFromData,
     Oracle,
 }
 
 impl Method {
-    pub const COUNT: usize = 10;
+    pub const COUNT: usize = 11;
     pub const ALL: [Method; Method::COUNT] = [
         Method::Raw,
         Method::MinMax,
@@ -95,10 +100,16 @@ impl Method {
         Method::Paper,
         Method::Ours,
         Method::OursPaperBank,
+        Method::OursFromData,
         Method::Oracle,
     ];
-    /// The three tracker-based methods, in the order of [`SensorResult::mras`].
-    pub const MRAS: [Method; 3] = [Method::Ours, Method::Paper, Method::OursPaperBank];
+    /// The tracker-based methods, in the order of [`SensorResult::mras`].
+    pub const MRAS: [Method; 4] = [
+        Method::Ours,
+        Method::Paper,
+        Method::OursPaperBank,
+        Method::OursFromData,
+    ];
 
     /// Position in [`Method::ALL`] (the declaration order).
     pub fn index(self) -> usize {
@@ -116,6 +127,7 @@ impl Method {
             Method::Paper => "MRAS, paper-literal",
             Method::Ours => "MRAS, ours (default)",
             Method::OursPaperBank => "MRAS, ours, the paper's 4 paths",
+            Method::OursFromData => "MRAS, ours, bank from the data",
             Method::Oracle => "oracle (noise floor)",
         }
     }
@@ -132,6 +144,7 @@ impl Method {
             Method::Paper => "paper",
             Method::Ours => "ours",
             Method::OursPaperBank => "ours4",
+            Method::OursFromData => "ours_data",
             Method::Oracle => "oracle",
         }
     }
@@ -142,7 +155,7 @@ impl Method {
     pub fn is_extra(self) -> bool {
         matches!(
             self,
-            Method::Lut128 | Method::Lut360 | Method::OursPaperBank
+            Method::Lut128 | Method::Lut360 | Method::OursPaperBank | Method::OursFromData
         )
     }
 
@@ -197,7 +210,9 @@ pub struct SensorResult {
     /// mechanical) in the first evaluated phase, per method: where a residual comes from.
     pub spectrum_rad: [[f64; SPECTRUM_HARMONICS_OF_THETA_S]; Method::COUNT],
     /// Per tracker, in [`Method::MRAS`] order.
-    pub mras: [TrackerOutcome; 3],
+    pub mras: [TrackerOutcome; 4],
+    /// What [`Method::OursFromData`]'s survey chose (None: it never completed).
+    pub survey: Option<mras::survey::SurveyOutcome>,
     /// Offline methods whose fit failed, with the reason.
     pub fit_failures: Vec<(Method, String)>,
 }
@@ -241,15 +256,20 @@ impl SensorResult {
     }
 }
 
-/// The core configuration of a tracker method, with the drive's inertia as Ĵ.
-pub fn tracker_config(m: Method, j_kg_m2: f64) -> Result<Config> {
+/// The core configuration of a tracker method for a sensor with `sensor_periods`, with
+/// the drive's inertia as Ĵ.
+pub fn tracker_config(m: Method, j_kg_m2: f64, sensor_periods: u16) -> Result<Config> {
     let mut cfg = match m {
         Method::Paper => Law::Paper.config(),
-        Method::Ours | Method::OursPaperBank => Law::Ours.config(),
+        Method::Ours | Method::OursPaperBank | Method::OursFromData => Law::Ours.config(),
         other => bail!("{} is not a tracker", other.label()),
     };
     cfg.sample_period_s = SAMPLE_PERIOD_S as f32;
-    cfg.sensor_periods = SENSOR_PERIODS;
+    cfg.sensor_periods = sensor_periods;
+    if m == Method::OursFromData {
+        cfg.set_paths(&mras::survey::FIRST_STAGE)?;
+        cfg.paths_from_data = true;
+    }
     cfg.observer.inertia_kg_m2 = j_kg_m2 as f32;
     if m == Method::OursPaperBank {
         cfg.set_paths(&[
@@ -269,13 +289,16 @@ pub fn tracker_config(m: Method, j_kg_m2: f64) -> Result<Config> {
 struct Accumulator {
     error: SpatialError<BINS>,
     pivot: Option<f64>,
+    /// Sensor periods per revolution: sensor-electrical to mechanical radians.
+    n: f64,
 }
 
 impl Accumulator {
-    fn new() -> Self {
+    fn new(sensor_periods: u16) -> Self {
         Self {
             error: SpatialError::new(),
             pivot: None,
+            n: sensor_periods as f64,
         }
     }
 
@@ -293,7 +316,7 @@ impl Accumulator {
         let full = self.error.filled_bins() == BINS;
         std::array::from_fn(|i| {
             if full {
-                self.error.harmonic_amplitude_rad(i as u32 + 1) / SENSOR_PERIODS as f64
+                self.error.harmonic_amplitude_rad(i as u32 + 1) / self.n
             } else {
                 f64::NAN
             }
@@ -305,7 +328,7 @@ impl Accumulator {
         if self.error.filled_bins() < BINS {
             return Residual::NONE;
         }
-        let n = SENSOR_PERIODS as f64;
+        let n = self.n;
         Residual {
             pk_pk_rad: self.error.pk_pk_rad() / n,
             rms_rad: self.error.rms_rad() / n,
@@ -448,19 +471,33 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult> {
     let sensor = SensorSim::new(case.params.clone(), case.noise_seed)?;
     let plant = Plant::new(motor, sensor, SAMPLE_PERIOD_S, 0.0)?;
     let dcfg = rig::drive_config(&plant, &control, j, SAMPLE_PERIOD_S)?;
-    let period = ControlPeriod::new(dcfg, Front::new(tracker_config(Method::Ours, j)?)?)?;
+    let sensor_periods = case.population.sensor_periods;
+    // The drive runs the firmware's code path with its tracker; the other trackers ride
+    // along on the same samples.
+    let (driving, riders) = if case.population.bank_from_data {
+        let riders = [Method::Ours, Method::Paper, Method::OursPaperBank];
+        (Method::OursFromData, riders)
+    } else {
+        let riders = [Method::Paper, Method::OursPaperBank, Method::OursFromData];
+        (Method::Ours, riders)
+    };
+    let config = |m| tracker_config(m, j, sensor_periods);
+    let period = ControlPeriod::new(dcfg, Front::new(config(driving)?)?)?;
     let mut drive = Rig::new(plant, period, None);
-    let new_tracker = |m| -> Result<Tracker> { Ok(Tracker::new(tracker_config(m, j)?)?) };
-    let mut passengers = [
-        new_tracker(Method::Paper)?,
-        new_tracker(Method::OursPaperBank)?,
-    ];
-    let mut runs = Method::MRAS.map(|method| TrackerRun {
-        method,
-        outcome: TrackerOutcome::default(),
-    });
+    let mut passengers: Vec<Tracker> = riders
+        .iter()
+        .map(|&m| Ok(Tracker::new(config(m)?)?))
+        .collect::<Result<_>>()?;
+    let mut runs: Vec<TrackerRun> = [driving]
+        .iter()
+        .chain(&riders)
+        .map(|&method| TrackerRun {
+            method,
+            outcome: TrackerOutcome::default(),
+        })
+        .collect();
 
-    let n = SENSOR_PERIODS as f64;
+    let n = sensor_periods as f64;
     let mut offline: Fitted = Vec::new();
     let mut fit_failures = Vec::new();
     let mut residuals = Vec::new();
@@ -479,7 +516,9 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult> {
             drive.plant.sensor = drifting_sensor(case, drive.plant.time_s())?;
         }
         let target = phase.speed_rev_s * TAU;
-        let mut acc: Vec<Accumulator> = (0..Method::COUNT).map(|_| Accumulator::new()).collect();
+        let mut acc: Vec<Accumulator> = (0..Method::COUNT)
+            .map(|_| Accumulator::new(sensor_periods))
+            .collect();
         let skew_s = drive.plant.sensor.params.skew_s;
         let mut model = drive.plant.sensor.model_at(drive.plant.time_s());
         for k in 0..steps(phase.duration_s) {
@@ -503,11 +542,8 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult> {
 
             let s = drive.step();
             let (x, y) = s.input;
-            let results = [
-                rig_result(&s),
-                passengers[0].step(x, y, torque_in_force),
-                passengers[1].step(x, y, torque_in_force),
-            ];
+            let mut results = vec![rig_result(&s)];
+            results.extend(passengers.iter_mut().map(|p| p.step(x, y, torque_in_force)));
             torque_in_force = s.torque_cmd_nm as f32;
             let theta_rad = s.truth.theta_rad;
             for (r, res) in runs.iter_mut().zip(&results) {
@@ -518,11 +554,10 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult> {
                 // Revolutions travelled, not net: a reversal must not count backwards.
                 let last = theta_adapt.replace(theta_rad).unwrap_or(theta_rad);
                 travelled_rad += (theta_rad - last).abs();
-                let convergence = [
-                    drive.adaptation().adapter().convergence(),
-                    passengers[0].convergence(),
-                    passengers[1].convergence(),
-                ];
+                let drive_convergence = drive.adaptation().adapter().convergence();
+                let convergence = [drive_convergence]
+                    .into_iter()
+                    .chain(passengers.iter().map(|p| p.convergence()));
                 for (r, c) in runs.iter_mut().zip(convergence) {
                     if r.outcome.converged_revs.is_none() && c.converged {
                         r.outcome.converged_revs = Some(travelled_rad / TAU);
@@ -544,13 +579,11 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult> {
             for (m, c) in &offline {
                 acc[m.index()].add(theta_s, c.angle_rad(x, y));
             }
-            let lasts = [
-                drive.period.tracker().last_estimate(),
-                passengers[0].last_estimate(),
-                passengers[1].last_estimate(),
-            ];
-            for ((r, res), last) in runs.iter().zip(&results).zip(&lasts) {
-                if let Some(a) = decoupled_angle(res, last) {
+            let lasts = [drive.period.tracker().last_estimate()]
+                .into_iter()
+                .chain(passengers.iter().map(|p| p.last_estimate()));
+            for ((r, res), last) in runs.iter().zip(&results).zip(lasts) {
+                if let Some(a) = decoupled_angle(res, &last) {
                     acc[r.method.index()].add(theta_s, a);
                 }
             }
@@ -588,14 +621,26 @@ pub fn run_sensor(case: &SensorCase, plan: &Plan) -> Result<SensorResult> {
         skew_s: case.params.skew_s,
         residuals,
         spectrum_rad,
-        mras: runs.map(|r| r.outcome),
+        survey: if driving == Method::OursFromData {
+            drive.adaptation().adapter().survey().cloned()
+        } else {
+            let i = riders.iter().position(|&m| m == Method::OursFromData);
+            i.and_then(|i| passengers[i].adapter().survey().cloned())
+        },
+        // In [`Method::MRAS`] order.
+        mras: Method::MRAS.map(|m| {
+            runs.iter()
+                .find(|r| r.method == m)
+                .map_or_else(TrackerOutcome::default, |r| r.outcome)
+        }),
         fit_failures,
     })
 }
 
-/// Run sensors `0..sensors` of the population `seed` through `plan`, in parallel
+/// Run sensors `0..sensors` of `population` with `seed` through `plan`, in parallel
 /// (rayon); `progress` prints a line to stderr about every 10 % of the sensors.
 pub fn run_suite(
+    population: &'static Distribution,
     seed: u64,
     sensors: usize,
     plan: &Plan,
@@ -610,7 +655,8 @@ pub fn run_suite(
     (0..sensors)
         .into_par_iter()
         .map(|i| {
-            let r = run_sensor(&draw_sensor(seed, i), plan).with_context(|| format!("sensor {i}"));
+            let r = run_sensor(&draw_sensor_in(population, seed, i), plan)
+                .with_context(|| format!("{}: sensor {i}", population.name));
             let n = done.fetch_add(1, Ordering::Relaxed) + 1;
             if progress && (n.is_multiple_of(step) || n == sensors) {
                 eprintln!(
@@ -638,9 +684,9 @@ mod tests {
     #[test]
     fn the_default_bank_is_the_full_one_and_the_variant_the_papers_four() {
         let j = MotorParams::default().j_kg_m2;
-        let ours = tracker_config(Method::Ours, j).unwrap();
-        let paper = tracker_config(Method::Paper, j).unwrap();
-        let four = tracker_config(Method::OursPaperBank, j).unwrap();
+        let ours = tracker_config(Method::Ours, j, 2).unwrap();
+        let paper = tracker_config(Method::Paper, j, 2).unwrap();
+        let four = tracker_config(Method::OursPaperBank, j, 2).unwrap();
         assert_eq!(ours.paths(), Config::default().paths());
         assert_eq!(ours.paths().len(), 7);
         assert_eq!(paper.paths(), ours.paths());
@@ -655,7 +701,10 @@ mod tests {
             ]
         );
         assert_eq!(four.law, ours.law);
-        assert!(tracker_config(Method::Lut256, j).is_err());
+        let data = tracker_config(Method::OursFromData, j, 1).unwrap();
+        assert_eq!(data.paths(), mras::survey::FIRST_STAGE);
+        assert!(data.paths_from_data && data.sensor_periods == 1);
+        assert!(tracker_config(Method::Lut256, j, 2).is_err());
     }
 
     #[test]

@@ -3,17 +3,33 @@
 //! lives in the template; this file names the run's figures, `tables.rs` builds the
 //! tables, and the plan and the run name their own (`Plan::figures`, `RunInfo::figures`).
 
-use super::report::RunInfo;
-use super::stats::Summary;
+use super::report::{RunInfo, Suite};
 use super::tables::{mrad, ratio, tables, versus};
-use super::{Method, Plan, SPECTRUM_HARMONICS_OF_THETA_S};
+use super::{Method, SPECTRUM_HARMONICS_OF_THETA_S};
 use anyhow::{anyhow, Result};
 use std::collections::BTreeMap;
 
 pub const TEMPLATE: &str = include_str!("results.template.md");
 
-/// Every figure the template may name.
-fn values(s: &Summary, plan: &Plan, info: &RunInfo) -> BTreeMap<String, String> {
+/// Every figure the template may name: the first suite's by name, the others' with the
+/// prefix `n<N>.` (`n1.ours_data.load.x`).
+fn values(suites: &[&Suite], info: &RunInfo) -> BTreeMap<String, String> {
+    let mut v = BTreeMap::new();
+    for (i, suite) in suites.iter().enumerate() {
+        let prefix = match i {
+            0 => String::new(),
+            _ => format!("n{}.", suite.population.sensor_periods),
+        };
+        for (k, x) in suite_values(suite, info) {
+            v.insert(format!("{prefix}{k}"), x);
+        }
+    }
+    v
+}
+
+/// One suite's figures.
+fn suite_values(suite: &Suite, info: &RunInfo) -> BTreeMap<String, String> {
+    let (s, plan) = (&suite.summary, &suite.plan);
     let mut v = BTreeMap::new();
     let mut put = |k: String, x: String| v.insert(k, x);
     let eval = plan.evaluation();
@@ -89,9 +105,33 @@ fn values(s: &Summary, plan: &Plan, info: &RunInfo) -> BTreeMap<String, String> 
         put(format!("{k}.late.mrad"), mrad(t.late_pk_pk_median_rad));
         put(format!("{k}.all.mrad"), mrad(t.all_pk_pk_median_rad));
     }
-    for (k, t) in tables(s, plan) {
+    for (k, t) in tables(s, plan, suite.population) {
         put(k.into(), t);
     }
+    put("population".into(), suite.population.name.into());
+    put("n".into(), suite.population.sensor_periods.to_string());
+    let surveyed = suite.results.iter().filter_map(|r| r.survey.as_ref());
+    let (mut banks, mut full, mut left, mut rounds) = (0, 0, 0, Vec::new());
+    for o in surveyed {
+        banks += 1;
+        full += (o.bank.as_slice().len() == mras::MAX_PATHS) as usize;
+        left += !o.unobserved.is_empty() as usize;
+        rounds.push(o.rounds as f64);
+    }
+    rounds.sort_by(f64::total_cmp);
+    put("survey.banks".into(), banks.to_string());
+    put("survey.full".into(), full.to_string());
+    put("survey.left".into(), left.to_string());
+    put(
+        "survey.rounds".into(),
+        rounds
+            .get(rounds.len() / 2)
+            .map_or("—".into(), |r| format!("{r:.0}")),
+    );
+    put(
+        "survey.rounds_max".into(),
+        rounds.last().map_or("—".into(), |r| format!("{r:.0}")),
+    );
     for (k, x) in info.figures(s, plan).into_iter().chain(plan.figures()) {
         put(k.into(), x);
     }
@@ -99,8 +139,8 @@ fn values(s: &Summary, plan: &Plan, info: &RunInfo) -> BTreeMap<String, String> 
 }
 
 /// The page: [`TEMPLATE`] filled, plots linked from `plots`.
-pub(crate) fn markdown(s: &Summary, plan: &Plan, info: &RunInfo, plots: &str) -> Result<String> {
-    let page = render(TEMPLATE, &values(s, plan, info))?;
+pub(crate) fn markdown(suites: &[&Suite], info: &RunInfo, plots: &str) -> Result<String> {
+    let page = render(TEMPLATE, &values(suites, info))?;
     Ok(page.replace("](results/", &format!("]({plots}/")))
 }
 

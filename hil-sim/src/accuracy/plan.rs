@@ -65,6 +65,10 @@ pub struct Plan {
     pub speed_loop_hz: f64,
 }
 
+/// Commissioning phase of [`Plan::full_n1`] (s): 40 revolutions of adaptation at
+/// +20 rev/s; the N = 1 population's banks from the data complete within 20-36.
+pub const COMMISSIONING_N1_S: f64 = 2.4;
+
 /// The evaluated phase whose residual spectrum is reported (the first: steady at the
 /// commissioning speed, nothing else going on).
 pub const SPECTRUM_PHASE: usize = 0;
@@ -186,6 +190,15 @@ impl Plan {
             cogging: vec![(24, 0.04), (12, 0.02)],
             speed_loop_hz: 10.0,
         }
+    }
+
+    /// The published run for the N = 1 population: as [`Plan::full`], with a commissioning
+    /// phase long enough for a bank from the data (its survey rounds cover whole
+    /// revolutions at N = 1, and each round adapts until its bank converges).
+    pub fn full_n1() -> Self {
+        let mut plan = Self::full();
+        plan.phases[0].duration_s = COMMISSIONING_N1_S;
+        plan
     }
 
     /// Check the plan is one the run can execute.

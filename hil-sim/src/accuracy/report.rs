@@ -5,8 +5,8 @@ use super::page::markdown;
 use super::stats::{summarise, Summary};
 use super::tables::main_table;
 use super::{
-    charts, run_suite, Method, Plan, SensorResult, SAMPLE_PERIOD_S, SPECTRUM_HARMONICS_OF_THETA_S,
-    SPECTRUM_PHASE,
+    charts, run_suite, Distribution, Method, Plan, SensorResult, DISTRIBUTION, DISTRIBUTION_N1,
+    SAMPLE_PERIOD_S, SPECTRUM_HARMONICS_OF_THETA_S, SPECTRUM_PHASE,
 };
 use crate::pending::Pending;
 use anyhow::{bail, Context, Result};
@@ -39,6 +39,38 @@ pub struct Args {
     /// The reduced variant CI runs (24 sensors; written under target/, not docs/).
     #[arg(long)]
     pub reduced: bool,
+}
+
+/// One population's run: its plan, every sensor's result and their summary.
+pub struct Suite {
+    pub population: &'static Distribution,
+    pub plan: Plan,
+    pub results: Vec<SensorResult>,
+    pub summary: Summary,
+}
+
+impl Suite {
+    /// Run sensors `0..sensors` of `population` with `seed` through its plan (N = 1:
+    /// [`Plan::full_n1`]).
+    pub fn run(
+        population: &'static Distribution,
+        seed: u64,
+        sensors: usize,
+        progress: bool,
+    ) -> Result<Self> {
+        let plan = match population.sensor_periods {
+            1 => Plan::full_n1(),
+            _ => Plan::full(),
+        };
+        let results = run_suite(population, seed, sensors, &plan, progress)?;
+        let summary = summarise(&results, &plan);
+        Ok(Self {
+            population,
+            plan,
+            results,
+            summary,
+        })
+    }
 }
 
 fn workspace_root() -> PathBuf {
@@ -122,15 +154,16 @@ pub fn run(a: &Args) -> Result<()> {
             .with_context(|| format!("cannot create directory {}", dir.display()))?;
     }
 
-    let plan = Plan::full();
     let threads = rayon::current_num_threads();
-    eprintln!(
-        "bench-accuracy: {sensors} sensors, seed {}, {:.2} s simulated each, {threads} threads",
-        a.seed,
-        plan.duration_s()
-    );
     let started = Instant::now();
-    let results = run_suite(a.seed, sensors, &plan, true)?;
+    let mut suites = Vec::new();
+    for population in [&DISTRIBUTION, &DISTRIBUTION_N1] {
+        eprintln!(
+            "bench-accuracy: {}: {sensors} sensors, seed {}, {threads} threads",
+            population.name, a.seed,
+        );
+        suites.push(Suite::run(population, a.seed, sensors, true)?);
+    }
     let info = RunInfo {
         seed: a.seed,
         sensors,
@@ -138,11 +171,13 @@ pub fn run(a: &Args) -> Result<()> {
         wall_s: started.elapsed().as_secs_f64(),
         threads,
     };
-    let summary = summarise(&results, &plan);
-    write_outputs(&results, &summary, &plan, &info, &page, &plots)?;
-    print!("{}", main_table(&summary, &plan));
+    write_outputs(&suites.iter().collect::<Vec<_>>(), &info, &page, &plots)?;
+    for s in &suites {
+        println!("{}:", s.population.name);
+        print!("{}", main_table(&s.summary, &s.plan));
+    }
     println!(
-        "\n{} sensors in {:.1} s wall on {threads} threads; wrote {} and {}",
+        "\n{} sensors of each population in {:.1} s wall on {threads} threads; wrote {} and {}",
         sensors,
         info.wall_s,
         page.display(),
@@ -151,26 +186,26 @@ pub fn run(a: &Args) -> Result<()> {
     Ok(())
 }
 
-/// The page, its plots and the CSV; the page and CSV appear whole or not at all.
-pub fn write_outputs(
-    results: &[SensorResult],
-    summary: &Summary,
-    plan: &Plan,
-    info: &RunInfo,
-    page: &Path,
-    plots: &Path,
-) -> Result<()> {
+/// The page, its plots and the CSVs; the page and CSVs appear whole or not at all. The
+/// first suite is the page's main population (its plots), the others follow it (N = 1).
+pub fn write_outputs(suites: &[&Suite], info: &RunInfo, page: &Path, plots: &Path) -> Result<()> {
+    let Some(main) = suites.first() else {
+        bail!("no suite to write");
+    };
     // The page first: a template that cannot be filled writes nothing.
     let page_dir = page.parent().unwrap_or(Path::new(""));
     let rel = plots.strip_prefix(page_dir).unwrap_or(plots);
-    let text = markdown(summary, plan, info, &rel.to_string_lossy())?;
+    let text = markdown(suites, info, &rel.to_string_lossy())?;
     std::fs::create_dir_all(plots)
         .with_context(|| format!("cannot create directory {}", plots.display()))?;
-    write_plots(results, summary, plan, plots)?;
-    write_file(
-        &plots.join("per_sensor.csv"),
-        &per_sensor_csv(results, plan),
-    )?;
+    write_plots(&main.results, &main.summary, &main.plan, plots)?;
+    for (i, s) in suites.iter().enumerate() {
+        let name = match i {
+            0 => "per_sensor.csv".to_string(),
+            _ => format!("per_sensor_n{}.csv", s.population.sensor_periods),
+        };
+        write_file(&plots.join(name), &per_sensor_csv(&s.results, &s.plan))?;
+    }
     write_file(page, &text)
 }
 
@@ -286,7 +321,7 @@ pub fn per_sensor_csv(results: &[SensorResult], plan: &Plan) -> String {
             m = m.key()
         );
     }
-    s.push('\n');
+    s.push_str(",ours_data_bank,ours_data_unobserved\n");
     // Four significant digits, plain decimals (keeps the file small).
     let num = |v: f64| {
         if !v.is_finite() {
@@ -317,7 +352,19 @@ pub fn per_sensor_csv(results: &[SensorResult], plan: &Plan) -> String {
                 t.lost_lock as u8
             );
         }
-        s.push('\n');
+        let (bank, unobserved) = r.survey.as_ref().map_or_else(Default::default, |o| {
+            let names = o.bank.as_slice().iter().map(|&k| {
+                let mut n = String::new();
+                let _ = drive::telemetry::write_path_name(k, &mut n);
+                n
+            });
+            let left = o.unobserved.iter().map(|m| m.to_string());
+            (
+                names.collect::<Vec<_>>().join(" "),
+                left.collect::<Vec<_>>().join(" "),
+            )
+        });
+        let _ = writeln!(s, ",{bank},{unobserved}");
     }
     s
 }

@@ -2,7 +2,7 @@
 //! methods by conditions, each figure in mrad or as a ratio.
 
 use super::stats::{Condition, Dist, Summary};
-use super::{Method, Plan, DISTRIBUTION, SPECTRUM_HARMONICS_OF_THETA_S};
+use super::{Distribution, Method, Plan, SPECTRUM_HARMONICS_OF_THETA_S};
 use std::fmt::Write as _;
 
 /// Three significant digits (no exponent); a dash for no value.
@@ -131,7 +131,7 @@ fn overview(s: &Summary, cell: impl Fn(&Condition, Method) -> String) -> String 
 }
 
 /// Every table the template may name.
-pub(crate) fn tables(s: &Summary, plan: &Plan) -> [(&'static str, String); 7] {
+pub(crate) fn tables(s: &Summary, plan: &Plan, d: &Distribution) -> [(&'static str, String); 7] {
     let details = s.phases.iter().map(|c| {
         let t = table(
             &format!("{RESIDUAL_HEAD}\n|---|{}", "---:|".repeat(8)),
@@ -175,6 +175,6 @@ pub(crate) fn tables(s: &Summary, plan: &Plan) -> [(&'static str, String); 7] {
         ("table.details", details.collect::<Vec<_>>().join("\n\n")),
         ("table.spectrum", table(&spectrum_head, spectrum)),
         ("table.phases", plan.table()),
-        ("table.distribution", DISTRIBUTION.table()),
+        ("table.distribution", d.table()),
     ]
 }
