@@ -77,15 +77,18 @@ impl AdaptationTask {
     /// Coefficients loaded from flash: validated by the core; if accepted, the bank and
     /// every path's term go to the control period through `send`, in force at once.
     pub fn install(&mut self, i: &Install, mut send: impl FnMut(InjectionUpdate)) {
+        let before = Bank::new(self.adapter.config().paths());
         let accepted = self.adapter.set_coefficients(&i.coefficients).is_ok();
         if accepted {
-            // The bank first (a record's bank from the data may differ from the one in
-            // use), then every term.
+            // A record's bank from the data differs from the first stage in use: the
+            // bank first (the front follows the adapter's every change), then every term.
             let bank = Bank::new(self.adapter.config().paths());
-            send(InjectionUpdate {
-                apply_at: self.last_index,
-                change: Change::Bank(bank),
-            });
+            if bank != before {
+                send(InjectionUpdate {
+                    apply_at: self.last_index,
+                    change: Change::Bank(bank.into()),
+                });
+            }
             for (path, (_, value)) in i.coefficients.iter().enumerate() {
                 send(InjectionUpdate {
                     apply_at: self.last_index,

@@ -288,11 +288,11 @@ fn installs_are_acknowledged_with_their_generation() {
     let ack = task.report().install.unwrap();
     assert_eq!((ack.generation, ack.accepted), (7, true));
     assert_eq!(task.report().coefficients, good);
-    // The bank, then every path's term go to the control period, due at once.
-    assert_eq!(sent.len(), 1 + good.len());
-    assert_eq!(sent[0].change, Change::Bank(Bank::new(paths.paths())));
+    // Every path's term goes to the control period, due at once (the bank is the one
+    // in use: no new bank).
+    assert_eq!(sent.len(), good.len());
     assert_eq!(
-        sent[1].change,
+        sent[0].change,
         Change::Term {
             path: 0,
             value: Cplx::new(0.05, -0.02)
@@ -318,6 +318,47 @@ fn installs_are_acknowledged_with_their_generation() {
     let mut t = p.snapshot();
     t.merge(task.report());
     assert_eq!(t.install.map(|a| a.generation), Some(8));
+}
+
+/// A record of a bank from the data, installed into a core that starts from the first
+/// stage: the bank goes to the control period first, then the terms of the new bank.
+#[test]
+fn an_installed_bank_from_the_data_goes_to_the_control_period_first() {
+    let mut core = Config {
+        sample_period_s: T,
+        ..Config::default()
+    };
+    core.set_paths(&mras::survey::FIRST_STAGE).unwrap();
+    core.paths_from_data = true;
+    let mut task = AdaptationTask::new(&core).unwrap();
+    let bank = [
+        PathKind::Offset,
+        PathKind::AmplitudeQuadrature,
+        PathKind::Harmonic(10),
+    ];
+    let mut record = Coefficients::zeros(&bank);
+    record.set(PathKind::Harmonic(10), Cplx::new(0.01, 0.002));
+    let mut sent = Vec::new();
+    task.install(
+        &Install {
+            generation: 1,
+            coefficients: record,
+        },
+        |u| sent.push(u),
+    );
+    assert!(task.report().install.unwrap().accepted);
+    assert_eq!(sent.len(), 1 + bank.len());
+    assert_eq!(sent[0].change, Change::Bank(Bank::new(&bank).into()));
+    assert_eq!(
+        sent[3].change,
+        Change::Term {
+            path: 2,
+            value: Cplx::new(0.01, 0.002)
+        }
+    );
+    let mut p = ControlPeriod::new(config(), Front::new(core).unwrap()).unwrap();
+    assert!(sent.iter().all(|u| p.apply(u)));
+    assert_eq!(task.report().coefficients, record);
 }
 
 #[test]

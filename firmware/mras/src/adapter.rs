@@ -152,7 +152,7 @@ impl Adapter {
         };
         grown.then(|| InjectionUpdate {
             apply_at: index.wrapping_add(UPDATE_LATENCY_PERIODS),
-            change: Change::Bank(bank),
+            change: Change::Bank(bank.into()),
         })
     }
 

@@ -629,10 +629,17 @@ impl<T: Trig> Front<T> {
         if due {
             match u.change {
                 Change::Term { path, value } => self.inject.set(path as usize, value),
-                Change::Bank(b) => self.inject.rebank(b.as_slice()),
+                Change::Bank(b) => self.apply_bank(&b),
             }
         }
         due
+    }
+
+    /// A new bank (a few times per commissioning): kept out of the common path.
+    #[cold]
+    #[inline(never)]
+    fn apply_bank(&mut self, b: &crate::PackedBank) {
+        self.inject.rebank(b.unpack().as_slice());
     }
 
     /// Put in force, in order, the updates at the front of `pending` that are due at the
