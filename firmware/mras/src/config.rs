@@ -390,8 +390,9 @@ impl Config {
         let paths = self.paths();
         for (n, p) in paths.iter().enumerate() {
             p.validate()?;
-            if paths[..n]
+            if paths
                 .iter()
+                .take(n)
                 .any(|q| q.error_harmonic() == p.error_harmonic())
             {
                 return Err(ConfigError::new(

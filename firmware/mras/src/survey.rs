@@ -163,7 +163,11 @@ pub struct Allocation {
 #[inline(never)]
 pub fn allocate(spectrum: &ErrorSpectrum, max_paths: usize, min_rad: f32) -> Allocation {
     let mut order: [u8; SURVEY_HARMONICS] = core::array::from_fn(|m| m as u8 + 1);
-    let amp = |m: u8| spectrum.amplitude_rad[m as usize - 1];
+    // (`get`: no panic path in the adaptation task.)
+    let amp = |m: u8| {
+        let i = (m as usize).wrapping_sub(1);
+        spectrum.amplitude_rad.get(i).copied().unwrap_or(0.0)
+    };
     // Largest first.
     insertion_sort_by(&mut order, |a, b| amp(a) > amp(b));
     let mut chosen: heapless::Vec<u8, MAX_PATHS> = heapless::Vec::new();
@@ -256,13 +260,20 @@ pub fn min_rad_of(spectrum: &ErrorSpectrum) -> f32 {
 }
 
 /// Sort `v` so that `before(v[i], v[j])` holds for i < j where it decides: a few
-/// entries, no allocation, no panics.
+/// entries, no allocation, no panic path (adjacent pairs through `windows`).
 fn insertion_sort_by(v: &mut [u8], before: impl Fn(u8, u8) -> bool) {
-    for i in 1..v.len() {
-        let mut j = i;
-        while j > 0 && before(v[j], v[j - 1]) {
-            v.swap(j, j - 1);
-            j -= 1;
+    for end in 2..=v.len() {
+        // Bubble the new entry down `v[..end]`.
+        for j in (0..end - 1).rev() {
+            let Some(pair) = v.get_mut(j..j + 2) else {
+                break;
+            };
+            if let [a, b] = pair {
+                if !before(*b, *a) {
+                    break;
+                }
+                core::mem::swap(a, b);
+            }
         }
     }
 }
