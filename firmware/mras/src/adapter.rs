@@ -195,7 +195,7 @@ impl Adapter {
     /// finite and within the coefficient limit. The front's decoupling vector is the
     /// caller's to load ([`crate::Front::load_injection`]).
     pub fn set_coefficients(&mut self, c: &Coefficients) -> Result<(), CoefficientsError> {
-        let kinds = c.kinds.get(..c.len()).unwrap_or(&c.kinds);
+        let kinds = c.kinds();
         let same = kinds == self.cfg.paths();
         if !same && !self.accepts_bank(kinds) {
             return Err(CoefficientsError::PathMismatch);

@@ -152,13 +152,16 @@ impl Injection {
             }
         };
         let mut uses = [0u8; 64];
+        let mut count = |o: usize| {
+            if let Some(u) = uses.get_mut(o) {
+                *u = u.saturating_add(1);
+            }
+        };
         for &p in self.kinds.iter().take(self.len) {
             let [a, b] = feeds(p);
-            let fed = [a, b];
-            for &o in fed.iter().take(if a == b { 1 } else { 2 }) {
-                if let Some(u) = uses.get_mut(o) {
-                    *u = u.saturating_add(1);
-                }
+            count(a);
+            if b != a {
+                count(b);
             }
         }
         for (i, &p) in self.kinds.iter().enumerate().take(self.len) {
@@ -182,12 +185,9 @@ impl Injection {
     pub(crate) fn rebank(&mut self, paths: &[PathKind]) {
         let (kinds, coef, len) = (self.kinds, self.coef, self.len);
         self.derive(paths);
-        for i in 0..self.len {
-            let kept = kinds.iter().zip(&coef).take(len);
-            let found = kept
-                .into_iter()
-                .find(|(k, _)| Some(*k) == self.kinds.get(i));
-            if let Some((_, &c)) = found {
+        for (i, kind) in paths.iter().enumerate().take(self.len) {
+            let old = kinds.iter().take(len).position(|k| k == kind);
+            if let Some(&c) = old.and_then(|j| coef.get(j)) {
                 self.set(i, c);
             }
         }
@@ -625,8 +625,8 @@ impl PathBank {
         let old = *self;
         *self = Self::new(cfg, gains);
         for (kind, state) in self.kinds.iter().zip(self.state.iter_mut()).take(self.len) {
-            let kept = old.kinds.iter().zip(&old.state).take(old.len);
-            if let Some((_, s)) = kept.into_iter().find(|(k, _)| *k == kind) {
+            let kept = old.kinds.iter().take(old.len).position(|k| k == kind);
+            if let Some(s) = kept.and_then(|j| old.state.get(j)) {
                 *state = *s;
             }
         }
@@ -919,10 +919,7 @@ mod tests {
             + injection(kinds[0], coefs[0], &powers_of(u));
         assert!((other.vector(u) - expect_other).abs() < 1e-7);
         assert_eq!(other.kinds(), other_kinds);
-        let mut pw = [Cplx::ONE; 32];
-        for i in 1..32 {
-            pw[i] = pw[i - 1] * u;
-        }
+        let pw = powers_of(u);
         let mut expect = Cplx::ZERO;
         for (k, c) in kinds.iter().zip(&coefs) {
             expect += injection(*k, *c, &pw);
@@ -966,10 +963,7 @@ mod tests {
             inj.set(i, *c);
         }
         let u = Cplx::new(libm::cosf(-1.1), libm::sinf(-1.1));
-        let mut pw = [Cplx::ONE; 32];
-        for i in 1..32 {
-            pw[i] = pw[i - 1] * u;
-        }
+        let pw = powers_of(u);
         let expect = kinds
             .iter()
             .zip(&coefs)
@@ -994,11 +988,7 @@ mod tests {
     fn coef_delta_reduces_the_error_phasor() {
         let pw_at = |th: f32| -> Powers {
             let u = Cplx::new(libm::cosf(th), libm::sinf(th));
-            let mut pw = [Cplx::ONE; 32];
-            for i in 1..32 {
-                pw[i] = pw[i - 1] * u;
-            }
-            pw
+            powers_of(u)
         };
         for kind in [
             PathKind::Offset,

@@ -260,7 +260,7 @@ pub fn min_rad_of(spectrum: &ErrorSpectrum) -> f32 {
 }
 
 /// Sort `v` so that `before(v[i], v[j])` holds for i < j where it decides: a few
-/// entries, no allocation, no panic path (adjacent pairs through `windows`).
+/// entries, no allocation, no panic path (adjacent pairs through `get_mut`).
 fn insertion_sort_by(v: &mut [u8], before: impl Fn(u8, u8) -> bool) {
     for end in 2..=v.len() {
         // Bubble the new entry down `v[..end]`.

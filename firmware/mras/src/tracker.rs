@@ -657,7 +657,7 @@ impl<T: Trig> Front<T> {
     /// Every path's decoupling-vector term at once (coefficients loaded from flash, which
     /// the [`Adapter`] has validated).
     pub fn load_injection(&mut self, c: &Coefficients) {
-        let kinds = c.kinds.get(..c.len()).unwrap_or(&c.kinds);
+        let kinds = c.kinds();
         if kinds != self.inject.kinds() {
             self.inject.rebank(kinds);
         }

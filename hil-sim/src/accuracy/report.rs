@@ -353,16 +353,10 @@ pub fn per_sensor_csv(results: &[SensorResult], plan: &Plan) -> String {
             );
         }
         let (bank, unobserved) = r.survey.as_ref().map_or_else(Default::default, |o| {
-            let names = o.bank.as_slice().iter().map(|&k| {
-                let mut n = String::new();
-                let _ = drive::telemetry::write_path_name(k, &mut n);
-                n
-            });
+            // The stream's names, space-separated: the CSV's own separator is the comma.
+            let names = drive::telemetry::bank_names(o.bank.as_slice()).replace(',', " ");
             let left = o.unobserved.iter().map(|m| m.to_string());
-            (
-                names.collect::<Vec<_>>().join(" "),
-                left.collect::<Vec<_>>().join(" "),
-            )
+            (names, left.collect::<Vec<_>>().join(" "))
         });
         let _ = writeln!(s, ",{bank},{unobserved}");
     }
