@@ -83,7 +83,7 @@ pub fn rig_with(
     let d = rig.period.config();
     let hash = rig.period.calibration_hash();
     let rate_hz = (1.0 / sc.sample_period_s()).round() as u32;
-    let sup = Supervisor::new(c.params(), hash, rate_hz, d.supervisor_divider);
+    let sup = Supervisor::new(c.params()?, hash, rate_hz, d.supervisor_divider);
     Ok(rig.with_supervisor(sup, flash))
 }
 
@@ -254,6 +254,24 @@ fn describe(e: &Event) -> String {
         ),
         Event::OffsetCorrected { offset_e_rad, .. } => {
             format!("electrical offset moved onto the corrected angle: {offset_e_rad:+.3} rad")
+        }
+        Event::Refined {
+            speed_rad_s,
+            second_speed_rad_s,
+            motion_max,
+            ..
+        } => {
+            let rev_s = |w: f32| w / std::f32::consts::TAU;
+            if second_speed_rad_s > 0.0 {
+                format!(
+                    "refined at {:.2} and {:.2} rev/s: motion separated, up to {:.4} mrad at the first",
+                    rev_s(speed_rad_s),
+                    rev_s(second_speed_rad_s),
+                    1e3 * motion_max
+                )
+            } else {
+                format!("refined at {:.2} rev/s (mean coefficients)", rev_s(speed_rad_s))
+            }
         }
     }
 }

@@ -89,12 +89,15 @@ pub struct CommissioningToml {
     pub verify_residual_rad: Option<f64>,
     pub slow_tracking: Option<bool>,
     pub tracking_min_speed_ratio: Option<f64>,
+    pub refine_s: Option<f64>,
+    pub second_speed_ratio: Option<f64>,
 }
 
 impl CommissioningToml {
-    pub fn params(&self) -> drive::commissioning::Params {
+    /// The parameters, checked (the error names the `commissioning.` field).
+    pub fn params(&self) -> Result<drive::commissioning::Params> {
         let d = drive::commissioning::Params::default();
-        drive::commissioning::Params {
+        let p = drive::commissioning::Params {
             speed_rad_s: self.speed_rev_s.map_or(d.speed_rad_s, |v| (v * TAU) as f32),
             align_current_a: self.align_current_a.map_or(d.align_current_a, |v| v as f32),
             adapt_timeout_s: self.adapt_timeout_s.map_or(d.adapt_timeout_s, |v| v as f32),
@@ -105,8 +108,15 @@ impl CommissioningToml {
             tracking_min_speed_ratio: self
                 .tracking_min_speed_ratio
                 .map_or(d.tracking_min_speed_ratio, |v| v as f32),
+            refine_s: self.refine_s.map_or(d.refine_s, |v| v as f32),
+            second_speed_ratio: self
+                .second_speed_ratio
+                .map_or(d.second_speed_ratio, |v| v as f32),
             ..d
-        }
+        };
+        p.validate()
+            .map_err(|(field, problem)| anyhow::anyhow!("`commissioning.{field}` {problem}"))?;
+        Ok(p)
     }
 }
 

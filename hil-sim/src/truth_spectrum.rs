@@ -107,6 +107,13 @@ pub struct TruthSpectrum {
     /// harmonic), over the harmonics with a path in the bank and over those without.
     pub estimate_over_oracle_m3_up_in_bank: f64,
     pub estimate_over_oracle_m3_up_not_in_bank: f64,
+    /// The same for arg(Zd), the corrected sensor angle (what the sensor correction
+    /// leaves, without the observer's response to the unmodelled torque ripple), and
+    /// over m = 1, 2 (where the motion ripple is): per harmonic, the oracle is one
+    /// draw of the noise, so the ratios are of root sums of squares.
+    pub decoupled_over_oracle_m1_m2: f64,
+    pub decoupled_over_oracle_m3_up_in_bank: f64,
+    pub decoupled_over_oracle_m3_up_not_in_bank: f64,
 }
 
 impl TruthSpectrum {
@@ -161,6 +168,14 @@ impl TruthSpectrum {
             SPECTRUM_HARMONICS_OF_THETA_RM,
             self.estimate_over_oracle_m3_up_in_bank,
             self.estimate_over_oracle_m3_up_not_in_bank
+        );
+        let _ = writeln!(
+            s,
+            "{indent}  arg Zd over the oracle (root sums of squares): m = 1, 2 {:.1}x; m = 3..{} {:.1}x with a path, {:.0}x without",
+            self.decoupled_over_oracle_m1_m2,
+            SPECTRUM_HARMONICS_OF_THETA_RM,
+            self.decoupled_over_oracle_m3_up_in_bank,
+            self.decoupled_over_oracle_m3_up_not_in_bank
         );
         s
     }
@@ -296,16 +311,19 @@ impl Recorder {
                 }
             })
             .collect();
-        // √Σ estimate² / √Σ oracle² over m ≥ 3 with (or without) a path.
-        let ratio_m3_up = |in_bank: bool| {
+        // √Σ error² / √Σ oracle² over the harmonics `keep` selects.
+        let rss_ratio = |error: fn(&HarmonicRow) -> f64, keep: &dyn Fn(&HarmonicRow) -> bool| {
             let (e, o) = harmonics
                 .iter()
-                .filter(|r| r.m >= 3 && r.in_path_bank == in_bank)
+                .filter(|r| keep(r))
                 .fold((0.0, 0.0), |(e, o), r| {
-                    (e + r.estimate_mrad.powi(2), o + r.oracle_mrad.powi(2))
+                    (e + error(r).powi(2), o + r.oracle_mrad.powi(2))
                 });
             (e / o).sqrt()
         };
+        let estimate = |r: &HarmonicRow| r.estimate_mrad;
+        let decoupled = |r: &HarmonicRow| r.decoupled_mrad;
+        let m3_up = |in_bank: bool| move |r: &HarmonicRow| r.m >= 3 && r.in_path_bank == in_bank;
         let last = self.samples.last()?;
         Some(TruthSpectrum {
             from_s: first.t_s,
@@ -315,8 +333,11 @@ impl Recorder {
             motion_pk_pk_mrad: bins[4].pk_pk_rad() * 1e3,
             motion_1x_pk_pk_mrad: 2.0 * harmonics[0].motion_mrad,
             motion_2x_pk_pk_mrad: 2.0 * harmonics[1].motion_mrad,
-            estimate_over_oracle_m3_up_in_bank: ratio_m3_up(true),
-            estimate_over_oracle_m3_up_not_in_bank: ratio_m3_up(false),
+            estimate_over_oracle_m3_up_in_bank: rss_ratio(estimate, &m3_up(true)),
+            estimate_over_oracle_m3_up_not_in_bank: rss_ratio(estimate, &m3_up(false)),
+            decoupled_over_oracle_m1_m2: rss_ratio(decoupled, &|r| r.m <= 2),
+            decoupled_over_oracle_m3_up_in_bank: rss_ratio(decoupled, &m3_up(true)),
+            decoupled_over_oracle_m3_up_not_in_bank: rss_ratio(decoupled, &m3_up(false)),
             harmonics,
         })
     }

@@ -237,14 +237,16 @@ fn commissioning_with_a_dead_sensor_ends_safe() {
 
 /// The ripple scenarios (N = 1 sensor, torque ripple at once and twice per revolution)
 /// at CI length: both power-ups reach Run and measure their spectra against the true
-/// rotor. Commissioned at 20 rev/s, where the ripple barely moves the rotor, and run
-/// at 1 or 5 rev/s, below half that speed, where Run does not track: the corrected
-/// angle (arg Zd) keeps the sensor correction and does not learn the rotor's motion.
-/// Not met yet: the target of 1.5x the oracle at m = 1, 2 (what the commissioning's
-/// convergence leaves, 0.2-2.6 mrad, is hundreds of times the oracle).
-fn ripple_scenario_reports_motion_and_spectra(name: &str) {
+/// rotor. Commissioned at 20 and 40 rev/s, the rotor's motion separated from the sensor
+/// error across the two speeds, and run at 1 or 5 rev/s, below half that speed, where
+/// Run does not track: the corrected angle (arg Zd) is the sensor corrected to within
+/// a few times the oracle at m = 1, 2, where the motion ripple is, and it does not learn
+/// the rotor's motion. (θ̂ still follows the motion with the observer's lag: it does
+/// not know the torque ripple.)
+fn ripple_scenario_reports_motion_and_spectra(name: &str) -> [f64; 2] {
     let sc = Scenario::load(name).unwrap();
     let (first, second) = hil_sim::power_up::run(&sc, sc.file.ci_duration_s.unwrap()).unwrap();
+    let mut m1_mrad = [0.0; 2];
     for (k, b) in [&first, &second].into_iter().enumerate() {
         let what = format!("{name} power-up {}", k + 1);
         assert_eq!(
@@ -277,19 +279,26 @@ fn ripple_scenario_reports_motion_and_spectra(name: &str) {
             // The oracle is the noise floor: well under the sensor's own error.
             assert!(r.oracle_mrad < 0.05 * r.raw_mrad, "{what}: {r:?}");
         }
-        // The sensor error at m = 1, 2 is corrected (learning the motion made it worse
-        // than raw), and the larger motion, at m = 2, is not learned as sensor error.
+        // The sensor error at m = 1, 2 is corrected to the noise floor (measured:
+        // 1.2-2.4x the oracle; one speed leaves the motion at the commissioning speed,
+        // `the_second_speed_separates_the_motion`), and the motion is not learned.
+        let m12 = t.decoupled_over_oracle_m1_m2;
+        assert!(m12 < 4.0, "{what}: arg Zd at m = 1, 2 {m12}x the oracle");
         for m in [1, 2] {
             let r = t.row(m).unwrap();
-            assert!(r.decoupled_mrad < 0.7 * r.raw_mrad, "{what}: {r:?}");
+            assert!(r.decoupled_mrad < 0.03, "{what}: {r:?}");
+            assert!(r.decoupled_mrad < 0.01 * r.motion_mrad, "{what}: {r:?}");
         }
-        let r = t.row(2).unwrap();
-        assert!(r.decoupled_mrad < 0.5 * r.motion_mrad, "{what}: {r:?}");
-        // Where the bank has a path (m = 3..8) the sensor error is removed.
+        m1_mrad[k] = t.row(1).unwrap().decoupled_mrad;
+        // Where the bank has a path (m = 3..8) the sensor error is removed (measured:
+        // 2.6-4.9x the oracle, at most 0.02 mrad).
+        let m3 = t.decoupled_over_oracle_m3_up_in_bank;
+        assert!(m3 < 8.0, "{what}: arg Zd at m = 3..8 {m3}x the oracle");
         for r in t.harmonics.iter().filter(|r| r.m >= 3 && r.in_path_bank) {
-            assert!(r.decoupled_mrad < 0.2, "{what}: {r:?}");
+            assert!(r.decoupled_mrad < 0.05, "{what}: {r:?}");
         }
     }
+    m1_mrad
 }
 
 #[test]
@@ -300,4 +309,25 @@ fn ripple_1rev_motion_is_not_learned_as_sensor_error() {
 #[test]
 fn ripple_5rev_motion_is_not_learned_as_sensor_error() {
     ripple_scenario_reports_motion_and_spectra("ripple-5rev");
+}
+
+/// The control: ripple-5rev commissioned at 20 rev/s alone (refined all the same) keeps
+/// the rotor's motion there, 2.5 mrad at m = 1, in its correction; the second speed is
+/// what removes it.
+#[test]
+fn the_second_speed_separates_the_motion() {
+    let two = ripple_scenario_reports_motion_and_spectra("ripple-5rev");
+    let mut sc = Scenario::load("ripple-5rev").unwrap();
+    let c = sc.file.commissioning.as_mut().unwrap();
+    c.second_speed_ratio = Some(0.0);
+    let (first, _) = hil_sim::power_up::run(&sc, sc.file.ci_duration_s.unwrap()).unwrap();
+    let t = first.truth_spectrum.expect("window all in Run");
+    let one = t.row(1).unwrap();
+    print!("one speed:\n{}", t.text("  "));
+    assert!(
+        one.decoupled_mrad > 1.0 && one.decoupled_mrad > 50.0 * two[0],
+        "m = 1: {} mrad at one speed, {:?} at two",
+        one.decoupled_mrad,
+        two
+    );
 }

@@ -5,8 +5,10 @@
 //! rotor → sweep the field open loop over one sensor period and back (the sensor's
 //! electrical offset and direction against the phase sequence, and a check of the
 //! pole-pair count) → spin up on the uncorrected sensor to the commissioning speed →
-//! adapt until converged or timeout → verify with the coefficients frozen → store →
-//! run. Any fault at any step ends in [`State::Safe`] (PWM outputs off) with its
+//! adapt until converged or timeout → optionally refine: adapt on and average the
+//! coefficients, and do the same at a second, higher speed, from which the rotor's motion
+//! ripple is separated from the sensor error ([`crate::refine`]) → verify with the
+//! coefficients frozen → store → run. Any fault at any step ends in [`State::Safe`] (PWM outputs off) with its
 //! [`Cause`], until an explicit [`Commissioning::restart`].
 //!
 //! [`crate::supervisor::Supervisor`] steps it with the control period's telemetry; the
@@ -23,6 +25,11 @@ pub enum State {
     Sweep,
     SpinUp,
     Adapt,
+    /// Adapting on at speed while the coefficients are averaged (`Params::refine_s`).
+    Refine,
+    /// At `Params::second_speed_ratio` times the commissioning speed, adapting until
+    /// converged again (then refined there too).
+    SecondSpeed,
     Verify,
     Store,
     Run,
@@ -30,13 +37,15 @@ pub enum State {
 }
 
 impl State {
-    pub const ALL: [State; 10] = [
+    pub const ALL: [State; 12] = [
         State::CheckSensor,
         State::LoadCalibration,
         State::Align,
         State::Sweep,
         State::SpinUp,
         State::Adapt,
+        State::Refine,
+        State::SecondSpeed,
         State::Verify,
         State::Store,
         State::Run,
@@ -56,6 +65,8 @@ impl State {
             State::Sweep => "Sweep",
             State::SpinUp => "SpinUp",
             State::Adapt => "Adapt",
+            State::Refine => "Refine",
+            State::SecondSpeed => "SecondSpeed",
             State::Verify => "Verify",
             State::Store => "Store",
             State::Run => "Run",
@@ -89,6 +100,9 @@ pub enum Cause {
     VerifyFailed,
     /// The core refused the stored coefficients although the record was intact.
     LoadRefused,
+    /// The refined coefficients (their mean, or the two speeds' separation) could not be
+    /// formed or the core refused them.
+    RefineFailed,
     /// Writing the calibration to flash failed (the previous record is intact).
     StoreFailed,
     /// The independent watchdog reset the MCU (found in the reset flags at boot).
@@ -134,6 +148,18 @@ pub struct Params {
     /// electrical, as `Convergence::residual_rad`).
     pub verify_s: f32,
     pub verify_residual_rad: f32,
+    /// After `converged`, keep adapting this long at speed and install the mean of the
+    /// coefficients over its second half (0: verify the coefficients of the moment
+    /// `converged` came).
+    /// `converged` only says every path is within `convergence.residual_rad`; the mean
+    /// over a refinement settles to the noise of the estimate.
+    pub refine_s: f32,
+    /// 0: one commissioning speed. Otherwise (at least [`MIN_SECOND_SPEED_RATIO`]), after
+    /// refining, converge and refine again at this many times the commissioning speed,
+    /// and install the coefficients with the rotor's motion ripple separated out: a
+    /// sensor error is the same at both speeds, the ripple a torque ripple makes falls as
+    /// 1/ω² ([`crate::refine::separate`]). Needs `refine_s` > 0.
+    pub second_speed_ratio: f32,
     /// After a loaded calibration or a commissioning: keep adapting slowly in Run.
     pub slow_tracking: bool,
     /// ...while |ω̂| (low-passed) is at least this share of `speed_rad_s`. A sensor
@@ -166,10 +192,37 @@ impl Default for Params {
             adapt_timeout_s: 5.0,
             verify_s: 0.2,
             verify_residual_rad: 3.0e-3,
+            refine_s: 0.0,
+            second_speed_ratio: 0.0,
             slow_tracking: true,
             tracking_min_speed_ratio: 0.5,
             reacquire_timeout_s: 0.05,
         }
+    }
+}
+
+/// The smallest second speed, relative to the first: the separation divides by
+/// 1 - 1/ratio², which amplifies the estimates' noise by 2.1x at 1.5 and 1.3x at 2.
+pub const MIN_SECOND_SPEED_RATIO: f32 = 1.5;
+
+impl Params {
+    /// Check the refinement settings (the rest are the firmware's and a scenario's own
+    /// constants); the error names the field.
+    pub fn validate(&self) -> Result<(), (&'static str, &'static str)> {
+        if !(self.refine_s.is_finite() && self.refine_s >= 0.0) {
+            return Err(("refine_s", "must be a finite number of seconds, 0 or more"));
+        }
+        let r = self.second_speed_ratio;
+        if !(r == 0.0 || (r.is_finite() && r >= MIN_SECOND_SPEED_RATIO)) {
+            return Err(("second_speed_ratio", "must be 0 (off) or at least 1.5"));
+        }
+        if r != 0.0 && self.refine_s == 0.0 {
+            return Err((
+                "second_speed_ratio",
+                "needs refine_s > 0: the separation uses the two speeds' mean coefficients",
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -184,6 +237,16 @@ pub enum LoadStatus {
     /// An intact record the core refused: a bug or a configuration mismatch the hash
     /// did not catch; safe state rather than overwriting it.
     Refused,
+}
+
+/// What the supervisor reports about the refined coefficients' install.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RefineStatus {
+    Pending,
+    /// The core accepted them; they are in force.
+    Installed,
+    /// They could not be formed, or the core refused them.
+    Failed,
 }
 
 /// What the hardware layer reports about a requested calibration store.
@@ -211,6 +274,7 @@ pub struct Inputs {
     pub residual_max_rad: f32,
     pub load: LoadStatus,
     pub store: StoreStatus,
+    pub refine: RefineStatus,
     /// The alignment sweep's result, once it finished.
     pub sweep: Option<SweepResult>,
     /// The control period ran on a locked estimate in every period since the previous
@@ -230,6 +294,7 @@ impl Default for Inputs {
             residual_max_rad: f32::INFINITY,
             load: LoadStatus::Pending,
             store: StoreStatus::Pending,
+            refine: RefineStatus::Pending,
             sweep: None,
             locked: true,
         }
@@ -269,6 +334,9 @@ pub enum Request {
     None,
     LoadCalibration,
     StoreCalibration,
+    /// Install the refined coefficients (the mean of the refinements, or their
+    /// separation) and report [`RefineStatus`].
+    InstallRefined,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -306,6 +374,16 @@ pub struct Commissioning {
     loaded: bool,
     /// Low-passed ω̂ (see `Params::speed_filter_s`).
     speed_lp_rad_s: f32,
+    /// Refinements completed (0, 1 or 2): which speed the current one is at.
+    refined: u8,
+    /// The refined coefficients are in force (Verify after a refinement).
+    refined_installed: bool,
+    /// In Run (judged on locked steps only): ω̂ is within `speed_tolerance` of its
+    /// low-pass, and how long it has been; `settled` once that lasted `speed_settle_s`
+    /// since Run was entered.
+    steady: bool,
+    steady_s: f32,
+    settled: bool,
 }
 
 impl Commissioning {
@@ -318,6 +396,32 @@ impl Commissioning {
             held_s: 0.0,
             loaded: false,
             speed_lp_rad_s: 0.0,
+            refined: 0,
+            refined_installed: false,
+            steady: false,
+            steady_s: 0.0,
+            settled: false,
+        }
+    }
+
+    /// While in [`State::Refine`]: 0 at the commissioning speed, 1 at the second.
+    pub fn refine_index(&self) -> u8 {
+        self.refined
+    }
+
+    /// In the second half of a refinement, the half the coefficients are averaged over:
+    /// the first lets them settle from `converged`, which only bounds their residual.
+    pub fn refine_averaging(&self) -> bool {
+        self.state == State::Refine && self.in_state_s >= 0.5 * self.params.refine_s
+    }
+
+    /// The speed setpoint of the commissioning states (mechanical, rad/s).
+    fn commissioning_speed_rad_s(&self) -> f32 {
+        let p = &self.params;
+        if self.refined >= 1 && p.second_speed_ratio > 0.0 {
+            p.second_speed_ratio * p.speed_rad_s
+        } else {
+            p.speed_rad_s
         }
     }
 
@@ -350,6 +454,9 @@ impl Commissioning {
         self.state = s;
         self.in_state_s = 0.0;
         self.held_s = 0.0;
+        self.steady = false;
+        self.steady_s = 0.0;
+        self.settled = false;
     }
 
     /// One step.
@@ -412,12 +519,7 @@ impl Commissioning {
                 None => {}
             },
             State::SpinUp => {
-                let err = libm::fabsf(self.speed_lp_rad_s - p.speed_rad_s);
-                if err <= p.speed_tolerance * libm::fabsf(p.speed_rad_s) {
-                    self.held_s += i.dt_s;
-                } else {
-                    self.held_s = 0.0;
-                }
+                self.hold_speed(i.dt_s);
                 if self.held_s >= p.speed_settle_s {
                     self.go(State::Adapt);
                 } else if self.in_state_s >= p.spin_up_timeout_s {
@@ -426,9 +528,38 @@ impl Commissioning {
             }
             State::Adapt => {
                 if i.converged {
-                    self.go(State::Verify);
+                    self.converged_at_speed();
                 } else if self.in_state_s >= p.adapt_timeout_s {
                     self.force_safe(Cause::Timeout(State::Adapt));
+                }
+            }
+            State::Refine => {
+                if self.in_state_s >= p.refine_s {
+                    self.refined += 1;
+                    if self.refined == 1 && p.second_speed_ratio > 0.0 {
+                        self.go(State::SecondSpeed);
+                    } else {
+                        self.go(State::Verify);
+                    }
+                }
+            }
+            State::SecondSpeed => {
+                // Adapting all along; refined once the speed has settled and the
+                // coefficients have converged at it.
+                self.hold_speed(i.dt_s);
+                if self.held_s >= p.speed_settle_s && i.converged {
+                    self.go(State::Refine);
+                } else if self.in_state_s >= p.spin_up_timeout_s + p.adapt_timeout_s {
+                    self.force_safe(Cause::Timeout(State::SecondSpeed));
+                }
+            }
+            State::Verify if self.refined > 0 && !self.refined_installed => {
+                // The verification starts once the refined coefficients are in force.
+                self.in_state_s = 0.0;
+                match i.refine {
+                    RefineStatus::Pending => {}
+                    RefineStatus::Installed => self.refined_installed = true,
+                    RefineStatus::Failed => self.force_safe(Cause::RefineFailed),
                 }
             }
             State::Verify => {
@@ -446,6 +577,16 @@ impl Commissioning {
             },
             State::Run => {
                 if i.locked {
+                    // Judged on locked steps only: a dropout being ridden through holds
+                    // the estimate, and the adaptation resumes with the lock.
+                    let dev = libm::fabsf(i.omega_rad_s - self.speed_lp_rad_s);
+                    self.steady = dev <= p.speed_tolerance * libm::fabsf(self.speed_lp_rad_s);
+                    self.steady_s = if self.steady {
+                        self.steady_s + i.dt_s
+                    } else {
+                        0.0
+                    };
+                    self.settled |= self.steady_s >= p.speed_settle_s;
                     self.held_s = 0.0;
                 } else {
                     self.held_s += i.dt_s;
@@ -459,11 +600,31 @@ impl Commissioning {
         }
     }
 
+    /// Count the time the low-passed ω̂ has been within tolerance of the setpoint.
+    fn hold_speed(&mut self, dt_s: f32) {
+        let target = self.commissioning_speed_rad_s();
+        let err = libm::fabsf(self.speed_lp_rad_s - target);
+        if err <= self.params.speed_tolerance * libm::fabsf(target) {
+            self.held_s += dt_s;
+        } else {
+            self.held_s = 0.0;
+        }
+    }
+
+    /// `converged` at the commissioning speed: refine, or verify at once.
+    fn converged_at_speed(&mut self) {
+        if self.params.refine_s > 0.0 {
+            self.go(State::Refine);
+        } else {
+            self.go(State::Verify);
+        }
+    }
+
     /// What the loops and the MRAS should do in the current state.
     pub fn outputs(&self) -> Outputs {
         let p = &self.params;
         let speed = Setpoint::Speed {
-            omega_rad_s: p.speed_rad_s,
+            omega_rad_s: self.commissioning_speed_rad_s(),
         };
         let (setpoint, adaptation, request) = match self.state {
             State::CheckSensor => (Setpoint::Off, Adaptation::Frozen, Request::None),
@@ -484,7 +645,12 @@ impl Commissioning {
                 Request::None,
             ),
             State::SpinUp => (speed, Adaptation::Frozen, Request::None),
-            State::Adapt => (speed, Adaptation::Commissioning, Request::None),
+            State::Adapt | State::Refine | State::SecondSpeed => {
+                (speed, Adaptation::Commissioning, Request::None)
+            }
+            State::Verify if self.refined > 0 && !self.refined_installed => {
+                (speed, Adaptation::Frozen, Request::InstallRefined)
+            }
             State::Verify => (speed, Adaptation::Frozen, Request::None),
             // The calibration pages are in the flash bank the code does not run from
             // (read-while-write): the control period keeps running through the erase.
@@ -492,7 +658,13 @@ impl Commissioning {
             State::Run => {
                 let fast = libm::fabsf(self.speed_lp_rad_s)
                     >= p.tracking_min_speed_ratio * libm::fabsf(p.speed_rad_s);
-                let adaptation = if p.slow_tracking && fast {
+                // Not through a hard speed change: it moves ε by more than the transient
+                // gate lets pass unseen. The application's first setpoint can brake the
+                // rotor within 0.1 s of Run's entry, so tracking starts only once the
+                // speed has been steady for `speed_settle_s`; later, ω̂ leaves its 50 ms
+                // low-pass by the tolerance within a few ms of such a change (not in a
+                // steady ramp), and tracking pauses while it is out.
+                let adaptation = if p.slow_tracking && fast && self.settled && self.steady {
                     Adaptation::Tracking
                 } else {
                     Adaptation::Frozen
@@ -506,7 +678,8 @@ impl Commissioning {
             adaptation,
             request,
             calibrate_currents: self.state == State::CheckSensor,
-            measure_shift: self.state == State::Verify,
+            measure_shift: self.state == State::Verify
+                && (self.refined == 0 || self.refined_installed),
             reacquire: self.state == State::Run,
         }
     }

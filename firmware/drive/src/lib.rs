@@ -17,5 +17,6 @@ pub mod control;
 pub mod cordic;
 pub mod foc;
 pub mod motion;
+pub mod refine;
 pub mod supervisor;
 pub mod telemetry;

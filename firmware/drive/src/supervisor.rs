@@ -11,12 +11,22 @@
 //! meanwhile, at a higher priority, on the command in force.
 
 use crate::commissioning::{
-    Cause, Commissioning, Inputs, LoadStatus, Params, Request, State, StoreStatus,
+    Cause, Commissioning, Inputs, LoadStatus, Params, RefineStatus, Request, State, StoreStatus,
 };
+use crate::refine::{separate, CoefficientMean, RefineError, Refined};
 use crate::telemetry::{Command, Event, Install, Record, Telemetry};
 use calib_record::{Alignment, Calibration, FlashSlots, StoreError};
 use heapless::Vec;
 use mras::{Bank, Coefficients};
+
+/// What an [`Install`] in flight is for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Awaiting {
+    /// A record loaded from flash (its sequence number, for the event).
+    Load { generation: u8, sequence: u32 },
+    /// The refined coefficients.
+    Refined { generation: u8 },
+}
 
 /// A record every this many supervisor steps (100 Hz at a 1 kHz supervisor).
 pub const RECORD_DIVIDER: u32 = 10;
@@ -52,8 +62,14 @@ pub struct Supervisor {
     alignment: Alignment,
     load: LoadStatus,
     store: StoreStatus,
+    refine: RefineStatus,
+    /// The coefficients' mean over each refinement (at the commissioning speed, and at
+    /// the second speed), and why the refined coefficients could not be formed.
+    means: [CoefficientMean; 2],
+    refine_error: Option<RefineError>,
     generation: u8,
-    awaiting: Option<(u8, u32)>,
+    /// The install the control period has yet to answer.
+    awaiting: Option<Awaiting>,
     release: u8,
     store_requested: bool,
     last_state: State,
@@ -77,6 +93,9 @@ impl Supervisor {
             alignment: Alignment::IDENTITY,
             load: LoadStatus::Pending,
             store: StoreStatus::Pending,
+            refine: RefineStatus::Pending,
+            means: [CoefficientMean::default(); 2],
+            refine_error: None,
             generation: 0,
             awaiting: None,
             release: 0,
@@ -99,6 +118,17 @@ impl Supervisor {
     /// Whether Run uses a calibration loaded from flash.
     pub fn calibration_loaded(&self) -> bool {
         self.sm.calibration_loaded()
+    }
+
+    /// Why the refined coefficients could not be formed (the drive is then in the safe
+    /// state with [`Cause::RefineFailed`]); `None` if they were, or the core refused them.
+    pub fn refine_error(&self) -> Option<RefineError> {
+        self.refine_error
+    }
+
+    /// The refinements' means so far (at the commissioning speed, at the second speed).
+    pub fn refinements(&self) -> [Option<Refined>; 2] {
+        self.means.map(|m| m.mean().ok())
     }
 
     /// The alignment in force.
@@ -130,6 +160,9 @@ impl Supervisor {
         self.release = self.release.wrapping_add(1);
         self.load = LoadStatus::Pending;
         self.store = StoreStatus::Pending;
+        self.refine = RefineStatus::Pending;
+        self.means = [CoefficientMean::default(); 2];
+        self.refine_error = None;
         self.awaiting = None;
         self.alignment = Alignment::IDENTITY;
     }
@@ -148,9 +181,15 @@ impl Supervisor {
         let mut events = core::mem::take(&mut self.pending_events);
         let mut install = None;
 
-        // The control period's answer to a load.
-        if let (Some((generation, sequence)), Some(ack)) = (self.awaiting, tm.install) {
-            if ack.generation == generation {
+        // The control period's answer to an install.
+        match (self.awaiting, tm.install) {
+            (
+                Some(Awaiting::Load {
+                    generation,
+                    sequence,
+                }),
+                Some(ack),
+            ) if ack.generation == generation => {
                 self.awaiting = None;
                 self.load = if ack.accepted {
                     let _ = events.push(Event::Loaded { t_ms, sequence });
@@ -158,6 +197,20 @@ impl Supervisor {
                 } else {
                     LoadStatus::Refused
                 };
+            }
+            (Some(Awaiting::Refined { generation }), Some(ack)) if ack.generation == generation => {
+                self.awaiting = None;
+                self.refine = if ack.accepted {
+                    RefineStatus::Installed
+                } else {
+                    RefineStatus::Failed
+                };
+            }
+            _ => {}
+        }
+        if self.sm.refine_averaging() {
+            if let Some(m) = self.means.get_mut(self.sm.refine_index() as usize) {
+                m.add(&tm.coefficients, tm.omega_rad_s);
             }
         }
 
@@ -169,7 +222,10 @@ impl Supervisor {
                     Ok(l) => {
                         self.generation = self.generation.wrapping_add(1);
                         self.alignment = l.record.calibration.alignment;
-                        self.awaiting = Some((self.generation, l.record.sequence));
+                        self.awaiting = Some(Awaiting::Load {
+                            generation: self.generation,
+                            sequence: l.record.sequence,
+                        });
                         install = Some(Install {
                             generation: self.generation,
                             coefficients: l.record.calibration.coefficients,
@@ -181,6 +237,27 @@ impl Supervisor {
                             t_ms,
                             reason: e.name(),
                         });
+                    }
+                }
+            }
+            Request::InstallRefined
+                if self.refine == RefineStatus::Pending && self.awaiting.is_none() =>
+            {
+                match self.refined_coefficients() {
+                    Ok(coefficients) => {
+                        let _ = events.push(self.refined_event(t_ms, &coefficients));
+                        self.generation = self.generation.wrapping_add(1);
+                        self.awaiting = Some(Awaiting::Refined {
+                            generation: self.generation,
+                        });
+                        install = Some(Install {
+                            generation: self.generation,
+                            coefficients,
+                        });
+                    }
+                    Err(e) => {
+                        self.refine_error = Some(e);
+                        self.refine = RefineStatus::Failed;
                     }
                 }
             }
@@ -210,6 +287,7 @@ impl Supervisor {
             residual_max_rad: tm.residual_max_rad,
             load: self.load,
             store: self.store,
+            refine: self.refine,
             sweep: tm.sweep,
             locked: !tm.unlocked,
         });
@@ -274,6 +352,37 @@ impl Supervisor {
             record,
             events,
             paths: self.bank_change(&tm.coefficients),
+        }
+    }
+
+    /// The mean of the one refinement, or the two speeds' separation.
+    fn refined_coefficients(&self) -> Result<Coefficients, RefineError> {
+        let [first, second] = self.means.map(|m| m.mean());
+        match second {
+            Ok(second) => separate(&first?, &second),
+            Err(RefineError::Empty) => first.map(|r| r.coefficients),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// What the refinement installs, for the stream.
+    fn refined_event(&self, t_ms: u32, installed: &Coefficients) -> Event {
+        let [first, second] = self.means.map(|m| m.mean().ok());
+        let speed = |r: &Option<Refined>| r.map_or(0.0, |r| r.speed_rad_s);
+        let motion_max = match (first, second) {
+            (Some(a1), Some(_)) => a1
+                .coefficients
+                .iter()
+                .zip(installed.iter())
+                .map(|((_, v1), (_, e))| (v1 - e).abs())
+                .fold(0.0, mras::max_f32),
+            _ => 0.0,
+        };
+        Event::Refined {
+            t_ms,
+            speed_rad_s: speed(&first),
+            second_speed_rad_s: speed(&second),
+            motion_max,
         }
     }
 

@@ -271,6 +271,16 @@ pub enum Event {
     },
     /// The offset moved onto the corrected angle, after adaptation.
     OffsetCorrected { t_ms: u32, offset_e_rad: f32 },
+    /// The refined coefficients went to the control period: the refinements' mean |ω̂|
+    /// (the second 0 with one speed), and the largest |coefficient| the separation took
+    /// out of the first speed's mean as the rotor's motion (relative to |Z|, about the
+    /// angle error in rad; 0 with one speed).
+    Refined {
+        t_ms: u32,
+        speed_rad_s: f32,
+        second_speed_rad_s: f32,
+        motion_max: f32,
+    },
 }
 
 /// A value of a streamed field, as its defmt parameter carries it.
@@ -324,6 +334,7 @@ impl Event {
             Event::StoreFailed { .. } => "mras-store-failed",
             Event::Aligned { .. } => "mras-aligned",
             Event::OffsetCorrected { .. } => "mras-offset-corrected",
+            Event::Refined { .. } => "mras-refined",
         }
     }
 
@@ -357,6 +368,17 @@ impl Event {
             Event::OffsetCorrected { t_ms, offset_e_rad } => {
                 &[("offset_e_rad", F32(offset_e_rad)), ("t_ms", U32(t_ms))]
             }
+            Event::Refined {
+                t_ms,
+                speed_rad_s,
+                second_speed_rad_s,
+                motion_max,
+            } => &[
+                ("speed_rad_s", F32(speed_rad_s)),
+                ("second_speed_rad_s", F32(second_speed_rad_s)),
+                ("motion_max", F32(motion_max)),
+                ("t_ms", U32(t_ms)),
+            ],
         };
         for f in fields {
             // At most MAX_EVENT_FIELDS by construction.
@@ -379,6 +401,7 @@ pub fn cause_name(c: Cause) -> &'static str {
         Cause::PolePairs => "PolePairs",
         Cause::VerifyFailed => "VerifyFailed",
         Cause::LoadRefused => "LoadRefused",
+        Cause::RefineFailed => "RefineFailed",
         Cause::StoreFailed => "StoreFailed",
         Cause::Watchdog => "Watchdog",
         Cause::HardFault => "HardFault",
@@ -459,6 +482,18 @@ pub fn log_event(e: &Event) {
         Event::OffsetCorrected { t_ms, offset_e_rad } => defmt::info!(
             "mras-offset-corrected offset_e_rad={=f32} t_ms={=u32}",
             offset_e_rad,
+            t_ms
+        ),
+        Event::Refined {
+            t_ms,
+            speed_rad_s,
+            second_speed_rad_s,
+            motion_max,
+        } => defmt::info!(
+            "mras-refined speed_rad_s={=f32} second_speed_rad_s={=f32} motion_max={=f32} t_ms={=u32}",
+            speed_rad_s,
+            second_speed_rad_s,
+            motion_max,
             t_ms
         ),
     }

@@ -392,3 +392,107 @@ fn boot_faults_are_reported_and_records_come_every_divider_steps() {
     }
     assert_eq!(records, 100 / RECORD_DIVIDER);
 }
+
+/// A two-speed commissioning on a scripted control period whose coefficients are what
+/// the MRAS learns with a motion ripple: `e + M/ω²` at the speed commanded. The
+/// supervisor installs `e` (the two refinements' separation) before verifying, reports
+/// the verification only once the control period accepted it, and stores it; a refusal
+/// is the safe state.
+#[test]
+fn a_two_speed_commissioning_installs_and_stores_the_sensor_error_alone() {
+    let params = Params {
+        refine_s: 0.2,
+        second_speed_ratio: 2.0,
+        ..Params::default()
+    };
+    let e = coefficients();
+    let motion = Cplx::new(30.0, -40.0); // 3.2 mrad at 125.7 rad/s on the offset path
+    let learnt = |omega_rad_s: f32| {
+        let mut c = e;
+        let v = e.get(PathKind::Offset).unwrap();
+        c.set(
+            PathKind::Offset,
+            v + motion.scale(1.0 / (omega_rad_s * omega_rad_s)),
+        );
+        c
+    };
+    for accepted in [true, false] {
+        let mut s = Supervisor::new(params, hash(), 20_000, 20);
+        let mut flash = Flash::default();
+        let mut ticks = 0;
+        let mut omega_rad_s = 0.0;
+        let mut installed: Option<(u8, Coefficients)> = None;
+        let mut acked = false;
+        let mut states = vec![];
+        for _ in 0..20_000 {
+            ticks += 20;
+            let mut tm = telemetry(ticks);
+            tm.omega_rad_s = omega_rad_s;
+            tm.sweep = (s.state() == State::Sweep).then(sweep_result);
+            tm.converged = matches!(s.state(), State::Adapt | State::SecondSpeed);
+            tm.coefficients = match installed {
+                Some((generation, c)) => {
+                    if !acked {
+                        tm.install = Some(InstallAck {
+                            generation,
+                            accepted,
+                        });
+                        acked = true;
+                    }
+                    c
+                }
+                None => learnt(omega_rad_s.max(1.0)),
+            };
+            let out = s.step(&tm, &mut flash);
+            if let Setpoint::Speed { omega_rad_s: w } = out.command.setpoint {
+                omega_rad_s = w;
+            }
+            if let Some(i) = out.install {
+                assert_eq!(s.state(), State::Verify);
+                installed = Some((i.generation, i.coefficients));
+            }
+            for ev in &out.events {
+                if let Event::State { state, .. } = ev {
+                    states.push(*state);
+                }
+            }
+            if matches!(s.state(), State::Run | State::Safe) {
+                break;
+            }
+        }
+        let (_, sent) = installed.expect("the refined coefficients were installed");
+        let err = (sent.get(PathKind::Offset).unwrap() - e.get(PathKind::Offset).unwrap()).abs();
+        let one_speed = motion.abs() / (params.speed_rad_s * params.speed_rad_s);
+        assert!(err < 1e-6, "{err} (the motion at one speed: {one_speed})");
+        assert_eq!(sent.kinds(), e.kinds());
+        let [first, second] = s.refinements().map(Option::unwrap);
+        assert!((first.speed_rad_s - params.speed_rad_s).abs() < 1e-3);
+        assert!((second.speed_rad_s - 2.0 * params.speed_rad_s).abs() < 1e-3);
+        use State::*;
+        if accepted {
+            assert_eq!(s.state(), Run);
+            assert_eq!(
+                states[3..],
+                [
+                    SpinUp,
+                    Adapt,
+                    Refine,
+                    SecondSpeed,
+                    Refine,
+                    Verify,
+                    Store,
+                    Run
+                ]
+            );
+            let stored = calib_record::load(&flash, hash()).unwrap();
+            assert_eq!(stored.record.calibration.coefficients, sent);
+        } else {
+            assert_eq!(s.cause(), Some(Cause::RefineFailed));
+            assert_eq!(s.refine_error(), None, "formed, then refused by the core");
+            assert!(
+                calib_record::load(&flash, hash()).is_err(),
+                "nothing stored"
+            );
+        }
+    }
+}
