@@ -48,10 +48,10 @@ pub struct Args {
     /// the observer's eigenvalues and, with theta_rad, the raw and corrected spatial error.
     #[arg(long)]
     pub report: Option<PathBuf>,
-    /// Choose the path bank from the recording: survey the sensor's error spectrum
-    /// (m = 1..16) with adaptation frozen over the first whole sensor periods of a
-    /// settled lock, then give the bank's 8 paths to the largest harmonics (the summary
-    /// and report name them and what was left). Not with `paths` in --config.
+    /// Choose the path bank from the recording: the core's rounds (the bank adapts,
+    /// then the sensor's error spectrum m = 1..16 is surveyed with adaptation frozen and
+    /// the bank grows by its largest harmonics, up to 16 paths); the summary and report
+    /// name the paths and what was left. Not with `paths` in --config.
     #[arg(long)]
     pub paths_from_data: bool,
 }

@@ -410,10 +410,10 @@ impl<T: Trig> Rig<T> {
         if t < task.busy_until_s {
             return;
         }
-        let Some(mut tm) = self.telemetry.take() else {
+        let Some(snapshot) = self.telemetry.take() else {
             return;
         };
-        tm.merge(self.adaptation.report());
+        let tm = snapshot.merged(self.adaptation.report());
         let out = task.sup.step(&tm, &mut task.flash);
         let busy = task.flash.take_busy_s();
         if busy > 0.0 {

@@ -143,10 +143,16 @@ impl Line {
             .into_iter()
             .map(|v| f32_of("coef", v))
             .collect::<Result<_>>()?;
-        let coef: [f32; 2 * MAX_PATHS] = coefs.try_into().map_err(|v: Vec<f32>| {
-            let n = 2 * MAX_PATHS;
-            anyhow!("`coef`: {} values, the schema has {n}", v.len())
-        })?;
+        // A stream of the earlier 8-path firmware carries 16 values: the paths it has.
+        let n = 2 * MAX_PATHS;
+        if coefs.len() > n || !coefs.len().is_multiple_of(2) {
+            bail!(
+                "`coef`: {} values, the schema has {n} (re and im of each path)",
+                coefs.len()
+            );
+        }
+        let mut coef = [0.0; 2 * MAX_PATHS];
+        coef[..coefs.len()].copy_from_slice(&coefs);
         let f32_at = |key: &str| f32_of(key, one(key)?);
         Ok(Record {
             t_ms: uint("t_ms", u32::MAX)?,
@@ -495,6 +501,14 @@ mod tests {
         let mut unknown = line.clone();
         unknown.fields.push(("speed".into(), Value::F32(1.0)));
         assert!(format!("{:#}", unknown.record().unwrap_err()).contains("speed"));
+        // The earlier firmware's 8 paths: the rest reads as unused paths.
+        let mut eight_paths = line.clone();
+        eight_paths
+            .fields
+            .truncate(eight_paths.fields.len() - MAX_PATHS);
+        let mut padded = r;
+        padded.coef[MAX_PATHS..].fill(0.0);
+        assert_eq!(eight_paths.record().unwrap(), padded);
         let mut state = line;
         state.fields[1].1 = Value::Str("Spinning".into());
         assert!(format!("{:#}", state.record().unwrap_err()).contains("Spinning"));

@@ -31,7 +31,7 @@ pub struct SurveyReport {
     pub min_mrad: f64,
     /// The bank, in order of m, as `paths` in a --config file names them.
     pub paths: Vec<String>,
-    /// Harmonics m above both floors that the bank (at most 8 paths) has no room for.
+    /// Harmonics m above both floors that the bank (at most 16 paths) has no room for.
     pub unobserved: Vec<u8>,
     /// Survey rounds, and whether the last one completed the bank (false: the recording
     /// ended while the grown bank was still adapting; the bank is the last round's).

@@ -104,16 +104,17 @@ pub struct TruthSpectrum {
     /// mounting offset no sensor observes).
     pub harmonics: Vec<HarmonicRow>,
     /// √Σ estimate² / √Σ oracle² over m = 3..=16 (where the motion ripple has no
-    /// harmonic), over the harmonics with a path in the bank and over those without.
-    pub estimate_over_oracle_m3_up_in_bank: f64,
-    pub estimate_over_oracle_m3_up_not_in_bank: f64,
+    /// harmonic), over the harmonics with a path in the bank and over those without
+    /// (`None`: no such harmonic).
+    pub estimate_over_oracle_m3_up_in_bank: Option<f64>,
+    pub estimate_over_oracle_m3_up_not_in_bank: Option<f64>,
     /// The same for arg(Zd), the corrected sensor angle (what the sensor correction
     /// leaves, without the observer's response to the unmodelled torque ripple), and
     /// over m = 1, 2 (where the motion ripple is): per harmonic, the oracle is one
     /// draw of the noise, so the ratios are of root sums of squares.
     pub decoupled_over_oracle_m1_m2: f64,
-    pub decoupled_over_oracle_m3_up_in_bank: f64,
-    pub decoupled_over_oracle_m3_up_not_in_bank: f64,
+    pub decoupled_over_oracle_m3_up_in_bank: Option<f64>,
+    pub decoupled_over_oracle_m3_up_not_in_bank: Option<f64>,
 }
 
 impl TruthSpectrum {
@@ -160,22 +161,40 @@ impl TruthSpectrum {
             );
         }
         let ratio = |m: u32| self.row(m).map_or(f64::NAN, |r| r.estimate_over_oracle);
+        // "with a path, without": either may select no harmonic.
+        let split = |with: Option<f64>, without: Option<f64>, digits: usize| {
+            let part = |r: Option<f64>, what: &str| match r {
+                Some(r) => format!("{r:.digits$}x {what}"),
+                None => format!("no harmonic {what}"),
+            };
+            format!(
+                "{}, {}",
+                part(with, "with a path"),
+                part(without, "without")
+            )
+        };
         let _ = writeln!(
             s,
-            "{indent}  θ̂ over the oracle: m = 1 {:.0}x, m = 2 {:.0}x; m = 3..{} (root sum of squares) {:.0}x with a path, {:.0}x without",
+            "{indent}  θ̂ over the oracle: m = 1 {:.0}x, m = 2 {:.0}x; m = 3..{} (root sum of squares) {}",
             ratio(1),
             ratio(2),
             SPECTRUM_HARMONICS_OF_THETA_RM,
-            self.estimate_over_oracle_m3_up_in_bank,
-            self.estimate_over_oracle_m3_up_not_in_bank
+            split(
+                self.estimate_over_oracle_m3_up_in_bank,
+                self.estimate_over_oracle_m3_up_not_in_bank,
+                0
+            )
         );
         let _ = writeln!(
             s,
-            "{indent}  arg Zd over the oracle (root sums of squares): m = 1, 2 {:.1}x; m = 3..{} {:.1}x with a path, {:.0}x without",
+            "{indent}  arg Zd over the oracle (root sums of squares): m = 1, 2 {:.1}x; m = 3..{} {}",
             self.decoupled_over_oracle_m1_m2,
             SPECTRUM_HARMONICS_OF_THETA_RM,
-            self.decoupled_over_oracle_m3_up_in_bank,
-            self.decoupled_over_oracle_m3_up_not_in_bank
+            split(
+                self.decoupled_over_oracle_m3_up_in_bank,
+                self.decoupled_over_oracle_m3_up_not_in_bank,
+                1
+            )
         );
         s
     }
@@ -311,15 +330,12 @@ impl Recorder {
                 }
             })
             .collect();
-        // √Σ error² / √Σ oracle² over the harmonics `keep` selects.
+        // √Σ error² / √Σ oracle² over the harmonics `keep` selects, if any.
         let rss_ratio = |error: fn(&HarmonicRow) -> f64, keep: &dyn Fn(&HarmonicRow) -> bool| {
-            let (e, o) = harmonics
-                .iter()
-                .filter(|r| keep(r))
-                .fold((0.0, 0.0), |(e, o), r| {
-                    (e + error(r).powi(2), o + r.oracle_mrad.powi(2))
-                });
-            (e / o).sqrt()
+            let kept = || harmonics.iter().filter(|r| keep(r));
+            let e: f64 = kept().map(|r| error(r).powi(2)).sum();
+            let o: f64 = kept().map(|r| r.oracle_mrad.powi(2)).sum();
+            (kept().count() > 0).then(|| (e / o).sqrt())
         };
         let estimate = |r: &HarmonicRow| r.estimate_mrad;
         let decoupled = |r: &HarmonicRow| r.decoupled_mrad;
@@ -335,7 +351,8 @@ impl Recorder {
             motion_2x_pk_pk_mrad: 2.0 * harmonics[1].motion_mrad,
             estimate_over_oracle_m3_up_in_bank: rss_ratio(estimate, &m3_up(true)),
             estimate_over_oracle_m3_up_not_in_bank: rss_ratio(estimate, &m3_up(false)),
-            decoupled_over_oracle_m1_m2: rss_ratio(decoupled, &|r| r.m <= 2),
+            // m = 1, 2 are always in the spectrum.
+            decoupled_over_oracle_m1_m2: rss_ratio(decoupled, &|r| r.m <= 2).unwrap_or(f64::NAN),
             decoupled_over_oracle_m3_up_in_bank: rss_ratio(decoupled, &m3_up(true)),
             decoupled_over_oracle_m3_up_not_in_bank: rss_ratio(decoupled, &m3_up(false)),
             harmonics,

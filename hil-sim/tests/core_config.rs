@@ -144,9 +144,20 @@ fn bad_path_string_is_refused_with_its_line() {
 
 #[test]
 fn too_many_paths_point_at_paths() {
-    let e = parse_error("sensor_periods = 2\npaths = [\"offset\", \"h4\", \"h5\", \"h6\", \"h7\", \"h8\", \"h9\", \"h10\", \"h11\"]\n");
+    // 17 valid kinds, one more than a bank holds.
+    let names: Vec<String> = ["offset", "amplitude-quadrature", "h-2", "h-4", "h-5"]
+        .into_iter()
+        .map(String::from)
+        .chain((4..=15).map(|h| format!("h{h}")))
+        .map(|n| format!("{n:?}"))
+        .collect();
+    assert_eq!(names.len(), mras::MAX_PATHS + 1);
+    let e = parse_error(&format!(
+        "sensor_periods = 2\npaths = [{}]\n",
+        names.join(", ")
+    ));
     assert!(
-        e.starts_with("cfg.toml:2: invalid configuration `paths`: at most 8 paths"),
+        e.starts_with("cfg.toml:2: invalid configuration `paths`: at most 16 paths"),
         "{e}"
     );
 }

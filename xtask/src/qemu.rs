@@ -4,7 +4,7 @@
 //!
 //! `bit_exact`: hil-sim writes an input vector and the host core's trace over it; the
 //! emulated image runs the same vector and prints the same trace; they must be equal.
-//! `cycles`: the image runs the three path configurations with markers around each
+//! `cycles`: the image runs the path configurations with markers around each
 //! measured step under a one-instruction-per-block execution trace; instructions are
 //! counted between the markers and weighted by Cortex-M4 cycle counts (TRM r0p1 §3.3).
 
@@ -20,7 +20,7 @@ const MACHINE: &str = "netduinoplus2";
 const IMAGE: &str = "mras-qemu";
 /// In measurement order: per path configuration, the front (`Front::step`, what runs in
 /// the control interrupt), then the adapter (`Adapter::step`, the adaptation task).
-const CONFIGS: [&str; 8] = [
+const CONFIGS: [&str; 10] = [
     "front (control interrupt), observer only",
     "adapter (task), no paths",
     "front, observer + offset + amplitude/quadrature",
@@ -29,6 +29,8 @@ const CONFIGS: [&str; 8] = [
     "adapter, offset + amplitude/quadrature + h4 + h5",
     "front, default bank: observer + offset + C/D + h4..h8 (m = 1..7)",
     "adapter, default bank (7 paths)",
+    "front, full bank: observer + offset + C/D + h4..h15, h-14, h-15 (m = 1..16)",
+    "adapter, full bank (16 paths)",
 ];
 /// The configuration broken down by stage unless `MRAS_CYCLES_PROFILE` says otherwise:
 /// the front with the default bank, the part the control interrupt carries.

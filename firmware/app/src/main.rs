@@ -259,10 +259,10 @@ mod app {
            shared = [command, telemetry, mailbox, report])]
     async fn supervisor(mut cx: supervisor::Context) {
         let l = cx.local;
-        let Some(mut tm) = cx.shared.telemetry.lock(TelemetrySlot::take) else {
+        let Some(snapshot) = cx.shared.telemetry.lock(TelemetrySlot::take) else {
             return;
         };
-        tm.merge(&cx.shared.report.lock(|r| *r));
+        let tm = snapshot.merged(&cx.shared.report.lock(|r| *r));
         let out = l.supervisor.step(&tm, l.flash);
         cx.shared.command.lock(|c| *c = out.command);
         if out.install.is_some() {

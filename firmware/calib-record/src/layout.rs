@@ -8,27 +8,27 @@
 //! in the flash bank it does not run from (read-while-write). The addresses belong to
 //! `memory.x`; this crate only sees slots through [`crate::FlashSlots`].
 //!
-//! # Record (little-endian, [`RECORD_BYTES`] = 128 bytes at the start of a slot)
+//! # Record (little-endian, [`RECORD_BYTES`] = 224 bytes at the start of a slot)
 //!
-//! Format version 2: version 1 (120 bytes, no alignment, a configuration hash without
-//! the pole-pair count) is refused as
-//! [`crate::RecordError::UnsupportedVersion`].
+//! Format version 3: version 2 (128 bytes, room for 8 paths) and version 1 (120 bytes,
+//! no alignment, a configuration hash without the pole-pair count) are refused as
+//! [`crate::RecordError::UnsupportedVersion`], and the drive commissions again.
 //!
 //! | offset | size | field |
 //! |---:|---:|---|
 //! | 0 | 4 | magic [`MAGIC`] ("MRAS" read as a big-endian u32) |
 //! | 4 | 2 | format version [`FORMAT_VERSION`] |
-//! | 6 | 1 | path count (≤ `MAX_PATHS` = 8) |
+//! | 6 | 1 | path count (≤ `MAX_PATHS` = 16) |
 //! | 7 | 1 | direction flags: bit 0 = alignment `reversed`; bits 1-7 are 0 (else refused) |
 //! | 8 | 4 | sequence number (serial-number arithmetic, wraps) |
 //! | 12 | 4 | configuration hash ([`crate::config_hash`]) |
 //! | 16 | 4 | alignment `offset_e_rad` (f32 bits, finite, within [-π, π]) |
 //! | 20 | 4 | reserved, written 0 |
 //! | 24 + 12·i | 12 | path i: kind tag (u8), h (i8), 2 reserved (0), re (f32 bits), im (f32 bits) |
-//! | 120 | 4 | CRC-32/ISO-HDLC over bytes 0..120 |
-//! | 124 | 4 | commit mark [`COMMIT_MARK`] |
+//! | 216 | 4 | CRC-32/ISO-HDLC over bytes 0..216 |
+//! | 220 | 4 | commit mark [`COMMIT_MARK`] |
 //!
-//! All eight path entries are always present (unused ones are zero), so the CRC sits at
+//! All sixteen path entries are always present (unused ones are zero), so the CRC sits at
 //! a fixed offset that does not depend on the (untrusted) path count. The last double
 //! word (CRC + commit mark) is programmed last; since the mark is not 0xFFFF_FFFF, a
 //! write interrupted before it can never look complete, whatever the CRC value.
@@ -50,7 +50,7 @@ pub const DOUBLE_WORDS_PER_PAGE: usize = PAGE_BYTES / DOUBLE_WORD_BYTES;
 /// "MRAS" as a big-endian u32; stored little-endian.
 pub const MAGIC: u32 = 0x4D52_4153;
 /// Bumped whenever the layout or the meaning of a field (or of the config hash) changes.
-pub const FORMAT_VERSION: u16 = 2;
+pub const FORMAT_VERSION: u16 = 3;
 /// Second half of the last double word: any value other than all-ones proves that the
 /// last double word was programmed.
 pub const COMMIT_MARK: u32 = !MAGIC;
@@ -82,4 +82,6 @@ const _: () = {
     assert!(RECORD_BYTES < 1024);
     assert!(COMMIT_MARK != u32::MAX);
     assert!(MAX_PATHS <= u8::MAX as usize);
+    // The table above.
+    assert!(RECORD_BYTES == 224 && MAX_PATHS == 16);
 };

@@ -150,7 +150,7 @@ pub fn config_hash(cfg: &Config, pole_pairs: u16, input: &InputScaling) -> u32 {
         d.update(&canonical_bits(v).to_le_bytes());
     }
     let paths = cfg.paths();
-    // `paths()` holds at most MAX_PATHS (8) entries.
+    // `paths()` holds at most MAX_PATHS (16) entries.
     d.update(&[paths.len() as u8]);
     for &k in paths {
         d.update(&kind_bytes(k));
@@ -217,7 +217,7 @@ pub fn encode(
     w.put(MAGIC.to_le_bytes());
     w.put(FORMAT_VERSION.to_le_bytes());
     let flags = if alignment.reversed { FLAG_REVERSED } else { 0 };
-    // `Coefficients` holds at most MAX_PATHS (8) paths.
+    // `Coefficients` holds at most MAX_PATHS (16) paths.
     w.put([coefs.len() as u8, flags]);
     w.put(seq.to_le_bytes());
     w.put(cfg_hash.to_le_bytes());

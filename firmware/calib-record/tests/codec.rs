@@ -10,8 +10,8 @@ use calib_record::{
     PAGE_BYTES, RECORD_BYTES,
 };
 use common::{
-    calib, coefs, encoded, reseal, same_bits, v1_record, with_identity, DEFAULT_PATHS, HASH,
-    OTHER_HASH, V1_RECORD_BYTES,
+    calib, coefs, encoded, reseal, same_bits, v1_record, v2_record, with_identity, DEFAULT_PATHS,
+    HASH, OTHER_HASH, V1_RECORD_BYTES, V2_RECORD_BYTES,
 };
 use mras::{Coefficients, Config, Cplx, PathKind, MAX_PATHS};
 
@@ -26,7 +26,7 @@ const PATH0_AT: usize = HEADER_BYTES;
 const ABOVE_PI: f32 = f32::from_bits(PI.to_bits() + 1);
 
 const _: () = {
-    assert!(RECORD_BYTES == 128);
+    assert!(RECORD_BYTES == 224);
     assert!(HEADER_BYTES == 24);
     assert!(RECORD_BYTES % DOUBLE_WORD_BYTES == 0);
     assert!(COMMIT_OFFSET == RECORD_BYTES - DOUBLE_WORD_BYTES);
@@ -63,16 +63,12 @@ fn round_trip_no_paths_and_max_paths() {
         none
     );
 
-    let kinds = [
-        PathKind::Offset,
-        PathKind::AmplitudeQuadrature,
-        PathKind::Harmonic(4),
-        PathKind::Harmonic(-4),
-        PathKind::Harmonic(7),
-        PathKind::Harmonic(-15),
-        PathKind::Harmonic(15),
-        PathKind::Harmonic(-6),
-    ];
+    // A path for each error harmonic m = 1..16, both signs of h, both ends of |h| <= 15.
+    let hs = [-2, 5, -4, 7, -6, 9, -8, 11, -10, 13, -12, 15, -14, -15];
+    let kinds: Vec<PathKind> = [PathKind::Offset, PathKind::AmplitudeQuadrature]
+        .into_iter()
+        .chain(hs.map(PathKind::Harmonic))
+        .collect();
     assert_eq!(kinds.len(), MAX_PATHS);
     let mut full = Coefficients::zeros(&kinds);
     for (n, k) in kinds.iter().enumerate() {
@@ -223,6 +219,44 @@ fn golden_bytes() {
     };
     #[rustfmt::skip]
     let expected: [u8; RECORD_BYTES] = [
+        0x53, 0x41, 0x52, 0x4D, 0x03, 0x00, 0x04, 0x01,
+        0x04, 0x03, 0x02, 0x01, 0xD4, 0xC3, 0xB2, 0xA1,
+        0x00, 0x00, 0xA0, 0xBF, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0xCD, 0xCC, 0xCC, 0x3D,
+        0x0A, 0xD7, 0xA3, 0xBD, 0x01, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x80, 0x3E, 0x00, 0x00, 0x00, 0xBF,
+        0x02, 0x04, 0x00, 0x00, 0xA6, 0x9B, 0xC4, 0x3A,
+        0x00, 0x00, 0x00, 0xC0, 0x02, 0x05, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x80,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+        0x48, 0x12, 0xF7, 0xFF, 0xAC, 0xBE, 0xAD, 0xB2,
+    ];
+    assert_eq!(encoded(&c, 0x0102_0304, 0xA1B2_C3D4), expected);
+    assert_eq!(decode(&expected, 0xA1B2_C3D4).unwrap().calibration, c);
+}
+
+/// The version-2 golden record (the pinned bytes of format version 2, with the
+/// golden calibration; computed with Python's `struct` and `zlib.crc32`): what a drive
+/// commissioned by the 8-path firmware holds in flash.
+#[rustfmt::skip]
+const V2_GOLDEN: [u8; V2_RECORD_BYTES] = [
         0x53, 0x41, 0x52, 0x4D, 0x02, 0x00, 0x04, 0x01,
         0x04, 0x03, 0x02, 0x01, 0xD4, 0xC3, 0xB2, 0xA1,
         0x00, 0x00, 0xA0, 0xBF, 0x00, 0x00, 0x00, 0x00,
@@ -239,12 +273,9 @@ fn golden_bytes() {
         0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
         0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
         0xCA, 0x03, 0x3A, 0x71, 0xAC, 0xBE, 0xAD, 0xB2,
-    ];
-    assert_eq!(encoded(&c, 0x0102_0304, 0xA1B2_C3D4), expected);
-    assert_eq!(decode(&expected, 0xA1B2_C3D4).unwrap().calibration, c);
-}
+];
 
-/// The coefficients of the golden records (both versions).
+/// The coefficients of the golden records (every version).
 fn golden_coefficients() -> Coefficients {
     let mut c = Coefficients::zeros(&DEFAULT_PATHS);
     c.set(PathKind::Offset, Cplx::new(0.1, -0.08));
@@ -288,9 +319,9 @@ fn version_1_record_is_refused_as_unsupported_version() {
 
     let refused = Err(RecordError::UnsupportedVersion {
         found: 1,
-        expected: 2,
+        expected: 3,
     });
-    assert_eq!(FORMAT_VERSION, 2);
+    assert_eq!(FORMAT_VERSION, 3);
     // As the flash holds it: the v1 record, then the erased rest of the page.
     let mut page = [0xFFu8; PAGE_BYTES];
     page[..V1_RECORD_BYTES].copy_from_slice(&v1);
@@ -306,8 +337,36 @@ fn version_1_record_is_refused_as_unsupported_version() {
         assert_eq!(Err(err), refused);
         assert_eq!(err.name(), "UnsupportedVersion");
     }
-    // Too short for a v2 record is still Truncated (the length is checked first).
+    // Too short for a v3 record is still Truncated (the length is checked first).
     assert_eq!(decode(&v1, HASH), Err(RecordError::Truncated));
+}
+
+/// A record of the 8-path format (version 2), as a drive commissioned by the earlier
+/// firmware holds it, is refused by its version, whatever the page holds after it: the
+/// drive commissions again instead of reading sixteen entries from an eight-entry layout.
+#[test]
+fn version_2_record_is_refused_as_unsupported_version() {
+    let refused = Err(RecordError::UnsupportedVersion {
+        found: 2,
+        expected: 3,
+    });
+    let golden = Calibration {
+        coefficients: golden_coefficients(),
+        alignment: Alignment {
+            offset_e_rad: -1.25,
+            reversed: true,
+        },
+    };
+    // The hand-built v2 record matches the pinned v2 bytes: it is a genuine v2 record.
+    assert_eq!(v2_record(&golden, 0x0102_0304, 0xA1B2_C3D4), V2_GOLDEN);
+    for (n, tail) in [0x00u8, 0xFF, 0x5A].into_iter().enumerate() {
+        let v2 = v2_record(&golden, n as u32, HASH);
+        let mut page = [tail; PAGE_BYTES];
+        page[..V2_RECORD_BYTES].copy_from_slice(&v2);
+        assert_eq!(decode(&page, HASH), refused);
+        assert_eq!(decode(&page[..RECORD_BYTES], OTHER_HASH), refused);
+    }
+    assert_eq!(decode(&V2_GOLDEN, 0xA1B2_C3D4), Err(RecordError::Truncated));
 }
 
 #[test]
@@ -370,7 +429,7 @@ fn interrupted_write_images_are_refused() {
     let good = encoded(&calib(0.05), 45, HASH);
     // Every prefix short of the whole record: the last double word is the commit.
     let total = RECORD_BYTES / DOUBLE_WORD_BYTES;
-    assert_eq!(total, 16);
+    assert_eq!(total, 28);
     for dws in 0..total {
         let mut img = [0xFFu8; RECORD_BYTES];
         img[..dws * DOUBLE_WORD_BYTES].copy_from_slice(&good[..dws * DOUBLE_WORD_BYTES]);
@@ -633,7 +692,7 @@ fn record_error_names() {
         (
             RecordError::UnsupportedVersion {
                 found: 1,
-                expected: 2,
+                expected: 3,
             },
             "UnsupportedVersion",
         ),
@@ -645,7 +704,7 @@ fn record_error_names() {
         (
             RecordError::ConfigMismatch {
                 stored: 1,
-                expected: 2,
+                expected: 3,
             },
             "ConfigMismatch",
         ),

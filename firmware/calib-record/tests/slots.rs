@@ -10,7 +10,7 @@ use calib_record::{
     RamFlashError, RecordError, Rejected, Slot, StoreError, FIRST_SEQUENCE, PAGE_BYTES,
     RECORD_BYTES,
 };
-use common::{calib, encoded, same_bits, v1_record, with_identity, HASH, OTHER_HASH};
+use common::{calib, encoded, same_bits, v1_record, v2_record, with_identity, HASH, OTHER_HASH};
 use mras::{Coefficients, Cplx, PathKind};
 
 type Load = Result<Loaded<RamFlashError>, LoadError<RamFlashError>>;
@@ -240,58 +240,71 @@ fn store_error_names() {
     );
 }
 
-/// A drive updated from version-1 firmware: records of the old format, however
-/// intact, are refused by name, and the first store replaces one of them.
+/// A drive updated from version-1 or version-2 (8-path) firmware: records of the old
+/// formats, however intact, are refused by name, and the first store replaces one of
+/// them.
 #[test]
-fn version_1_records_are_refused_by_name() {
-    let v1_refused = rec(RecordError::UnsupportedVersion {
-        found: 1,
-        expected: 2,
+fn older_format_records_are_refused_by_name() {
+    for version in [1, 2] {
+        older_format_records_are_refused(version);
+    }
+}
+
+fn older_format_records_are_refused(version: u16) {
+    let old_refused = rec(RecordError::UnsupportedVersion {
+        found: version,
+        expected: 3,
     });
-    let plant_v1 = |flash: &mut RamFlash, slot: Slot, tag: f32, seq: u32| {
+    let plant_old = |flash: &mut RamFlash, slot: Slot, tag: f32, seq: u32| {
         flash.erase(slot).unwrap();
-        flash
-            .program(slot, 0, &v1_record(&calib(tag).coefficients, seq, HASH))
-            .unwrap();
+        let bytes = match version {
+            1 => v1_record(&calib(tag).coefficients, seq, HASH).to_vec(),
+            _ => v2_record(&calib(tag), seq, HASH).to_vec(),
+        };
+        flash.program(slot, 0, &bytes).unwrap();
     };
 
-    // Both slots hold v1 records (two stores of the old firmware).
+    // Both slots hold old records (two stores of the old firmware).
     let mut flash = RamFlash::new();
-    plant_v1(&mut flash, Slot::A, 1.0, 1);
-    plant_v1(&mut flash, Slot::B, 2.0, 2);
+    plant_old(&mut flash, Slot::A, 1.0, 1);
+    plant_old(&mut flash, Slot::B, 2.0, 2);
     let err = load(&flash, HASH).unwrap_err();
     assert_eq!(
         err,
         LoadError::NoValidRecord {
-            a: v1_refused,
-            b: v1_refused
+            a: old_refused,
+            b: old_refused
         }
     );
     assert_eq!(err.name(), "UnsupportedVersion");
-    assert_eq!(err.reason(), &v1_refused);
+    assert_eq!(err.reason(), &old_refused);
     // Whatever the hash: the version is checked first.
     assert_eq!(
         load(&flash, OTHER_HASH).unwrap_err().name(),
         "UnsupportedVersion"
     );
 
-    // One v1 record and an erased slot, either way round.
-    for v1_slot in Slot::BOTH {
+    // One old record and an erased slot, either way round.
+    for old_slot in Slot::BOTH {
         let mut flash = RamFlash::new();
-        plant_v1(&mut flash, v1_slot, 1.0, 1);
+        plant_old(&mut flash, old_slot, 1.0, 1);
         let err = load(&flash, HASH).unwrap_err();
-        assert_eq!(err.name(), "UnsupportedVersion", "v1 in {v1_slot:?}");
-        assert_eq!(err.reason(), &v1_refused);
+        assert_eq!(
+            err.name(),
+            "UnsupportedVersion",
+            "v{version} in {old_slot:?}"
+        );
+        assert_eq!(err.reason(), &old_refused);
     }
 
-    // Commissioning stores a v2 record; it loads, the remaining v1 record is reported.
+    // Commissioning stores a v3 record; it loads, the remaining old record is reported.
     let c = calib(3.0);
     assert_eq!(store(&mut flash, &c, HASH), Ok(Slot::A));
     let l = loaded(&flash);
     assert_eq!(l.slot, Slot::A);
     assert_eq!(l.record.sequence, FIRST_SEQUENCE);
     assert!(same_bits(&l.record.calibration, &c));
-    assert_eq!(l.other, OtherSlot::Rejected(v1_refused));
+    assert_eq!(l.other, OtherSlot::Rejected(old_refused));
 }
 
 /// `LoadError::reason`: "Erased" only if both slots are erased, otherwise the
@@ -302,7 +315,7 @@ fn load_error_reports_the_most_informative_rejection() {
     let erased = rec(RecordError::Erased);
     let v1 = rec(RecordError::UnsupportedVersion {
         found: 1,
-        expected: 2,
+        expected: 3,
     });
     let mismatch = rec(RecordError::ConfigMismatch {
         stored: OTHER_HASH,
@@ -344,7 +357,7 @@ fn load_error_reports_the_most_informative_rejection() {
     // A tie: slot A's rejection, payload included.
     let other_v = rec(RecordError::UnsupportedVersion {
         found: 7,
-        expected: 2,
+        expected: 3,
     });
     let tie = LoadError::NoValidRecord { a: other_v, b: v1 };
     assert_eq!(tie.reason(), &other_v);

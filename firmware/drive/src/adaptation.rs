@@ -11,7 +11,7 @@
 //! The convergence measures and coefficients the supervisor needs are computed here,
 //! once per snapshot ([`mras::AdaptSample::REPORT`]), not in the control interrupt.
 
-use crate::telemetry::{Install, InstallAck, Telemetry};
+use crate::telemetry::{Install, InstallAck, Snapshot, Telemetry};
 use mras::{AdaptSample, Adapter, Bank, Change, Coefficients, ConfigError, InjectionUpdate};
 
 /// What the adaptation reports to the supervisor (merged into its [`Telemetry`]).
@@ -131,13 +131,17 @@ impl AdaptationTask {
     }
 }
 
-impl Telemetry {
-    /// The adaptation's figures into the control period's snapshot.
-    pub fn merge(&mut self, r: &AdaptReport) {
-        self.converged = r.converged;
-        self.revs = r.revs;
-        self.residual_max_rad = r.residual_max_rad;
-        self.coefficients = r.coefficients;
-        self.install = r.install;
+impl Snapshot {
+    /// The control period's snapshot with the adaptation's figures: what the supervisor
+    /// works on.
+    pub fn merged(self, r: &AdaptReport) -> Telemetry {
+        Telemetry {
+            snapshot: self,
+            converged: r.converged,
+            revs: r.revs,
+            residual_max_rad: r.residual_max_rad,
+            coefficients: r.coefficients,
+            install: r.install,
+        }
     }
 }

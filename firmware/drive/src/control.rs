@@ -16,13 +16,12 @@
 //! No f64, no panics, no allocation; the trigonometry is the core's (the CORDIC on the
 //! target), so the FOC angle and the observer use the same sine and cosine.
 
-use crate::adaptation::AdaptReport;
 use crate::adc::{record_scaling, scale_pair, ChannelScaling, SampleError};
 use crate::align::{electrical_angle, wrap_pi, ShiftMeter, Sweep};
 use crate::commissioning::{Adaptation, Setpoint};
 use crate::foc::{clarke, inverse_park, park, svpwm, CurrentLoop, CurrentLoopParams};
 use crate::motion::{Angle, LoopMode, MotionLoop, MotionRef};
-use crate::telemetry::{Command, CycleStats, Fault, Telemetry};
+use crate::telemetry::{Command, CycleStats, Fault, Snapshot};
 use mras::{AdaptSample, ConfigError, Estimate, Front, InjectionUpdate, Trig};
 
 /// The motor as the controller knows it.
@@ -510,11 +509,10 @@ impl<T: Trig> ControlPeriod<T> {
     }
 
     /// The snapshot the supervisor works on; restarts the per-snapshot statistics. The
-    /// adaptation's figures are the adaptation's to add ([`Telemetry::merge`]).
-    pub fn snapshot(&mut self) -> Telemetry {
+    /// adaptation's figures are the adaptation's to add ([`Snapshot::merged`]).
+    pub fn snapshot(&mut self) -> Snapshot {
         let est = self.tracker.last_estimate();
-        let a = AdaptReport::EMPTY;
-        let t = Telemetry {
+        let t = Snapshot {
             ticks: self.ticks,
             fault: self.latched,
             release: self.release,
@@ -522,15 +520,10 @@ impl<T: Trig> ControlPeriod<T> {
             unlocked: self.unlocked,
             omega_rad_s: self.direction * est.omega_rad_s,
             amplitude: est.amplitude,
-            converged: a.converged,
-            revs: a.revs,
-            residual_max_rad: a.residual_max_rad,
-            coefficients: a.coefficients,
             sweep: self.sweep.result(),
             corrected_offset_e_rad: self.corrected_offset(),
             currents_ready: self.currents_ready,
             currents_implausible: self.currents_implausible,
-            install: a.install,
             cycles: self.cycles,
             handoffs_dropped: self.handoffs_dropped,
         };

@@ -168,7 +168,7 @@ impl Supervisor {
     }
 
     fn t_ms(&self, tm: &Telemetry) -> u32 {
-        (tm.ticks as u64 * 1000 / self.control_rate_hz as u64) as u32
+        (tm.snapshot.ticks as u64 * 1000 / self.control_rate_hz as u64) as u32
     }
 
     /// One step on the latest snapshot.
@@ -210,7 +210,7 @@ impl Supervisor {
         }
         if self.sm.refine_averaging() {
             if let Some(m) = self.means.get_mut(self.sm.refine_index() as usize) {
-                m.add(&tm.coefficients, tm.omega_rad_s);
+                m.add(&tm.coefficients, tm.snapshot.omega_rad_s);
             }
         }
 
@@ -279,27 +279,30 @@ impl Supervisor {
         self.sm.step(&Inputs {
             dt_s: self.dt_s,
             // A fault from before a restart's release is the one already handled.
-            fault: tm.fault.filter(|_| tm.release == self.release),
-            currents_ready: tm.currents_ready,
-            currents_implausible: tm.currents_implausible,
-            omega_rad_s: tm.omega_rad_s,
+            fault: tm
+                .snapshot
+                .fault
+                .filter(|_| tm.snapshot.release == self.release),
+            currents_ready: tm.snapshot.currents_ready,
+            currents_implausible: tm.snapshot.currents_implausible,
+            omega_rad_s: tm.snapshot.omega_rad_s,
             converged: tm.converged,
             residual_max_rad: tm.residual_max_rad,
             load: self.load,
             store: self.store,
             refine: self.refine,
-            sweep: tm.sweep,
-            locked: !tm.unlocked,
+            sweep: tm.snapshot.sweep,
+            locked: !tm.snapshot.unlocked,
         });
         let state = self.sm.state();
         if before == State::Verify && state == State::Store {
-            if let Some(offset_e_rad) = tm.corrected_offset_e_rad {
+            if let Some(offset_e_rad) = tm.snapshot.corrected_offset_e_rad {
                 self.alignment.offset_e_rad = offset_e_rad;
                 let _ = events.push(Event::OffsetCorrected { t_ms, offset_e_rad });
             }
         }
         if before == State::Sweep && state == State::SpinUp {
-            if let Some(r) = tm.sweep {
+            if let Some(r) = tm.snapshot.sweep {
                 self.alignment = r.alignment;
                 let _ = events.push(Event::Aligned {
                     t_ms,
@@ -334,15 +337,15 @@ impl Supervisor {
         let record = (self.steps % RECORD_DIVIDER == 0).then(|| Record {
             t_ms,
             state,
-            faults: tm.core_faults,
-            omega_rad_s: tm.omega_rad_s,
-            amplitude: tm.amplitude,
+            faults: tm.snapshot.core_faults,
+            omega_rad_s: tm.snapshot.omega_rad_s,
+            amplitude: tm.snapshot.amplitude,
             converged: tm.converged,
             revs: tm.revs,
             residual_max_rad: tm.residual_max_rad,
-            cycles_max: tm.cycles.max,
-            cycles_mean: tm.cycles.mean(),
-            cycles_min: tm.cycles.min_or_zero(),
+            cycles_max: tm.snapshot.cycles.max,
+            cycles_mean: tm.snapshot.cycles.mean(),
+            cycles_min: tm.snapshot.cycles.min_or_zero(),
             coef: Record::coef_of(&tm.coefficients),
         });
         self.steps = self.steps.wrapping_add(1);

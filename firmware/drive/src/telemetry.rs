@@ -130,9 +130,12 @@ impl CycleStats {
     }
 }
 
-/// Control period → supervisor: a snapshot at a divider tick.
+/// Control period → supervisor: what the control period knows at a divider tick. The
+/// adaptation's figures are not in it: [`Snapshot::merged`] adds them outside the control
+/// interrupt, so the snapshot it copies (and the copy taken under the lock it shares with
+/// the supervisor) holds no coefficient set.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Telemetry {
+pub struct Snapshot {
     /// Control periods since start.
     pub ticks: u32,
     /// The latched fault holding the bridge off, until the supervisor releases it.
@@ -148,11 +151,6 @@ pub struct Telemetry {
     /// ω̂ in the motor's frame (the sensor's direction applied), mechanical.
     pub omega_rad_s: f32,
     pub amplitude: f32,
-    pub converged: bool,
-    pub revs: u32,
-    /// Largest per-path residual (`mras::Convergence::residual_rad`).
-    pub residual_max_rad: f32,
-    pub coefficients: Coefficients,
     /// The alignment sweep's result, once it finished.
     pub sweep: Option<SweepResult>,
     /// The offset in force moved by the measured mean shift of the corrected angle
@@ -163,7 +161,6 @@ pub struct Telemetry {
     pub currents_ready: bool,
     /// Measured current zero is implausible (counts far from nominal).
     pub currents_implausible: bool,
-    pub install: Option<InstallAck>,
     /// The control interrupt's cycles (firmware only; empty on the host).
     pub cycles: CycleStats,
     /// Samples the adaptation task never got since start (its queue was full: the task
@@ -171,25 +168,38 @@ pub struct Telemetry {
     pub handoffs_dropped: u32,
 }
 
+/// The supervisor's view at a divider tick: the control period's [`Snapshot`] with the
+/// adaptation's figures ([`Snapshot::merged`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Telemetry {
+    pub snapshot: Snapshot,
+    pub converged: bool,
+    pub revs: u32,
+    /// Largest per-path residual (`mras::Convergence::residual_rad`).
+    pub residual_max_rad: f32,
+    pub coefficients: Coefficients,
+    pub install: Option<InstallAck>,
+}
+
 /// Where the control period leaves its snapshots for the supervisor (an RTIC shared
 /// resource in the firmware). A snapshot published while the supervisor is busy (a
 /// flash erase) replaces the unread one, keeping its cycle statistics.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct TelemetrySlot {
-    unread: Option<Telemetry>,
+    unread: Option<Snapshot>,
 }
 
 impl TelemetrySlot {
     pub const EMPTY: Self = Self { unread: None };
 
-    pub fn publish(&mut self, mut t: Telemetry) {
+    pub fn publish(&mut self, mut t: Snapshot) {
         if let Some(old) = &self.unread {
             t.cycles.merge(&old.cycles);
         }
         self.unread = Some(t);
     }
 
-    pub fn take(&mut self) -> Option<Telemetry> {
+    pub fn take(&mut self) -> Option<Snapshot> {
         self.unread.take()
     }
 }
@@ -425,9 +435,10 @@ pub fn fault_name(f: Fault) -> &'static str {
 /// The stream's record line. One format string, here only.
 #[cfg(feature = "defmt")]
 pub fn log_record(r: &Record) {
+    const _: () = assert!(2 * MAX_PATHS == 32, "one placeholder per coef value");
     let c = &r.coef;
     defmt::info!(
-        "mras t_ms={=u32} state={=str} faults={=u8} omega_rad_s={=f32} amplitude={=f32} converged={=bool} revs={=u32} residual_max_rad={=f32} cycles_max={=u32} cycles_mean={=u32} cycles_min={=u32} coef={=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32}",
+        "mras t_ms={=u32} state={=str} faults={=u8} omega_rad_s={=f32} amplitude={=f32} converged={=bool} revs={=u32} residual_max_rad={=f32} cycles_max={=u32} cycles_mean={=u32} cycles_min={=u32} coef={=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32}",
         r.t_ms,
         r.state.name(),
         r.faults,
@@ -440,7 +451,9 @@ pub fn log_record(r: &Record) {
         r.cycles_mean,
         r.cycles_min,
         c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7],
-        c[8], c[9], c[10], c[11], c[12], c[13], c[14], c[15]
+        c[8], c[9], c[10], c[11], c[12], c[13], c[14], c[15],
+        c[16], c[17], c[18], c[19], c[20], c[21], c[22], c[23],
+        c[24], c[25], c[26], c[27], c[28], c[29], c[30], c[31]
     );
 }
 

@@ -315,8 +315,7 @@ fn installs_are_acknowledged_with_their_generation() {
     assert_eq!(task.adapter().coefficients(), good);
     assert!(sent.is_empty());
     // The report reaches the supervisor's snapshot.
-    let mut t = p.snapshot();
-    t.merge(task.report());
+    let t = p.snapshot().merged(task.report());
     assert_eq!(t.install.map(|a| a.generation), Some(8));
 }
 

@@ -6,7 +6,9 @@ use calib_record::{
 };
 use drive::commissioning::{Cause, Params, Setpoint, State};
 use drive::supervisor::{NamedError, Supervisor, RECORD_DIVIDER};
-use drive::telemetry::{Command, CycleStats, Event, Fault, InstallAck, SweepResult, Telemetry};
+use drive::telemetry::{
+    Command, CycleStats, Event, Fault, InstallAck, Snapshot, SweepResult, Telemetry,
+};
 use mras::{Coefficients, Config, Cplx, PathKind};
 
 /// RAM flash whose programming can be made to fail.
@@ -68,24 +70,26 @@ fn coefficients() -> Coefficients {
 /// A healthy control period at the commissioning speed.
 fn telemetry(ticks: u32) -> Telemetry {
     Telemetry {
-        ticks,
-        fault: None,
-        release: 0,
-        core_faults: 0,
-        unlocked: false,
-        omega_rad_s: Params::default().speed_rad_s,
-        amplitude: 1.0,
+        snapshot: Snapshot {
+            ticks,
+            fault: None,
+            release: 0,
+            core_faults: 0,
+            unlocked: false,
+            omega_rad_s: Params::default().speed_rad_s,
+            amplitude: 1.0,
+            sweep: None,
+            corrected_offset_e_rad: None,
+            currents_ready: true,
+            currents_implausible: false,
+            cycles: CycleStats::EMPTY,
+            handoffs_dropped: 0,
+        },
         converged: false,
         revs: 0,
         residual_max_rad: 1e-4,
         coefficients: coefficients(),
-        sweep: None,
-        corrected_offset_e_rad: None,
-        currents_ready: true,
-        currents_implausible: false,
         install: None,
-        cycles: CycleStats::EMPTY,
-        handoffs_dropped: 0,
     }
 }
 
@@ -138,7 +142,7 @@ fn commission(
         ticks,
         20_000,
         |s, tm| {
-            tm.sweep = (s.state() == State::Sweep).then(sweep_result);
+            tm.snapshot.sweep = (s.state() == State::Sweep).then(sweep_result);
             tm.converged = s.state() == State::Adapt;
         },
         |s| s.state() == until,
@@ -336,7 +340,7 @@ fn a_latched_fault_ends_safe_and_a_restart_releases_the_latch() {
         |s| s.state() == State::Align,
     );
     let mut tm = telemetry(ticks + 20);
-    tm.fault = Some(Fault::Sensor(mras::Fault::SensorLost));
+    tm.snapshot.fault = Some(Fault::Sensor(mras::Fault::SensorLost));
     let out = s.step(&tm, &mut flash);
     assert_eq!(s.state(), State::Safe);
     assert_eq!(out.command.setpoint, Setpoint::Off);
@@ -356,11 +360,11 @@ fn a_latched_fault_ends_safe_and_a_restart_releases_the_latch() {
     // A snapshot taken before the control period saw the release still shows the
     // latched fault: not a new one.
     let mut stale = telemetry(ticks + 60);
-    stale.fault = Some(Fault::Sensor(mras::Fault::SensorLost));
+    stale.snapshot.fault = Some(Fault::Sensor(mras::Fault::SensorLost));
     s.step(&stale, &mut flash);
     assert_eq!(s.state(), State::CheckSensor);
     let mut fresh = stale;
-    fresh.release = out.command.release;
+    fresh.snapshot.release = out.command.release;
     s.step(&fresh, &mut flash);
     assert_eq!(s.state(), State::Safe);
 }
@@ -427,8 +431,8 @@ fn a_two_speed_commissioning_installs_and_stores_the_sensor_error_alone() {
         for _ in 0..20_000 {
             ticks += 20;
             let mut tm = telemetry(ticks);
-            tm.omega_rad_s = omega_rad_s;
-            tm.sweep = (s.state() == State::Sweep).then(sweep_result);
+            tm.snapshot.omega_rad_s = omega_rad_s;
+            tm.snapshot.sweep = (s.state() == State::Sweep).then(sweep_result);
             tm.converged = matches!(s.state(), State::Adapt | State::SecondSpeed);
             tm.coefficients = match installed {
                 Some((generation, c)) => {

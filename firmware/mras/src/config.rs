@@ -8,8 +8,9 @@ use core::f32::consts::PI;
 #[cfg(feature = "serde")]
 mod de;
 
-/// Most harmonic paths one core can run (offset, C/D and six more).
-pub const MAX_PATHS: usize = 8;
+/// Most harmonic paths one core can run: offset, C/D and fourteen more, a path for each
+/// error harmonic m = 1..16 of an N = 1 sensor (`survey::SURVEY_HARMONICS`).
+pub const MAX_PATHS: usize = 16;
 /// Largest |h| (sensor harmonic number) a path may inject.
 pub const MAX_HARMONIC: i8 = 15;
 
@@ -53,7 +54,7 @@ impl PathKind {
         self.error_harmonic() as u32 * sensor_periods as u32
     }
 
-    fn validate(self) -> Result<(), ConfigError> {
+    pub(crate) fn validate(self) -> Result<(), ConfigError> {
         match self {
             PathKind::Harmonic(h)
                 if (0..=3).contains(&h) || h.unsigned_abs() > MAX_HARMONIC as u8 =>
@@ -349,7 +350,7 @@ impl Config {
     /// Replace the path bank. Fails if more than [`MAX_PATHS`] are given.
     pub fn set_paths(&mut self, paths: &[PathKind]) -> Result<(), ConfigError> {
         if paths.len() > MAX_PATHS {
-            return Err(ConfigError::new("paths", "at most 8 paths"));
+            return Err(ConfigError::new("paths", "at most 16 paths"));
         }
         self.paths[..paths.len()].copy_from_slice(paths);
         self.path_count = paths.len() as u8;
@@ -385,7 +386,7 @@ impl Config {
         positive_finite(self.observer.inertia_kg_m2, "observer.inertia_kg_m2")?;
 
         if self.path_count as usize > MAX_PATHS {
-            return Err(ConfigError::new("path_count", "at most 8 paths"));
+            return Err(ConfigError::new("path_count", "at most 16 paths"));
         }
         let paths = self.paths();
         for (n, p) in paths.iter().enumerate() {

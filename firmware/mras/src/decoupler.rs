@@ -347,44 +347,76 @@ pub enum Change {
     Bank(PackedBank),
 }
 
-/// A [`Bank`] in 9 bytes, one per kind: it keeps an update at 16 bytes, moved in
+/// A [`Bank`] in 11 bytes, 5 bits per kind: it keeps an update at 16 bytes, moved in
 /// registers. At 24 bytes every move of an update was a `memcpy` call (~150
 /// instructions per adaptation step, measured with `cargo xtask cycles`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PackedBank {
-    /// Offset 0, C/D 1, a harmonic path its h (never 0..=3, `PathKind::validate`).
-    codes: [i8; MAX_PATHS],
+    /// Path i's code in bits 5i..5i+5, little-endian ([`PackedBank::code`]).
+    bits: [u8; PACKED_BYTES],
     len: u8,
+}
+
+/// Bits per packed kind: offset, C/D and the 27 harmonic paths (|h| <= 15, h not in
+/// 0..=3, `PathKind::validate`) are 29 codes.
+const CODE_BITS: usize = 5;
+const PACKED_BYTES: usize = (MAX_PATHS * CODE_BITS).div_ceil(8);
+/// Marks a kind that no valid bank holds; unpacking ends the bank there.
+const NO_KIND: u8 = 31;
+
+impl PackedBank {
+    /// Offset 0, C/D 1, h = -1..=-15 as 2..=16, h = 4..=15 as 17..=28.
+    fn code(k: PathKind) -> u8 {
+        match k {
+            PathKind::Offset => 0,
+            PathKind::AmplitudeQuadrature => 1,
+            PathKind::Harmonic(h @ -15..=-1) => (1 - h) as u8,
+            PathKind::Harmonic(h @ 4..=15) => (h + 13) as u8,
+            PathKind::Harmonic(_) => NO_KIND,
+        }
+    }
+
+    fn kind(c: u8) -> Option<PathKind> {
+        match c {
+            0 => Some(PathKind::Offset),
+            1 => Some(PathKind::AmplitudeQuadrature),
+            2..=16 => Some(PathKind::Harmonic(1 - c as i8)),
+            17..=28 => Some(PathKind::Harmonic(c as i8 - 13)),
+            _ => None,
+        }
+    }
+
+    pub fn unpack(&self) -> Bank {
+        let mut kinds = [PathKind::Offset; MAX_PATHS];
+        let mut len = 0;
+        for (i, k) in kinds.iter_mut().enumerate().take(self.len as usize) {
+            let bit = i * CODE_BITS;
+            let pair = |b: usize| self.bits.get(b).copied().unwrap_or(0) as u16;
+            let word = pair(bit / 8) | pair(bit / 8 + 1) << 8;
+            match Self::kind((word >> (bit % 8)) as u8 & 0x1F) {
+                Some(kind) => *k = kind,
+                None => break,
+            }
+            len = i + 1;
+        }
+        Bank::new(kinds.get(..len).unwrap_or(&kinds))
+    }
 }
 
 impl From<Bank> for PackedBank {
     fn from(b: Bank) -> Self {
-        let mut codes = [0; MAX_PATHS];
-        for (c, k) in codes.iter_mut().zip(b.as_slice()) {
-            *c = match *k {
-                PathKind::Offset => 0,
-                PathKind::AmplitudeQuadrature => 1,
-                PathKind::Harmonic(h) => h,
-            };
+        let mut bits = [0; PACKED_BYTES];
+        for (i, &k) in b.as_slice().iter().enumerate() {
+            let bit = i * CODE_BITS;
+            let word = (Self::code(k) as u16) << (bit % 8);
+            for (byte, part) in bits.iter_mut().skip(bit / 8).zip(word.to_le_bytes()) {
+                *byte |= part;
+            }
         }
         Self {
-            codes,
+            bits,
             len: b.as_slice().len() as u8,
         }
-    }
-}
-
-impl PackedBank {
-    pub fn unpack(&self) -> Bank {
-        let mut kinds = [PathKind::Offset; MAX_PATHS];
-        for (k, &c) in kinds.iter_mut().zip(&self.codes) {
-            *k = match c {
-                0 => PathKind::Offset,
-                1 => PathKind::AmplitudeQuadrature,
-                h => PathKind::Harmonic(h),
-            };
-        }
-        Bank::new(kinds.get(..self.len as usize).unwrap_or(&kinds))
     }
 }
 
@@ -942,6 +974,24 @@ mod tests {
         ];
         let bank = Bank::new(&kinds);
         assert_eq!(PackedBank::from(bank).unpack(), bank);
+        // Every valid kind, in a full bank, at every place.
+        let all: heapless::Vec<PathKind, 32> = [PathKind::Offset, PathKind::AmplitudeQuadrature]
+            .into_iter()
+            .chain((-15..=15).map(PathKind::Harmonic))
+            .filter(|k| k.validate().is_ok())
+            .collect();
+        assert_eq!(all.len(), 29);
+        for start in 0..all.len() {
+            let kinds: heapless::Vec<PathKind, MAX_PATHS> = all
+                .iter()
+                .cycle()
+                .skip(start)
+                .take(MAX_PATHS)
+                .copied()
+                .collect();
+            let bank = Bank::new(&kinds);
+            assert_eq!(PackedBank::from(bank).unpack(), bank);
+        }
         assert_eq!(PackedBank::from(Bank::new(&[])).unpack(), Bank::new(&[]));
         assert_eq!(core::mem::size_of::<InjectionUpdate>(), 16);
     }

@@ -1,6 +1,8 @@
 //! Out-of-range configuration is refused with the field named; snapshots round-trip.
 
-use mras::{AdaptationLaw, CoefficientsError, Config, ConfigError, Cplx, PathKind, Tracker};
+use mras::{
+    AdaptationLaw, CoefficientsError, Config, ConfigError, Cplx, PathKind, Tracker, MAX_PATHS,
+};
 
 fn field_of(cfg: Config) -> &'static str {
     match Tracker::new(cfg) {
@@ -48,7 +50,7 @@ fn each_bad_field_is_named() {
         .unwrap();
     assert_eq!(field_of(c), "paths");
     c = d();
-    assert!(c.set_paths(&[PathKind::Offset; 9]).is_err());
+    assert!(c.set_paths(&[PathKind::Offset; MAX_PATHS + 1]).is_err());
     c = d();
     c.law = AdaptationLaw::Compensated {
         gain_per_rad: 0.5,

@@ -13,7 +13,7 @@ use cortex_m_semihosting::debug;
 #[cfg(not(cycles_mode))]
 use cortex_m_semihosting::hio;
 #[cfg(cycles_mode)]
-use mras::{Adapter, Front, InjectionUpdate};
+use mras::{Adapter, Front, InjectionUpdate, PathKind};
 use mras::{Config, Tracker};
 
 static VECTOR: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/vector.bin"));
@@ -67,17 +67,28 @@ pub extern "C" fn mras_step_end() {
 #[cfg(cycles_mode)]
 #[entry]
 fn main() -> ! {
-    // Prefixes of the core's default bank (offset, C/D, h4, h5, ...): observer only, + offset
-    // and C/D, + two harmonic paths (the configurations docs/performance.md tabulates), then
-    // all of it.
+    // Prefixes of a full bank that starts as the core's default one (offset, C/D, h4, h5,
+    // ...): observer only, + offset and C/D, + two harmonic paths (the configurations
+    // docs/performance.md tabulates), the default bank, then all 16 paths (a path for
+    // each error harmonic m = 1..16 of an N = 1 sensor, as a bank from the data can grow).
     // Per configuration: `MEASURED_STEPS` of the front (what runs in the control
     // interrupt), then as many of the adapter (the adaptation task), as the firmware
     // drives them.
     let default = Config::default();
-    let all = default.paths();
-    for (config, paths) in [0usize, 2, 4, all.len()].into_iter().enumerate() {
+    let mut full = [PathKind::Offset; mras::MAX_PATHS];
+    let first = default.paths();
+    let rest = (first.len() as i8 + 2..=15)
+        .map(PathKind::Harmonic)
+        .chain([-14, -15].map(PathKind::Harmonic));
+    for (slot, kind) in full.iter_mut().zip(first.iter().copied().chain(rest)) {
+        *slot = kind;
+    }
+    for (config, paths) in [0usize, 2, 4, first.len(), full.len()]
+        .into_iter()
+        .enumerate()
+    {
         let mut cfg = Config::default();
-        if cfg.set_paths(&all[..paths]).is_err() {
+        if cfg.set_paths(&full[..paths]).is_err() || cfg.validate().is_err() {
             exit(debug::EXIT_FAILURE);
         }
         let (Ok(mut front), Ok(mut adapter)) = (Front::new(cfg), Adapter::new(&cfg)) else {

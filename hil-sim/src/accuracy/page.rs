@@ -111,14 +111,28 @@ fn suite_values(suite: &Suite, info: &RunInfo) -> BTreeMap<String, String> {
     put("population".into(), suite.population.name.into());
     put("n".into(), suite.population.sensor_periods.to_string());
     let surveyed = suite.results.iter().filter_map(|r| r.survey.as_ref());
-    let (mut banks, mut full, mut left, mut rounds) = (0, 0, 0, Vec::new());
+    let (mut banks, mut full, mut left) = (0, 0, 0);
+    let (mut rounds, mut paths) = (Vec::new(), Vec::new());
     for o in surveyed {
         banks += 1;
         full += (o.bank.as_slice().len() == mras::MAX_PATHS) as usize;
         left += !o.unobserved.is_empty() as usize;
         rounds.push(o.rounds as f64);
+        paths.push(o.bank.as_slice().len() as f64);
     }
     rounds.sort_by(f64::total_cmp);
+    paths.sort_by(f64::total_cmp);
+    put("survey.max_paths".into(), mras::MAX_PATHS.to_string());
+    put(
+        "survey.paths".into(),
+        paths
+            .get(paths.len() / 2)
+            .map_or("—".into(), |p| format!("{p:.0}")),
+    );
+    put(
+        "survey.paths_max".into(),
+        paths.last().map_or("—".into(), |p| format!("{p:.0}")),
+    );
     put("survey.banks".into(), banks.to_string());
     put("survey.full".into(), full.to_string());
     put("survey.left".into(), left.to_string());

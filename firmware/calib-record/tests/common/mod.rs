@@ -5,7 +5,7 @@ use core::f32::consts::{PI, TAU};
 
 use calib_record::layout::{CRC_OFFSET, DOUBLE_WORD_BYTES};
 use calib_record::{encode, Alignment, Calibration, RECORD_BYTES};
-use mras::{Coefficients, Cplx, PathKind, MAX_PATHS};
+use mras::{Coefficients, Cplx, PathKind};
 
 pub const HASH: u32 = 0xA1B2_C3D4;
 pub const OTHER_HASH: u32 = 0x0BAD_C0DE;
@@ -81,6 +81,10 @@ pub fn same_bits(a: &Calibration, b: &Calibration) -> bool {
 
 /// Size of a format-version-1 record.
 pub const V1_RECORD_BYTES: usize = 120;
+/// Size of a format-version-2 record.
+pub const V2_RECORD_BYTES: usize = 128;
+/// Path entries in a version 1 or 2 record (the core then ran at most 8 paths).
+pub const LEGACY_PATHS: usize = 8;
 
 /// A correctly formed format-version-1 record, built by hand from the version-1
 /// layout (independently of the crate's encoder): magic, version 1, path count,
@@ -88,13 +92,38 @@ pub const V1_RECORD_BYTES: usize = 120;
 /// 0..112, commit mark.
 pub fn v1_record(c: &Coefficients, seq: u32, hash: u32) -> [u8; V1_RECORD_BYTES] {
     let mut b = [0u8; V1_RECORD_BYTES];
+    legacy_header(&mut b, 1, c, seq, hash);
+    legacy_paths_and_seal(&mut b, 16, c);
+    b
+}
+
+/// A correctly formed format-version-2 record, built by hand from the version-2
+/// layout: magic, version 2, path count, direction flags, sequence, hash, alignment
+/// offset, reserved 0, eight 12-byte path entries from byte 24, CRC-32/ISO-HDLC over
+/// bytes 0..120, commit mark.
+pub fn v2_record(cal: &Calibration, seq: u32, hash: u32) -> [u8; V2_RECORD_BYTES] {
+    let mut b = [0u8; V2_RECORD_BYTES];
+    legacy_header(&mut b, 2, &cal.coefficients, seq, hash);
+    b[7] = cal.alignment.reversed as u8;
+    let offset = cal.alignment.offset_e_rad.to_bits();
+    b[16..20].copy_from_slice(&offset.to_le_bytes());
+    legacy_paths_and_seal(&mut b, 24, &cal.coefficients);
+    b
+}
+
+/// Bytes 0..16 of a version 1 or 2 record: magic, version, count, sequence, hash.
+fn legacy_header(b: &mut [u8], version: u16, c: &Coefficients, seq: u32, hash: u32) {
     b[0..4].copy_from_slice(&0x4D52_4153u32.to_le_bytes()); // "MRAS"
-    b[4..6].copy_from_slice(&1u16.to_le_bytes());
+    b[4..6].copy_from_slice(&version.to_le_bytes());
     b[6] = c.len() as u8;
     b[8..12].copy_from_slice(&seq.to_le_bytes());
     b[12..16].copy_from_slice(&hash.to_le_bytes());
+}
+
+/// Eight path entries from `first`, then the CRC and the commit mark, which end `b`.
+fn legacy_paths_and_seal(b: &mut [u8], first: usize, c: &Coefficients) {
     for (n, (kind, v)) in c.iter().enumerate() {
-        let at = 16 + 12 * n;
+        let at = first + 12 * n;
         let (tag, h) = match kind {
             PathKind::Offset => (0, 0),
             PathKind::AmplitudeQuadrature => (1, 0),
@@ -105,10 +134,9 @@ pub fn v1_record(c: &Coefficients, seq: u32, hash: u32) -> [u8; V1_RECORD_BYTES]
         b[at + 4..at + 8].copy_from_slice(&v.re.to_bits().to_le_bytes());
         b[at + 8..at + 12].copy_from_slice(&v.im.to_bits().to_le_bytes());
     }
-    let crc_at = 16 + 12 * MAX_PATHS;
-    assert_eq!(crc_at + DOUBLE_WORD_BYTES, V1_RECORD_BYTES);
+    let crc_at = first + 12 * LEGACY_PATHS;
+    assert_eq!(crc_at + DOUBLE_WORD_BYTES, b.len());
     let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&b[..crc_at]);
     b[crc_at..crc_at + 4].copy_from_slice(&crc.to_le_bytes());
     b[crc_at + 4..].copy_from_slice(&0xB2AD_BEACu32.to_le_bytes()); // !magic
-    b
 }

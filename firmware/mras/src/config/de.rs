@@ -65,7 +65,7 @@ impl<'de> serde::Deserialize<'de> for PathBank {
                 let mut bank = PathBank([PathKind::Offset; MAX_PATHS], 0);
                 while let Some(kind) = seq.next_element()? {
                     let Some(slot) = bank.0.get_mut(bank.1 as usize) else {
-                        return Err(Error::custom(ConfigError::new("paths", "at most 8 paths")));
+                        return Err(Error::custom(ConfigError::new("paths", "at most 16 paths")));
                     };
                     *slot = kind;
                     bank.1 += 1;
