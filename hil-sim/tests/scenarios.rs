@@ -280,10 +280,11 @@ fn ripple_scenario_reports_motion_and_spectra(name: &str) -> [f64; 2] {
             assert!(r.oracle_mrad < 0.05 * r.raw_mrad, "{what}: {r:?}");
         }
         // The sensor error at m = 1, 2 is corrected to the noise floor (measured at CI
-        // length: 1.1-1.7x the oracle; one speed leaves the motion at the commissioning
-        // speed, `the_second_speed_separates_the_motion`), and the motion is not learned.
+        // length: 1.6-2.1x the oracle, a noise draw of a few µrad; one speed leaves the
+        // motion at the commissioning speed, `the_second_speed_separates_the_motion`),
+        // and the motion is not learned.
         let m12 = t.decoupled_over_oracle_m1_m2;
-        assert!(m12 < 2.5, "{what}: arg Zd at m = 1, 2 {m12}x the oracle");
+        assert!(m12 < 3.0, "{what}: arg Zd at m = 1, 2 {m12}x the oracle");
         for m in [1, 2] {
             let r = t.row(m).unwrap();
             assert!(r.decoupled_mrad < 0.03, "{what}: {r:?}");
@@ -291,7 +292,7 @@ fn ripple_scenario_reports_motion_and_spectra(name: &str) -> [f64; 2] {
         }
         m1_mrad[k] = t.row(1).unwrap().decoupled_mrad;
         // The bank has a path for every harmonic, and the sensor error is removed at
-        // each (measured at CI length: 1.4-1.8x the oracle, at most 0.009 mrad).
+        // each (measured at CI length: 1.3-1.8x the oracle, at most 0.009 mrad).
         assert_eq!(t.decoupled_over_oracle_m3_up_not_in_bank, None, "{what}");
         let m3 = t.decoupled_over_oracle_m3_up_in_bank.unwrap();
         assert!(m3 < 3.0, "{what}: arg Zd at m = 3..16 {m3}x the oracle");

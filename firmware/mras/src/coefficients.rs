@@ -120,8 +120,11 @@ pub struct Convergence {
     /// Bit i: path i has not seen its error in this or the previous revolution of
     /// adaptation (|H| below `gates.min_h` at this speed), so its residual and change
     /// say nothing.
-    pub unseen_paths: u8,
+    pub unseen_paths: u16,
     /// `revs_adapted >= min_revs`, no unseen path, and every residual and change below
     /// its threshold (`ConvergenceConfig`).
     pub converged: bool,
 }
+
+// A bit of `Convergence::unseen_paths` per path.
+const _: () = assert!(MAX_PATHS <= u16::BITS as usize);

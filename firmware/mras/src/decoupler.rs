@@ -33,6 +33,10 @@ const SMOOTH_MAX_TAU_S: f32 = 0.1;
 /// `BLOCK_SAMPLES / len` samples (0.8 ms at 20 kHz), each with the block sum of its
 /// correlation since its last update (docs/performance.md).
 pub(crate) const BLOCK_SAMPLES: u32 = 16;
+/// Samples between two path updates at least (banks of more than 8 paths): every other
+/// sample is free of a path's update, and a survey, which ends on such a sample (the
+/// adapter hands over one update per sample), ends.
+pub(crate) const MIN_STRIDE: u32 = 2;
 
 /// One path's adaptive state.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -602,7 +606,7 @@ impl PathBank {
             m[i] = p.error_harmonic();
             m_n[i] = p.error_harmonic() as f32 * cfg.sensor_periods as f32;
         }
-        let stride = (BLOCK_SAMPLES / paths.len().max(1) as u32).max(1);
+        let stride = (BLOCK_SAMPLES / paths.len().max(1) as u32).max(MIN_STRIDE);
         let block = stride * paths.len().max(1) as u32;
         Self {
             kinds: cfg.paths,
