@@ -91,6 +91,7 @@ pub struct CommissioningToml {
     pub tracking_min_speed_ratio: Option<f64>,
     pub refine_s: Option<f64>,
     pub second_speed_ratio: Option<f64>,
+    pub learn_torque_ripple: Option<bool>,
 }
 
 impl CommissioningToml {
@@ -112,6 +113,7 @@ impl CommissioningToml {
             second_speed_ratio: self
                 .second_speed_ratio
                 .map_or(d.second_speed_ratio, |v| v as f32),
+            learn_torque_ripple: self.learn_torque_ripple.unwrap_or(d.learn_torque_ripple),
             ..d
         };
         p.validate()

@@ -174,6 +174,13 @@ pub struct Params {
     /// bridge is off meanwhile and the core re-acquires by itself, typically within a
     /// few ms of the sensor's return.
     pub reacquire_timeout_s: f32,
+    /// In Run, while the coefficients are held (below the tracking speed) and the speed
+    /// is steady: learn the torque ripple fixed to the shaft angle from the observer's
+    /// lag ([`crate::ripple`]) and feed it to the observer, so that θ̂ follows the
+    /// motion it makes. Needs the sensor error separated from the motion (two
+    /// commissioning speeds, or a record made so): what the learner sees at a harmonic
+    /// is taken for motion.
+    pub learn_torque_ripple: bool,
 }
 
 impl Default for Params {
@@ -197,6 +204,7 @@ impl Default for Params {
             slow_tracking: true,
             tracking_min_speed_ratio: 0.5,
             reacquire_timeout_s: 0.05,
+            learn_torque_ripple: false,
         }
     }
 }
@@ -353,6 +361,8 @@ pub struct Outputs {
     /// a period whose sample was refused or whose estimate is not locked, instead of
     /// latching the safe state; the core re-acquires by itself.
     pub reacquire: bool,
+    /// Learn the torque ripple ([`Params::learn_torque_ripple`]).
+    pub learn_ripple: bool,
 }
 
 impl Outputs {
@@ -626,6 +636,7 @@ impl Commissioning {
         let speed = Setpoint::Speed {
             omega_rad_s: self.commissioning_speed_rad_s(),
         };
+        let mut learn_ripple = false;
         let (setpoint, adaptation, request) = match self.state {
             State::CheckSensor => (Setpoint::Off, Adaptation::Frozen, Request::None),
             State::LoadCalibration => (Setpoint::Off, Adaptation::Frozen, Request::LoadCalibration),
@@ -669,6 +680,10 @@ impl Commissioning {
                 } else {
                     Adaptation::Frozen
                 };
+                learn_ripple = p.learn_torque_ripple
+                    && adaptation == Adaptation::Frozen
+                    && self.settled
+                    && self.steady;
                 (Setpoint::Application, adaptation, Request::None)
             }
             State::Safe => (Setpoint::Off, Adaptation::Frozen, Request::None),
@@ -681,6 +696,7 @@ impl Commissioning {
             measure_shift: self.state == State::Verify
                 && (self.refined == 0 || self.refined_installed),
             reacquire: self.state == State::Run,
+            learn_ripple,
         }
     }
 }

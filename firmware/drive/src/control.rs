@@ -21,8 +21,9 @@ use crate::align::{electrical_angle, wrap_pi, ShiftMeter, Sweep};
 use crate::commissioning::{Adaptation, Setpoint};
 use crate::foc::{clarke, inverse_park, park, svpwm, CurrentLoop, CurrentLoopParams};
 use crate::motion::{Angle, LoopMode, MotionLoop, MotionRef};
+use crate::ripple::{RippleLearner, RIPPLE_GAIN, RIPPLE_HARMONICS};
 use crate::telemetry::{Command, CycleStats, Fault, Snapshot};
-use mras::{AdaptSample, ConfigError, Estimate, Front, InjectionUpdate, Trig};
+use mras::{AdaptSample, ConfigError, Cplx, Estimate, Front, InjectionUpdate, Trig};
 
 /// The motor as the controller knows it.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -126,6 +127,11 @@ pub struct ControlPeriod<T: Trig> {
     torque_cmd_nm: f32,
     /// The sensor's direction of the command in force (+1 / -1).
     direction: f32,
+    /// The torque ripple fixed to the shaft angle, learned in Run, and e^{jθ̂s} of the
+    /// last estimate (where the next period's observer step starts).
+    ripple: RippleLearner,
+    ripple_u: Cplx,
+    ripple_active: bool,
     latched: Option<Fault>,
     release: u8,
     current_zero: [f32; 2],
@@ -247,6 +253,14 @@ impl<T: Trig> ControlPeriod<T> {
             shift_base: None,
             torque_cmd_nm: 0.0,
             direction: 1.0,
+            ripple: RippleLearner::new(
+                RIPPLE_HARMONICS as u8,
+                RIPPLE_GAIN,
+                *tracker.gains(),
+                tracker.config().sensor_periods,
+            ),
+            ripple_u: Cplx::ONE,
+            ripple_active: false,
             latched: None,
             release: 0,
             current_zero: [cfg.current.zero_counts as f32; 2],
@@ -312,8 +326,20 @@ impl<T: Trig> ControlPeriod<T> {
         let sensor = match scale_pair(s.x, s.y, &self.cfg.sensor_x, &self.cfg.sensor_y) {
             Ok((x, y)) => {
                 self.last_xy = (x, y);
+                // Bounded by what the drive can command: a model gone wrong may cost the
+                // lock (the supervisor's ride-through, then the safe state), never more.
+                let ripple_nm = if self.ripple_active {
+                    let t = self.tracker.config().observer.inertia_kg_m2
+                        * self.ripple.accel_rad_s2(self.ripple_u);
+                    mras::max_f32(
+                        mras::min_f32(t, self.torque_limit_nm),
+                        -self.torque_limit_nm,
+                    )
+                } else {
+                    0.0
+                };
                 self.tracker
-                    .step(x, y, self.direction * self.torque_cmd_nm)
+                    .step(x, y, self.direction * self.torque_cmd_nm + ripple_nm)
                     .map_err(Fault::Sensor)
             }
             // The core holds its estimate through the period, as for a sample it refuses.
@@ -346,6 +372,7 @@ impl<T: Trig> ControlPeriod<T> {
         // off while the core re-acquires; the supervisor bounds how long.
         let locked = sensor.is_ok() && self.tracker.is_locked();
         self.unlocked |= !locked;
+        self.step_ripple(cmd.learn_ripple && locked);
         if let Some(f) = fault {
             if !(cmd.reacquire && matches!(f, Fault::Sensor(_))) {
                 self.latched.get_or_insert(f);
@@ -506,6 +533,32 @@ impl<T: Trig> ControlPeriod<T> {
                 || off(self.current_zero[1]) > c.zero_tolerance_counts as f32;
             self.currents_ready = true;
         }
+    }
+
+    /// The ripple model's angle for the next period, and a learning sample.
+    #[inline(always)]
+    fn step_ripple(&mut self, learn: bool) {
+        if !(learn || self.ripple_active) {
+            return;
+        }
+        let est = self.tracker.last_estimate();
+        let (sin, cos) = self.tracker.trig().sin_cos(est.theta_e_rad);
+        self.ripple_u = Cplx::new(cos, sin);
+        if learn {
+            let advance =
+                est.omega_rad_s * self.sensor_periods * self.tracker.config().sample_period_s;
+            self.ripple
+                .learn(self.ripple_u, est.epsilon_rad, est.omega_rad_s, advance);
+            self.ripple_active = true;
+        } else {
+            self.ripple.interrupt();
+        }
+    }
+
+    /// The learned torque ripple: per harmonic k of the sensor angle, a_k with the
+    /// acceleration Σ Im(a_k·e^{jkθ̂s}) (rad/s², mechanical).
+    pub fn ripple_model(&self) -> &[Cplx] {
+        self.ripple.model()
     }
 
     /// The snapshot the supervisor works on; restarts the per-snapshot statistics. The

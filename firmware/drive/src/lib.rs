@@ -18,5 +18,6 @@ pub mod cordic;
 pub mod foc;
 pub mod motion;
 pub mod refine;
+pub mod ripple;
 pub mod supervisor;
 pub mod telemetry;

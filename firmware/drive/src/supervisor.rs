@@ -332,6 +332,7 @@ impl Supervisor {
             calibrate_currents: o.calibrate_currents,
             measure_shift: o.measure_shift,
             release: self.release,
+            learn_ripple: o.learn_ripple,
             reacquire: o.reacquire,
         };
         let record = (self.steps % RECORD_DIVIDER == 0).then(|| Record {

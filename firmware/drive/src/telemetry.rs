@@ -37,6 +37,9 @@ pub struct Command {
     pub measure_shift: bool,
     /// A value other than the last one seen releases a latched fault.
     pub release: u8,
+    /// Learn the torque ripple fixed to the shaft angle from this period's lock
+    /// ([`crate::ripple`]); what was learned is fed to the observer whether or not.
+    pub learn_ripple: bool,
     /// Ride through sensor faults: the bridge is off only for periods without a locked
     /// estimate (`commissioning::Outputs::reacquire`).
     pub reacquire: bool,
@@ -51,6 +54,7 @@ impl Command {
         calibrate_currents: false,
         measure_shift: false,
         release: 0,
+        learn_ripple: false,
         reacquire: false,
     };
 }

@@ -187,6 +187,38 @@ fn run_tracks_only_at_half_the_commissioning_speed_or_more() {
     assert_eq!(c.state(), State::Run);
 }
 
+/// The torque ripple is learned in Run where the coefficients are held (below half the
+/// commissioning speed) and the speed is steady, and only when asked for.
+#[test]
+fn run_learns_the_torque_ripple_where_it_holds_the_coefficients() {
+    let at = |c: &mut Commissioning, share: f32, s: f32| {
+        for _ in 0..(s / DT).round() as usize {
+            c.step(&Inputs {
+                omega_rad_s: share * params().speed_rad_s,
+                ..healthy()
+            });
+        }
+        c.outputs().learn_ripple
+    };
+    let mut c = Commissioning::new(Params {
+        learn_torque_ripple: true,
+        ..params()
+    });
+    assert!(!c.outputs().learn_ripple);
+    run_until(&mut c, State::Run, 10.0, hardware);
+    assert!(!at(&mut c, 1.0, 0.5), "tracking at the commissioning speed");
+    // Braked to 5 %: not while the speed settles, then learning.
+    assert!(!at(&mut c, 0.05, 0.01));
+    assert!(at(&mut c, 0.05, 0.5));
+    assert_eq!(c.outputs().adaptation, Adaptation::Frozen);
+    // A step of the speed pauses it.
+    assert!(!at(&mut c, 0.08, 0.001));
+    assert!(at(&mut c, 0.08, 0.5));
+    // Off by default.
+    let mut d = drive_to(State::Run);
+    assert!(!at(&mut d, 0.05, 0.5));
+}
+
 #[test]
 fn slow_tracking_can_be_disabled() {
     let mut c = Commissioning::new(Params {
