@@ -2,6 +2,7 @@
 
 use hil_sim::input_error::InputError;
 use hil_sim::scenario::{self, RunOutcome, Scenario, ScenarioError, Variant};
+use hil_sim::truth_spectrum::TruthSpectrum;
 
 fn run(name: &str, variant: Variant) -> RunOutcome {
     let sc = Scenario::load(name).unwrap();
@@ -235,29 +236,41 @@ fn commissioning_with_a_dead_sensor_ends_safe() {
     assert!(first.entered(drive::commissioning::State::Align).is_none());
 }
 
+/// Both power-ups of a ripple scenario at CI length, each in Run without a fault: the
+/// truth spectrum of each (printed), named for the messages.
+fn ripple_power_ups(sc: &Scenario, name: &str) -> Vec<(String, TruthSpectrum)> {
+    let (first, second) = hil_sim::power_up::run(sc, sc.file.ci_duration_s.unwrap()).unwrap();
+    [first, second]
+        .into_iter()
+        .enumerate()
+        .map(|(k, b)| {
+            let what = format!("{name} power-up {}", k + 1);
+            assert_eq!(
+                b.final_state,
+                drive::commissioning::State::Run,
+                "{what}: {:?}",
+                b.cause
+            );
+            assert_eq!(b.faulted_samples, 0, "{what}");
+            let t = b.truth_spectrum.expect("window all in Run");
+            print!("{what}:\n{}", t.text("  "));
+            (what, t)
+        })
+        .collect()
+}
+
 /// The ripple scenarios (N = 1 sensor, torque ripple at once and twice per revolution)
 /// at CI length: both power-ups reach Run and measure their spectra against the true
 /// rotor. Commissioned at 20 and 40 rev/s, the rotor's motion separated from the sensor
 /// error across the two speeds, and run at 1 or 5 rev/s, below half that speed, where
 /// Run does not track: the corrected angle (arg Zd) is the sensor corrected to within
 /// a few times the oracle at m = 1, 2, where the motion ripple is, and it does not learn
-/// the rotor's motion. (θ̂ still follows the motion with the observer's lag: it does
-/// not know the torque ripple.)
+/// the rotor's motion. (θ̂ still follows the motion with the observer's lag: the files
+/// leave `learn_torque_ripple` off, `a_learned_torque_ripple_puts_theta_hat_on_the_rotor`.)
 fn ripple_scenario_reports_motion_and_spectra(name: &str) -> [f64; 2] {
     let sc = Scenario::load(name).unwrap();
-    let (first, second) = hil_sim::power_up::run(&sc, sc.file.ci_duration_s.unwrap()).unwrap();
     let mut m1_mrad = [0.0; 2];
-    for (k, b) in [&first, &second].into_iter().enumerate() {
-        let what = format!("{name} power-up {}", k + 1);
-        assert_eq!(
-            b.final_state,
-            drive::commissioning::State::Run,
-            "{what}: {:?}",
-            b.cause
-        );
-        assert_eq!(b.faulted_samples, 0, "{what}");
-        let t = b.truth_spectrum.as_ref().expect("window all in Run");
-        print!("{what}:\n{}", t.text("  "));
+    for (k, (what, t)) in ripple_power_ups(&sc, name).into_iter().enumerate() {
         // The rig moves as the scenario says, 5-20 mrad pk-pk at 1x and at 2x.
         for (h, pk_pk) in [(1, t.motion_1x_pk_pk_mrad), (2, t.motion_2x_pk_pk_mrad)] {
             assert!(
@@ -343,19 +356,7 @@ fn a_learned_torque_ripple_puts_theta_hat_on_the_rotor() {
     for name in ["ripple-1rev", "ripple-5rev"] {
         let mut sc = Scenario::load(name).unwrap();
         sc.file.commissioning.as_mut().unwrap().learn_torque_ripple = Some(true);
-        let duration_s = sc.file.ci_duration_s.unwrap();
-        let (first, second) = hil_sim::power_up::run(&sc, duration_s).unwrap();
-        for (k, b) in [first, second].into_iter().enumerate() {
-            let what = format!("{name} power-up {}", k + 1);
-            assert_eq!(
-                b.final_state,
-                drive::commissioning::State::Run,
-                "{what}: {:?}",
-                b.cause
-            );
-            assert_eq!(b.faulted_samples, 0, "{what}");
-            let t = b.truth_spectrum.expect("window all in Run");
-            print!("{what}:\n{}", t.text("  "));
+        for (what, t) in ripple_power_ups(&sc, name) {
             for m in [1, 2] {
                 let r = t.row(m).unwrap();
                 assert!(r.estimate_mrad < 0.2, "{what}: θ̂ {r:?}");
