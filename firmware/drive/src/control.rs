@@ -21,7 +21,7 @@ use crate::align::{electrical_angle, wrap_pi, ShiftMeter, Sweep};
 use crate::commissioning::{Adaptation, Setpoint};
 use crate::foc::{clarke, inverse_park, park, svpwm, CurrentLoop, CurrentLoopParams};
 use crate::motion::{Angle, LoopMode, MotionLoop, MotionRef};
-use crate::ripple::{RippleLearner, RIPPLE_GAIN, RIPPLE_HARMONICS};
+use crate::ripple::{LearnSample, RippleLearner, RIPPLE_GAIN, RIPPLE_HARMONICS};
 use crate::telemetry::{Command, CycleStats, Fault, Snapshot};
 use mras::{AdaptSample, ConfigError, Cplx, Estimate, Front, InjectionUpdate, Trig};
 
@@ -127,10 +127,10 @@ pub struct ControlPeriod<T: Trig> {
     torque_cmd_nm: f32,
     /// The sensor's direction of the command in force (+1 / -1).
     direction: f32,
-    /// The torque ripple fixed to the shaft angle, learned in Run, and e^{jθ̂s} of the
-    /// last estimate (where the next period's observer step starts).
+    /// The torque ripple fixed to the shaft angle, learned in Run, and its torque at θ̂s
+    /// of the last estimate (where the next period's observer step starts).
     ripple: RippleLearner,
-    ripple_u: Cplx,
+    ripple_nm: f32,
     ripple_active: bool,
     latched: Option<Fault>,
     release: u8,
@@ -259,7 +259,7 @@ impl<T: Trig> ControlPeriod<T> {
                 *tracker.gains(),
                 tracker.config().sensor_periods,
             ),
-            ripple_u: Cplx::ONE,
+            ripple_nm: 0.0,
             ripple_active: false,
             latched: None,
             release: 0,
@@ -326,20 +326,8 @@ impl<T: Trig> ControlPeriod<T> {
         let sensor = match scale_pair(s.x, s.y, &self.cfg.sensor_x, &self.cfg.sensor_y) {
             Ok((x, y)) => {
                 self.last_xy = (x, y);
-                // Bounded by what the drive can command: a model gone wrong may cost the
-                // lock (the supervisor's ride-through, then the safe state), never more.
-                let ripple_nm = if self.ripple_active {
-                    let t = self.tracker.config().observer.inertia_kg_m2
-                        * self.ripple.accel_rad_s2(self.ripple_u);
-                    mras::max_f32(
-                        mras::min_f32(t, self.torque_limit_nm),
-                        -self.torque_limit_nm,
-                    )
-                } else {
-                    0.0
-                };
                 self.tracker
-                    .step(x, y, self.direction * self.torque_cmd_nm + ripple_nm)
+                    .step(x, y, self.direction * self.torque_cmd_nm + self.ripple_nm)
                     .map_err(Fault::Sensor)
             }
             // The core holds its estimate through the period, as for a sample it refuses.
@@ -535,7 +523,8 @@ impl<T: Trig> ControlPeriod<T> {
         }
     }
 
-    /// The ripple model's angle for the next period, and a learning sample.
+    /// A learning sample, and the ripple model's torque for the next period's observer
+    /// step.
     #[inline(always)]
     fn step_ripple(&mut self, learn: bool) {
         if !(learn || self.ripple_active) {
@@ -543,22 +532,25 @@ impl<T: Trig> ControlPeriod<T> {
         }
         let est = self.tracker.last_estimate();
         let (sin, cos) = self.tracker.trig().sin_cos(est.theta_e_rad);
-        self.ripple_u = Cplx::new(cos, sin);
-        if learn {
-            let advance =
-                est.omega_rad_s * self.sensor_periods * self.tracker.config().sample_period_s;
-            self.ripple
-                .learn(self.ripple_u, est.epsilon_rad, est.omega_rad_s, advance);
-            self.ripple_active = true;
-        } else {
+        let sample = learn.then(|| LearnSample {
+            eps_e_rad: est.epsilon_rad,
+            omega_rad_s: est.omega_rad_s,
+            advance_e_rad: est.omega_rad_s
+                * self.sensor_periods
+                * self.tracker.config().sample_period_s,
+        });
+        if !learn {
             self.ripple.interrupt();
         }
-    }
-
-    /// The learned torque ripple: per harmonic k of the sensor angle, a_k with the
-    /// acceleration Σ Im(a_k·e^{jkθ̂s}) (rad/s², mechanical).
-    pub fn ripple_model(&self) -> &[Cplx] {
-        self.ripple.model()
+        self.ripple_active = true;
+        let accel = self.ripple.step(Cplx::new(cos, sin), sample);
+        // Bounded by what the drive can command: a model gone wrong may cost the lock
+        // (the supervisor's ride-through, then the safe state), never more.
+        let t = self.tracker.config().observer.inertia_kg_m2 * accel;
+        self.ripple_nm = mras::max_f32(
+            mras::min_f32(t, self.torque_limit_nm),
+            -self.torque_limit_nm,
+        );
     }
 
     /// The snapshot the supervisor works on; restarts the per-snapshot statistics. The

@@ -28,6 +28,27 @@ pub const RIPPLE_GAIN: f32 = 0.5;
 /// large, slow torque.
 pub const RIPPLE_MIN_H: f32 = 0.005;
 
+/// One locked sample for the learning: ε (sensor electrical), ω̂ (mechanical) and the
+/// sensor angle advanced since the previous sample.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LearnSample {
+    pub eps_e_rad: f32,
+    pub omega_rad_s: f32,
+    pub advance_e_rad: f32,
+}
+
+/// e^{jkθ̂s} for k = 1..=[`RIPPLE_HARMONICS`] from `u` = e^{jθ̂s}.
+#[inline(always)]
+fn powers(u: Cplx) -> [Cplx; RIPPLE_HARMONICS] {
+    let mut p = [Cplx::ONE; RIPPLE_HARMONICS];
+    let mut power = Cplx::ONE;
+    for v in p.iter_mut() {
+        power = power * u;
+        *v = power;
+    }
+    p
+}
+
 /// The learned acceleration ripple and the sums of the sensor period under way.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RippleLearner {
@@ -65,33 +86,49 @@ impl RippleLearner {
     }
 
     /// The model's acceleration at the sensor angle whose e^{jθ̂s} is `u` (rad/s²).
-    #[inline(always)]
     pub fn accel_rad_s2(&self, u: Cplx) -> f32 {
-        let mut p = Cplx::ONE;
-        let mut a = 0.0;
-        for c in self.accel.iter().take(self.harmonics) {
-            p = p * u;
-            a += c.re * p.im + c.im * p.re;
-        }
-        a
+        self.accel_at(&powers(u))
     }
 
     /// One locked sample to learn from: `u` = e^{jθ̂s}, ε (sensor electrical), ω̂
     /// (mechanical), the sensor angle advanced since the previous one. A whole sensor
     /// period completes a learning step.
+    pub fn learn(&mut self, u: Cplx, sample: LearnSample) {
+        self.learn_at(&powers(u), sample);
+    }
+
+    /// A period of the control loop: learn from `sample`, if any, then the model's
+    /// acceleration at `u`, the powers of `u` computed once for both.
     #[inline(always)]
-    pub fn learn(&mut self, u: Cplx, eps_e_rad: f32, omega_rad_s: f32, advance_e_rad: f32) {
+    pub fn step(&mut self, u: Cplx, sample: Option<LearnSample>) -> f32 {
+        let p = powers(u);
+        if let Some(s) = sample {
+            self.learn_at(&p, s);
+        }
+        self.accel_at(&p)
+    }
+
+    #[inline(always)]
+    fn accel_at(&self, p: &[Cplx; RIPPLE_HARMONICS]) -> f32 {
+        let mut a = 0.0;
+        for (c, p) in self.accel.iter().zip(p).take(self.harmonics) {
+            a += c.re * p.im + c.im * p.re;
+        }
+        a
+    }
+
+    #[inline(always)]
+    fn learn_at(&mut self, p: &[Cplx; RIPPLE_HARMONICS], x: LearnSample) {
         if self.harmonics == 0 {
             return;
         }
-        let mut p = Cplx::ONE;
-        for s in self.sums.iter_mut().take(self.harmonics) {
-            p = p * u;
-            *s += Cplx::new(p.re * eps_e_rad, -p.im * eps_e_rad);
+        let eps = x.eps_e_rad;
+        for (s, p) in self.sums.iter_mut().zip(p).take(self.harmonics) {
+            *s += Cplx::new(p.re * eps, -p.im * eps);
         }
-        self.omega_sum_rad_s += omega_rad_s;
+        self.omega_sum_rad_s += x.omega_rad_s;
         self.n += 1;
-        self.travelled_rad += libm::fabsf(advance_e_rad);
+        self.travelled_rad += libm::fabsf(x.advance_e_rad);
         if self.travelled_rad >= core::f32::consts::TAU {
             self.travelled_rad -= core::f32::consts::TAU;
             self.complete_period();
@@ -114,10 +151,8 @@ impl RippleLearner {
         let inv_n = 1.0 / self.n.max(1) as f32;
         let n_s = self.sensor_periods;
         let omega = self.omega_sum_rad_s * inv_n;
-        for (k, (a, s)) in self.accel.iter_mut().zip(&self.sums).enumerate() {
-            if k >= self.harmonics {
-                break;
-            }
+        let used = self.accel.iter_mut().zip(&self.sums).take(self.harmonics);
+        for (k, (a, s)) in used.enumerate() {
             let w = (k + 1) as f32 * n_s * omega;
             // ε = Im(E·e^{jkθ}) has the mean of ε·e^{-jkθ} = E/(2j).
             let inv_h = self.gains.inverse_error_transfer(w);
@@ -171,7 +206,14 @@ mod tests {
                 let kth = (k + 1) as f32 * th;
                 eps += e.re * libm::sinf(kth) + e.im * libm::cosf(kth);
             }
-            l.learn(u, eps, omega, advance);
+            l.learn(
+                u,
+                LearnSample {
+                    eps_e_rad: eps,
+                    omega_rad_s: omega,
+                    advance_e_rad: advance,
+                },
+            );
         }
     }
 
@@ -225,9 +267,14 @@ mod tests {
         period(&mut l, &truth, 0.05 * TAU, 1);
         assert_eq!(l.model()[0], Cplx::ZERO);
         let mut l = RippleLearner::new(4, RIPPLE_GAIN, gains(), 1);
-        l.learn(Cplx::ONE, 1e-3, TAU, 3.0);
+        let sample = |eps_e_rad, advance_e_rad| LearnSample {
+            eps_e_rad,
+            omega_rad_s: TAU,
+            advance_e_rad,
+        };
+        l.learn(Cplx::ONE, sample(1e-3, 3.0));
         l.interrupt();
-        l.learn(Cplx::ONE, 0.0, TAU, 3.5);
+        l.learn(Cplx::ONE, sample(0.0, 3.5));
         assert!(l.model().iter().all(|a| *a == Cplx::ZERO));
         let mut off = RippleLearner::new(0, RIPPLE_GAIN, gains(), 1);
         period(&mut off, &truth, TAU, 1);

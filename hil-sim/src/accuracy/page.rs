@@ -120,32 +120,17 @@ fn suite_values(suite: &Suite, info: &RunInfo) -> BTreeMap<String, String> {
         rounds.push(o.rounds as f64);
         paths.push(o.bank.as_slice().len() as f64);
     }
-    rounds.sort_by(f64::total_cmp);
-    paths.sort_by(f64::total_cmp);
     put("survey.max_paths".into(), mras::MAX_PATHS.to_string());
-    put(
-        "survey.paths".into(),
-        paths
-            .get(paths.len() / 2)
-            .map_or("—".into(), |p| format!("{p:.0}")),
-    );
-    put(
-        "survey.paths_max".into(),
-        paths.last().map_or("—".into(), |p| format!("{p:.0}")),
-    );
     put("survey.banks".into(), banks.to_string());
     put("survey.full".into(), full.to_string());
     put("survey.left".into(), left.to_string());
-    put(
-        "survey.rounds".into(),
-        rounds
-            .get(rounds.len() / 2)
-            .map_or("—".into(), |r| format!("{r:.0}")),
-    );
-    put(
-        "survey.rounds_max".into(),
-        rounds.last().map_or("—".into(), |r| format!("{r:.0}")),
-    );
+    // Median and maximum over the banks.
+    for (key, mut v) in [("survey.rounds", rounds), ("survey.paths", paths)] {
+        v.sort_by(f64::total_cmp);
+        let shown = |x: Option<&f64>| x.map_or("—".into(), |x| format!("{x:.0}"));
+        put(key.into(), shown(v.get(v.len() / 2)));
+        put(format!("{key}_max"), shown(v.last()));
+    }
     for (k, x) in info.figures(s, plan).into_iter().chain(plan.figures()) {
         put(k.into(), x);
     }
