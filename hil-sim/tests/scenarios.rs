@@ -292,12 +292,25 @@ fn ripple_scenario_reports_motion_and_spectra(name: &str) -> [f64; 2] {
             // The oracle is the noise floor: well under the sensor's own error.
             assert!(r.oracle_mrad < 0.05 * r.raw_mrad, "{what}: {r:?}");
         }
-        // The sensor error at m = 1, 2 is corrected to the noise floor (measured at CI
-        // length: 1.6-2.1x the oracle, a noise draw of a few µrad; one speed leaves the
-        // motion at the commissioning speed, `the_second_speed_separates_the_motion`),
-        // and the motion is not learned.
-        let m12 = t.decoupled_over_oracle_m1_m2;
-        assert!(m12 < 3.0, "{what}: arg Zd at m = 1, 2 {m12}x the oracle");
+        // The sensor error at m = 1, 2 is corrected to the noise floor (one speed leaves
+        // the motion at the commissioning speed, `the_second_speed_separates_the_motion`),
+        // and the motion is not learned. The floor is the oracle's level over all 16
+        // harmonics: its own m = 1, 2 are two noise draws (0.4-5 µrad at CI length, so
+        // their ratio swung 1.6-3.6x between runs that differed by µrad). Measured at CI
+        // length: arg Zd 3.0-9.8 µrad at m = 1, 2, 1.0-2.1x that floor.
+        let floor = (2.0
+            * t.harmonics
+                .iter()
+                .map(|r| r.oracle_mrad.powi(2))
+                .sum::<f64>()
+            / t.harmonics.len() as f64)
+            .sqrt();
+        let (r1, r2) = (t.row(1).unwrap(), t.row(2).unwrap());
+        let m12 = r1.decoupled_mrad.hypot(r2.decoupled_mrad) / floor;
+        assert!(
+            m12 < 3.0,
+            "{what}: arg Zd at m = 1, 2 {m12}x the noise floor"
+        );
         for m in [1, 2] {
             let r = t.row(m).unwrap();
             assert!(r.decoupled_mrad < 0.03, "{what}: {r:?}");

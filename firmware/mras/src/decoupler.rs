@@ -457,6 +457,9 @@ struct Constants {
     max_speed_deviation: f32,
     max_disturbance_nm: f32,
     max_torque_nm: f32,
+    /// The sweep gate's net torque limit per (rad/s)² of smoothed speed: its limit on
+    /// |dω/dt|/(N·ω²) times N·Ĵ; infinite for the paper's law.
+    sweep_nm_per_w2: f32,
     /// |H| floor of the compensation, and 1/floor², 1/min_h² to compare |1/H|² with.
     h_floor: f32,
     inv_h_floor2: f32,
@@ -491,6 +494,10 @@ impl Constants {
             ),
         };
         let g = &cfg.gates;
+        let sweep_nm_per_w2 = match law {
+            Law::Compensated { .. } => g.max_sweep_per_rad * n * gains.inertia_kg_m2,
+            Law::PaperLiteral { .. } => f32::INFINITY,
+        };
         Self {
             law,
             sigma: gains.sigma,
@@ -502,6 +509,7 @@ impl Constants {
             max_speed_deviation: g.max_speed_deviation,
             max_disturbance_nm: g.max_disturbance_nm,
             max_torque_nm: g.max_accel_rad_s2 * gains.inertia_kg_m2,
+            sweep_nm_per_w2,
             h_floor,
             inv_h_floor2: 1.0 / (h_floor * h_floor),
             inv_min_h2: 1.0 / (g.min_h * g.min_h),
@@ -574,14 +582,19 @@ pub(crate) struct PathBank {
     open_run: u32,
     /// Samples adapted since the last update (for the revolution count).
     adapted_samples: u32,
-    /// Σ ω̂ and Σ |Zd| since the last update: the smoothing's input.
+    /// Σ ω̂, Σ |Zd| and Σ (T* + T̂d) since the last update: the smoothing's input.
     omega_sum: f32,
     amplitude_sum: f32,
+    net_torque_sum: f32,
     smooth: Smoothed,
     /// Gate state derived from the smoothed speed at the last update: speed high
     /// enough, and the window ω̂ must stay in (steady speed).
     speed_ok: bool,
     omega_window: [f32; 2],
+    /// The net torque T* + T̂d smoothed like ω̂ (N·m), and whether the speed sweeps
+    /// slowly enough to adapt (see `Gates::max_sweep_per_rad`).
+    net_torque_nm: f32,
+    sweep_ok: bool,
     k: Constants,
     /// Sensor-electrical angle adapted over since the last revolution boundary.
     pub angle_this_rev_rad: f32,
@@ -627,9 +640,12 @@ impl PathBank {
             adapted_samples: 0,
             omega_sum: 0.0,
             amplitude_sum: 0.0,
+            net_torque_sum: 0.0,
             smooth: Smoothed::reset(0.0, 1.0),
             speed_ok: false,
             omega_window: [0.0; 2],
+            net_torque_nm: 0.0,
+            sweep_ok: true,
             k: Constants::new(cfg, gains, stride),
             angle_this_rev_rad: 0.0,
             revs_adapted: 0,
@@ -647,9 +663,12 @@ impl PathBank {
         self.transient.reset();
         self.speed_ok = false;
         self.omega_window = [0.0; 2];
+        self.net_torque_nm = 0.0;
+        self.sweep_ok = true;
         self.phase = 0;
         self.omega_sum = 0.0;
         self.amplitude_sum = 0.0;
+        self.net_torque_sum = 0.0;
         self.adapted_samples = 0;
         self.discard_blocks();
     }
@@ -669,6 +688,8 @@ impl PathBank {
         self.smooth = old.smooth;
         self.speed_ok = old.speed_ok;
         self.omega_window = old.omega_window;
+        self.net_torque_nm = old.net_torque_nm;
+        self.sweep_ok = old.sweep_ok;
         self.transient = old.transient;
         self.transient.disarm();
     }
@@ -716,8 +737,10 @@ impl PathBank {
         let k = &self.k;
         self.omega_sum += x.omega_rad_s;
         self.amplitude_sum += x.amplitude;
+        self.net_torque_sum += x.torque_ff_nm + x.disturbance_nm;
         let open = x.has(AdaptSample::LOCKED)
             && self.speed_ok
+            && self.sweep_ok
             && x.omega_rad_s >= self.omega_window[0]
             && x.omega_rad_s <= self.omega_window[1]
             && libm::fabsf(x.disturbance_nm) <= k.max_disturbance_nm
@@ -766,8 +789,10 @@ impl PathBank {
         let k = &self.k;
         let omega_mean = self.omega_sum * self.inv_stride;
         let amplitude_mean = self.amplitude_sum * self.inv_stride;
+        let net_torque_mean = self.net_torque_sum * self.inv_stride;
         self.omega_sum = 0.0;
         self.amplitude_sum = 0.0;
+        self.net_torque_sum = 0.0;
         let alpha = min_f32(
             max_f32(libm::fabsf(omega_mean) * k.smooth_per_rad_s, k.smooth_min),
             1.0,
@@ -780,6 +805,14 @@ impl PathBank {
         self.speed_ok = w_f_abs >= k.min_speed_rad_s;
         let dev = k.max_speed_deviation * w_f_abs;
         self.omega_window = [w_f - dev, w_f + dev];
+        // The net torque is Ĵ·dω/dt; one low-pass stage is enough to take out the
+        // per-sample noise and leaves the onset of a ramp a fraction of a period late.
+        self.net_torque_nm += (net_torque_mean - self.net_torque_nm) * alpha;
+        // A disabled gate's infinite limit times ω = 0 is NaN: open too.
+        let limit_nm = k.sweep_nm_per_w2 * (w_f * w_f);
+        self.sweep_ok = !self.transient.is_armed()
+            || libm::fabsf(self.net_torque_nm) <= limit_nm
+            || limit_nm.is_nan();
         let d_theta_e = k.n_t_s * w_f_abs;
         self.angle_this_rev_rad += self.adapted_samples as f32 * d_theta_e;
         self.adapted_samples = 0;

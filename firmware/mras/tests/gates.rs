@@ -3,6 +3,7 @@
 mod common;
 use common::*;
 use mras::{Config, Cplx, PathKind, Tracker};
+use std::f64::consts::TAU;
 
 fn moved(t: &Tracker, kind: PathKind) -> bool {
     t.coefficients().get(kind).unwrap() != Cplx::ZERO
@@ -155,4 +156,57 @@ fn a_torque_step_after_convergence_pauses_the_adaptation() {
     }
     assert!(adapting_at_end);
     assert!(largest_change(&before, &t.coefficients()) < 1.0e-3);
+}
+
+/// Samples the tracker adapted on, converged at 20 rev/s (2 s) and then decelerating at
+/// 2000 rad/s² to 5 rev/s with a perfect torque feedforward (the sweep |dω/dt|/(N·ω²)
+/// is 0.03 at 20 rev/s and 0.5 at 5 rev/s): over the ramp after its first `onset_s`, and
+/// over the 0.2 s after the ramp's end.
+fn adapting_through_a_ramp(cfg: Config, onset_s: f64) -> (u32, u32, u32) {
+    let sensor = extreme_sensor();
+    let mut t = Tracker::new(cfg).unwrap();
+    let (w0, w1, accel) = (20.0 * TAU, 5.0 * TAU, -2000.0);
+    let ramp_s = (w1 - w0) / accel;
+    let (mut theta, mut w) = (0.0f64, w0);
+    let (mut in_ramp, mut ramp_samples, mut after) = (0u32, 0u32, 0u32);
+    for k in 0..(2.6 / T_S) as u32 {
+        let t_rel = k as f64 * T_S - 2.0;
+        let a = if (0.0..ramp_s).contains(&t_rel) {
+            accel
+        } else {
+            0.0
+        };
+        let (x, y) = sensor.vector(theta);
+        let est = t.step(x as f32, y as f32, (J_KG_M2 * a) as f32).unwrap();
+        if t_rel < 0.0 {
+            assert!(
+                t_rel < -0.1 || t.convergence().converged,
+                "{:?}",
+                t.convergence()
+            );
+        } else if t_rel >= onset_s && t_rel < ramp_s {
+            in_ramp += est.adapting as u32;
+            ramp_samples += 1;
+        } else if t_rel >= ramp_s + 0.2 {
+            after += est.adapting as u32;
+        }
+        theta += w * T_S + 0.5 * a * T_S * T_S;
+        w += a * T_S;
+    }
+    (in_ramp, ramp_samples, after)
+}
+
+#[test]
+fn a_speed_ramp_after_convergence_closes_the_sweep_gate() {
+    // Without the sweep gate (the default) the other gates let most of the ramp
+    // through ...
+    let (open, samples, _) = adapting_through_a_ramp(Config::default(), 0.0);
+    assert!(open > samples / 2, "{open} of {samples}");
+    // ... with it the adaptation stops within 11 ms (a quarter of a sensor period: the
+    // net torque is smoothed over one), and resumes at the new steady speed.
+    let mut cfg = Config::default();
+    cfg.gates.max_sweep_per_rad = 0.02;
+    let (open, samples, after) = adapting_through_a_ramp(cfg, 0.011);
+    assert_eq!(open, 0, "{open} of {samples} samples adapted in the ramp");
+    assert!(after > 0, "never adapted again at the new speed");
 }
