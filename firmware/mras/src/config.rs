@@ -172,13 +172,13 @@ pub struct Gates {
     /// Maximum commanded acceleration |T*|/Ĵ (rad/s²); `INFINITY` disables. The
     /// command, not the observer's acceleration, which carries the sensor error's ripple.
     pub max_accel_rad_s2: f32,
-    /// Maximum sweep of the error harmonics' frequencies per sensor-electrical radian,
-    /// |dω/dt|/(N·ω²), taken from the observer's net torque (T* + T̂d)/Ĵ smoothed like
-    /// ω̂. Ours only, and only once the bank has converged (before, the sensor error's
-    /// own ripple is in that torque). The compensation by H assumes a steady frequency;
-    /// through a ramp or a reversal the correlation takes the observer's transient for
-    /// sensor error (docs/theory.md §3, *Speed changes*: 0.02 there, with what it costs).
-    /// `INFINITY` (the default) disables.
+    /// Maximum fall of the error harmonics' frequencies per sensor-electrical radian,
+    /// |dω/dt|/(N·ω²) while |ω̂| slows, taken from the observer's net torque
+    /// (T* + T̂d)/Ĵ smoothed like ω̂. Ours only, and only once the bank has converged
+    /// (before, the sensor error's own ripple is in that torque). The compensation by H
+    /// assumes a steady frequency; through a deceleration or a reversal it
+    /// over-compensates and the paths take the observer's transient for sensor error
+    /// (docs/theory.md §3, *Speed changes*). `INFINITY` disables.
     pub max_sweep_per_rad: f32,
 }
 
@@ -190,7 +190,7 @@ impl Default for Gates {
             max_speed_deviation: 0.5,
             max_disturbance_nm: f32::INFINITY,
             max_accel_rad_s2: f32::INFINITY,
-            max_sweep_per_rad: f32::INFINITY,
+            max_sweep_per_rad: 0.02,
         }
     }
 }

@@ -808,9 +808,13 @@ impl PathBank {
         // The net torque is Ĵ·dω/dt; one low-pass stage is enough to take out the
         // per-sample noise and leaves the onset of a ramp a fraction of a period late.
         self.net_torque_nm += (net_torque_mean - self.net_torque_nm) * alpha;
-        // A disabled gate's infinite limit times ω = 0 is NaN: open too.
+        // Only a slowing |ω̂| closes it (net torque against ω̂f): the observer still
+        // answers as at the higher frequency, where |H| is larger, so 1/H(ω̂f) over-
+        // compensates; a rising frequency under-compensates, which only slows the
+        // adaptation. A disabled gate's infinite limit times ω = 0 is NaN: open too.
         let limit_nm = k.sweep_nm_per_w2 * (w_f * w_f);
         self.sweep_ok = !self.transient.is_armed()
+            || self.net_torque_nm * w_f >= 0.0
             || libm::fabsf(self.net_torque_nm) <= limit_nm
             || limit_nm.is_nan();
         let d_theta_e = k.n_t_s * w_f_abs;

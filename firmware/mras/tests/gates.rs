@@ -158,21 +158,24 @@ fn a_torque_step_after_convergence_pauses_the_adaptation() {
     assert!(largest_change(&before, &t.coefficients()) < 1.0e-3);
 }
 
-/// Samples the tracker adapted on, converged at 20 rev/s (2 s) and then decelerating at
-/// 2000 rad/s² to 5 rev/s with a perfect torque feedforward (the sweep |dω/dt|/(N·ω²)
-/// is 0.03 at 20 rev/s and 0.5 at 5 rev/s): over the ramp after its first `onset_s`, and
-/// over the 0.2 s after the ramp's end.
-fn adapting_through_a_ramp(cfg: Config, onset_s: f64) -> (u32, u32, u32) {
+/// Samples the tracker adapted on, converged at `from_rev_s` (2 s) and then ramping at
+/// `accel_rad_s2` to `to_rev_s` with a perfect torque feedforward: over the ramp after its
+/// first `onset_s`, and over the 0.2 s after the ramp's end.
+fn adapting_through_a_ramp(
+    cfg: Config,
+    (from_rev_s, to_rev_s, accel_rad_s2): (f64, f64, f64),
+    onset_s: f64,
+) -> (u32, u32, u32) {
     let sensor = extreme_sensor();
     let mut t = Tracker::new(cfg).unwrap();
-    let (w0, w1, accel) = (20.0 * TAU, 5.0 * TAU, -2000.0);
-    let ramp_s = (w1 - w0) / accel;
+    let (w0, w1) = (from_rev_s * TAU, to_rev_s * TAU);
+    let ramp_s = (w1 - w0) / accel_rad_s2;
     let (mut theta, mut w) = (0.0f64, w0);
     let (mut in_ramp, mut ramp_samples, mut after) = (0u32, 0u32, 0u32);
     for k in 0..(2.6 / T_S) as u32 {
         let t_rel = k as f64 * T_S - 2.0;
         let a = if (0.0..ramp_s).contains(&t_rel) {
-            accel
+            accel_rad_s2
         } else {
             0.0
         };
@@ -197,16 +200,20 @@ fn adapting_through_a_ramp(cfg: Config, onset_s: f64) -> (u32, u32, u32) {
 }
 
 #[test]
-fn a_speed_ramp_after_convergence_closes_the_sweep_gate() {
-    // Without the sweep gate (the default) the other gates let most of the ramp
-    // through ...
-    let (open, samples, _) = adapting_through_a_ramp(Config::default(), 0.0);
-    assert!(open > samples / 2, "{open} of {samples}");
-    // ... with it the adaptation stops within 11 ms (a quarter of a sensor period: the
-    // net torque is smoothed over one), and resumes at the new steady speed.
+fn a_deceleration_after_convergence_closes_the_sweep_gate() {
+    // 20 → 5 rev/s at 2000 rad/s²: the sweep |dω/dt|/(N·ω²) is 0.03 at 20 rev/s and
+    // 0.5 at 5 rev/s. Without the sweep gate the other gates let most of it through ...
+    let slowing = (20.0, 5.0, -2000.0);
     let mut cfg = Config::default();
-    cfg.gates.max_sweep_per_rad = 0.02;
-    let (open, samples, after) = adapting_through_a_ramp(cfg, 0.011);
+    cfg.gates.max_sweep_per_rad = f32::INFINITY;
+    let (open, samples, _) = adapting_through_a_ramp(cfg, slowing, 0.0);
+    assert!(open > samples / 2, "{open} of {samples}");
+    // ... with it (the default) the adaptation stops within 11 ms (a quarter of a sensor
+    // period: the net torque is smoothed over one), and resumes at the new steady speed.
+    let (open, samples, after) = adapting_through_a_ramp(Config::default(), slowing, 0.011);
     assert_eq!(open, 0, "{open} of {samples} samples adapted in the ramp");
     assert!(after > 0, "never adapted again at the new speed");
+    // Speeding up at the same rate does not close it.
+    let (open, samples, _) = adapting_through_a_ramp(Config::default(), (10.0, 20.0, 2000.0), 0.0);
+    assert!(open > samples / 2, "{open} of {samples}");
 }
