@@ -591,8 +591,8 @@ pub(crate) struct PathBank {
     /// enough, and the window ω̂ must stay in (steady speed).
     speed_ok: bool,
     omega_window: [f32; 2],
-    /// The net torque T* + T̂d smoothed like ω̂ (N·m), and whether the speed sweeps
-    /// slowly enough to adapt (see `Gates::max_sweep_per_rad`).
+    /// The net torque T* + T̂d smoothed like ω̂ (N·m), and whether |ω̂| falls slowly
+    /// enough to adapt (see `Gates::max_sweep_per_rad`).
     net_torque_nm: f32,
     sweep_ok: bool,
     k: Constants,
