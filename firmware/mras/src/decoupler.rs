@@ -519,13 +519,17 @@ impl Constants {
     }
 }
 
-/// Two-stage angle-domain low-pass of ω̂ and |Zd| (see [`SMOOTH_WINDOW_RAD`]).
+/// Two-stage angle-domain low-pass of ω̂ and |Zd| (see [`SMOOTH_WINDOW_RAD`]), and a
+/// one-stage one of the net torque.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct Smoothed {
     omega1_rad_s: f32,
     omega_rad_s: f32,
     amplitude1: f32,
     amplitude: f32,
+    /// T* + T̂d (N·m), Ĵ·dω/dt: one stage is enough to take out the per-sample noise and
+    /// leaves the onset of a ramp a fraction of a period late.
+    net_torque_nm: f32,
 }
 
 impl Smoothed {
@@ -535,11 +539,13 @@ impl Smoothed {
             omega_rad_s,
             amplitude1: amplitude,
             amplitude,
+            net_torque_nm: 0.0,
         }
     }
 
     #[inline]
-    fn update(&mut self, omega_rad_s: f32, amplitude: f32, alpha: f32) {
+    fn update(&mut self, omega_rad_s: f32, amplitude: f32, net_torque_nm: f32, alpha: f32) {
+        self.net_torque_nm += (net_torque_nm - self.net_torque_nm) * alpha;
         self.omega1_rad_s += (omega_rad_s - self.omega1_rad_s) * alpha;
         self.amplitude1 += (amplitude - self.amplitude1) * alpha;
         self.omega_rad_s += (self.omega1_rad_s - self.omega_rad_s) * alpha;
@@ -591,9 +597,7 @@ pub(crate) struct PathBank {
     /// enough, and the window ω̂ must stay in (steady speed).
     speed_ok: bool,
     omega_window: [f32; 2],
-    /// The net torque T* + T̂d smoothed like ω̂ (N·m), and whether |ω̂| falls slowly
-    /// enough to adapt (see `Gates::max_sweep_per_rad`).
-    net_torque_nm: f32,
+    /// Whether |ω̂| falls slowly enough to adapt (see `Gates::max_sweep_per_rad`).
     sweep_ok: bool,
     k: Constants,
     /// Sensor-electrical angle adapted over since the last revolution boundary.
@@ -644,7 +648,6 @@ impl PathBank {
             smooth: Smoothed::reset(0.0, 1.0),
             speed_ok: false,
             omega_window: [0.0; 2],
-            net_torque_nm: 0.0,
             sweep_ok: true,
             k: Constants::new(cfg, gains, stride),
             angle_this_rev_rad: 0.0,
@@ -663,7 +666,6 @@ impl PathBank {
         self.transient.reset();
         self.speed_ok = false;
         self.omega_window = [0.0; 2];
-        self.net_torque_nm = 0.0;
         self.sweep_ok = true;
         self.phase = 0;
         self.omega_sum = 0.0;
@@ -688,7 +690,6 @@ impl PathBank {
         self.smooth = old.smooth;
         self.speed_ok = old.speed_ok;
         self.omega_window = old.omega_window;
-        self.net_torque_nm = old.net_torque_nm;
         self.sweep_ok = old.sweep_ok;
         self.transient = old.transient;
         self.transient.disarm();
@@ -797,7 +798,8 @@ impl PathBank {
             max_f32(libm::fabsf(omega_mean) * k.smooth_per_rad_s, k.smooth_min),
             1.0,
         );
-        self.smooth.update(omega_mean, amplitude_mean, alpha);
+        self.smooth
+            .update(omega_mean, amplitude_mean, net_torque_mean, alpha);
         let w_f = self.smooth.omega_rad_s;
         let w_f_abs = libm::fabsf(w_f);
         self.transient
@@ -805,17 +807,14 @@ impl PathBank {
         self.speed_ok = w_f_abs >= k.min_speed_rad_s;
         let dev = k.max_speed_deviation * w_f_abs;
         self.omega_window = [w_f - dev, w_f + dev];
-        // The net torque is Ĵ·dω/dt; one low-pass stage is enough to take out the
-        // per-sample noise and leaves the onset of a ramp a fraction of a period late.
-        self.net_torque_nm += (net_torque_mean - self.net_torque_nm) * alpha;
         // Only a slowing |ω̂| closes it (net torque against ω̂f): the observer still
         // answers as at the higher frequency, where |H| is larger, so 1/H(ω̂f) over-
         // compensates; a rising frequency under-compensates, which only slows the
         // adaptation. A disabled gate's infinite limit times ω = 0 is NaN: open too.
         let limit_nm = k.sweep_nm_per_w2 * (w_f * w_f);
         self.sweep_ok = !self.transient.is_armed()
-            || self.net_torque_nm * w_f >= 0.0
-            || libm::fabsf(self.net_torque_nm) <= limit_nm
+            || self.smooth.net_torque_nm * w_f >= 0.0
+            || libm::fabsf(self.smooth.net_torque_nm) <= limit_nm
             || limit_nm.is_nan();
         let d_theta_e = k.n_t_s * w_f_abs;
         self.angle_this_rev_rad += self.adapted_samples as f32 * d_theta_e;
