@@ -89,8 +89,15 @@ pub fn gain_sweep(a: &SweepArgs) -> Result<()> {
     println!("|---:|{}", "---:|".repeat(SPEEDS_REV_S.len()));
     for g in gains {
         let mut cfg = Config::default();
-        if let AdaptationLaw::Compensated { gain_per_rad, .. } = &mut cfg.law {
+        if let AdaptationLaw::Compensated {
+            gain_per_rad,
+            offset_gain_per_mech_rad,
+            ..
+        } = &mut cfg.law
+        {
+            // Every path at the swept gain, the offset included.
             *gain_per_rad = g;
+            *offset_gain_per_mech_rad = 0.0;
         }
         let mut row = format!("| {g} |");
         for v in SPEEDS_REV_S {

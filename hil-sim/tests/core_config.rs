@@ -47,6 +47,7 @@ fn full_file_parses_and_every_field_arrives() {
         c.law,
         AdaptationLaw::Compensated {
             gain_per_rad: 0.1,
+            offset_gain_per_mech_rad: 0.2,
             proportional: 0.05,
             h_floor: 0.1
         }

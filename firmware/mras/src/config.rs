@@ -11,6 +11,9 @@ mod de;
 /// Most harmonic paths one core can run: offset, C/D and fourteen more, a path for each
 /// error harmonic m = 1..16 of an N = 1 sensor (`survey::SURVEY_HARMONICS`).
 pub const MAX_PATHS: usize = 16;
+/// Largest gain per electrical radian of any path: the measured stable range's top
+/// (docs/theory.md §5).
+pub const MAX_GAIN_PER_RAD: f32 = 0.2;
 /// Largest |h| (sensor harmonic number) a path may inject.
 pub const MAX_HARMONIC: i8 = 15;
 
@@ -130,6 +133,12 @@ pub enum AdaptationLaw {
     Compensated {
         /// Integral gain per electrical radian of travel (1/rad).
         gain_per_rad: f32,
+        /// The offset path's gain per *mechanical* radian (1/rad), used where it exceeds
+        /// `gain_per_rad` per electrical radian, and at most [`MAX_GAIN_PER_RAD`]. Offsets
+        /// are what drifts (temperature), and a drift happens in time: per electrical
+        /// radian alone, an N = 1 sensor would track it half as fast as an N = 2 one at
+        /// the same shaft speed. 0 gives the offset `gain_per_rad` like every path.
+        offset_gain_per_mech_rad: f32,
         /// Optional proportional term (dimensionless); 0 disables it.
         proportional: f32,
         /// Floor of |H| in the magnitude compensation `1/max(|H|, floor)`.
@@ -144,6 +153,7 @@ impl AdaptationLaw {
     /// Our default: 10x error reduction in about two revolutions (docs/theory.md).
     pub const DEFAULT_COMPENSATED: Self = Self::Compensated {
         gain_per_rad: 0.15,
+        offset_gain_per_mech_rad: 0.3,
         proportional: 0.0,
         h_floor: 0.05,
     };
@@ -421,17 +431,23 @@ impl Config {
         match self.law {
             AdaptationLaw::Compensated {
                 gain_per_rad,
+                offset_gain_per_mech_rad,
                 proportional,
                 h_floor,
             } => {
                 // Measured stable range 0.05..0.2 at 2-100 rev/s with the default seven
                 // paths; 0.3 oscillates at 5 rev/s (docs/theory.md §5).
-                if !(gain_per_rad.is_finite() && gain_per_rad > 0.0 && gain_per_rad <= 0.2) {
+                if !(gain_per_rad.is_finite()
+                    && gain_per_rad > 0.0
+                    && gain_per_rad <= MAX_GAIN_PER_RAD)
+                {
                     return Err(ConfigError::new(
                         "law.gain_per_rad",
                         "must be in (0, 0.2] per electrical radian (the measured stable range)",
                     ));
                 }
+                // Clipped to the stable range per electrical radian where it is used.
+                non_negative_finite(offset_gain_per_mech_rad, "law.offset_gain_per_mech_rad")?;
                 if !(proportional.is_finite() && (0.0..=0.5).contains(&proportional)) {
                     return Err(ConfigError::new("law.proportional", "must be in [0, 0.5]"));
                 }

@@ -7,7 +7,7 @@
 //! `H(j m N ω̂)·G`, so the mean of `ε·e^{-j m θ̂s}` is `H·G/(2j)`.
 
 use crate::complex::Cplx;
-use crate::config::{AdaptationLaw, Bank, Config, PathKind, MAX_PATHS};
+use crate::config::{AdaptationLaw, Bank, Config, PathKind, MAX_GAIN_PER_RAD, MAX_PATHS};
 use crate::observer::ObserverGains;
 use crate::transient::TransientGate;
 use crate::trig::{max_f32, min_f32, sqrt_inline_f32};
@@ -433,6 +433,8 @@ pub const UPDATE_LATENCY_PERIODS: u32 = 4;
 enum Law {
     Compensated {
         gain_per_rad: f32,
+        /// The offset path's, per electrical radian of this sensor.
+        offset_gain_per_rad: f32,
         proportional: f32,
     },
     PaperLiteral {
@@ -476,11 +478,16 @@ impl Constants {
         let (law, h_floor) = match cfg.law {
             AdaptationLaw::Compensated {
                 gain_per_rad,
+                offset_gain_per_mech_rad,
                 proportional,
                 h_floor,
             } => (
                 Law::Compensated {
                     gain_per_rad,
+                    offset_gain_per_rad: min_f32(
+                        max_f32(offset_gain_per_mech_rad / n, gain_per_rad),
+                        MAX_GAIN_PER_RAD,
+                    ),
                     proportional,
                 },
                 h_floor,
@@ -899,14 +906,20 @@ impl PathBank {
         match k.law {
             Law::Compensated {
                 gain_per_rad,
+                offset_gain_per_rad,
                 proportional,
             } => {
                 if !visible {
                     s.coef_p = Cplx::ZERO;
                     return;
                 }
+                let gain = if kind == PathKind::Offset {
+                    offset_gain_per_rad
+                } else {
+                    gain_per_rad
+                };
                 // Integrated over angle: gain per radian (docs/theory.md §3).
-                s.coef += coef_delta(kind, s.g_filtered, gain_per_rad * amplitude * block_rad);
+                s.coef += coef_delta(kind, s.g_filtered, gain * amplitude * block_rad);
                 s.coef_p = if proportional == 0.0 {
                     Cplx::ZERO
                 } else {

@@ -54,10 +54,19 @@ fn each_bad_field_is_named() {
     c = d();
     c.law = AdaptationLaw::Compensated {
         gain_per_rad: 0.5,
+        offset_gain_per_mech_rad: 0.0,
         proportional: 0.0,
         h_floor: 0.05,
     };
     assert_eq!(field_of(c), "law.gain_per_rad");
+    c = d();
+    c.law = AdaptationLaw::Compensated {
+        gain_per_rad: 0.15,
+        offset_gain_per_mech_rad: -0.1,
+        proportional: 0.0,
+        h_floor: 0.05,
+    };
+    assert_eq!(field_of(c), "law.offset_gain_per_mech_rad");
     c = d();
     c.law = AdaptationLaw::PaperLiteral {
         k1_per_s: -1.0,

@@ -125,6 +125,7 @@ enum LawKind {
 pub(super) struct LawFile {
     kind: LawKind,
     gain_per_rad: Option<f32>,
+    offset_gain_per_mech_rad: Option<f32>,
     proportional: Option<f32>,
     h_floor: Option<f32>,
     k1_per_s: Option<f32>,
@@ -150,6 +151,7 @@ impl TryFrom<LawFile> for AdaptationLaw {
         match &mut law {
             Self::Compensated {
                 gain_per_rad,
+                offset_gain_per_mech_rad,
                 proportional,
                 h_floor,
             } => {
@@ -158,6 +160,9 @@ impl TryFrom<LawFile> for AdaptationLaw {
                     "belongs to kind = \"paper-literal\", not to this law",
                 )?;
                 *gain_per_rad = l.gain_per_rad.unwrap_or(*gain_per_rad);
+                *offset_gain_per_mech_rad = l
+                    .offset_gain_per_mech_rad
+                    .unwrap_or(*offset_gain_per_mech_rad);
                 *proportional = l.proportional.unwrap_or(*proportional);
                 *h_floor = l.h_floor.unwrap_or(*h_floor);
             }
@@ -165,6 +170,7 @@ impl TryFrom<LawFile> for AdaptationLaw {
                 refuse(
                     &[
                         (l.gain_per_rad, "law.gain_per_rad"),
+                        (l.offset_gain_per_mech_rad, "law.offset_gain_per_mech_rad"),
                         (l.proportional, "law.proportional"),
                         (l.h_floor, "law.h_floor"),
                     ],

@@ -81,6 +81,7 @@ pub fn with_gain(gain: f32, proportional: f32) -> Config {
     Config {
         law: AdaptationLaw::Compensated {
             gain_per_rad: gain,
+            offset_gain_per_mech_rad: 0.0,
             proportional,
             h_floor: 0.05,
         },
