@@ -26,6 +26,11 @@ pub struct ScenarioArgs {
     /// streams in (default: this checkout's release build, if built).
     #[arg(long)]
     pub elf: Option<PathBuf>,
+    /// Run a scenario with a truth spectrum at N sensor-noise seeds (1, 3, .., 2N - 1)
+    /// instead of its own, and report the spread of arg Zd over the oracle: the oracle
+    /// of one run is one draw of the noise, so one run's ratio is too.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1000))]
+    pub seeds: Option<u64>,
 }
 
 impl ScenarioArgs {
@@ -38,6 +43,7 @@ impl ScenarioArgs {
             out: None,
             no_plots: false,
             elf: None,
+            seeds: None,
         }
     }
 }
@@ -102,6 +108,9 @@ pub fn scenario(a: &ScenarioArgs) -> Result<()> {
     if !f.cases.is_empty() {
         return table1(&sc, duration);
     }
+    if let Some(seeds) = a.seeds {
+        return over_seeds(&sc, duration, seeds, &dir);
+    }
     if f.commissioning.is_some() {
         let (first, second) = crate::power_up::run(&sc, duration)?;
         let boots = [
@@ -163,6 +172,52 @@ pub fn scenario(a: &ScenarioArgs) -> Result<()> {
         } else {
             ", PNG and SVG plots"
         },
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// arg Zd over the oracle of both power-ups at `seeds` noise seeds: per seed, then
+/// median and worst over every power-up (docs/hil-sim.md).
+fn over_seeds(sc: &Scenario, duration: f64, seeds: u64, dir: &std::path::Path) -> Result<()> {
+    use std::fmt::Write as _;
+    let started = Instant::now();
+    eprintln!(
+        "scenario {}: {seeds} noise seeds, {duration} s each, {} threads",
+        sc.file.name,
+        rayon::current_num_threads()
+    );
+    let s = crate::power_up::SeedSpread::run(sc, duration, seeds)?;
+    let mut text = format!(
+        "scenario {}: arg Zd over the oracle (root sums of squares) at {seeds} noise seeds, \
+         power-up 1 (flash erased) / 2 (calibration in flash)\n  seed   m = 1, 2      m = 1, 2 to the floor   m = 3..16 with a path (power-up 2 at seed + 1)\n",
+        sc.file.name
+    );
+    for (seed, [a, b]) in &s.runs {
+        let _ = writeln!(
+            text,
+            "  {seed:>4}   {:.2} / {:.2}   {:.2} / {:.2}             {:.2} / {:.2}",
+            a.m1_m2, b.m1_m2, a.m1_m2_floor, b.m1_m2_floor, a.m3_up, b.m3_up
+        );
+    }
+    for (what, d) in [
+        ("m = 1, 2", s.m1_m2()),
+        ("m = 1, 2 to the floor", s.m1_m2_floor()),
+        ("m = 3..16", s.m3_up()),
+    ] {
+        let _ = writeln!(
+            text,
+            "  {what}: median {:.2}x, 95th percentile {:.2}x, worst {:.2}x over {} power-ups",
+            d.median, d.p95, d.worst, d.count
+        );
+    }
+    print!("{text}");
+    std::fs::create_dir_all(dir).with_context(|| dir.display().to_string())?;
+    let path = dir.join("seeds.txt");
+    std::fs::write(&path, &text).with_context(|| path.display().to_string())?;
+    println!(
+        "  output: {} in {:.1} s wall",
+        path.display(),
         started.elapsed().as_secs_f64()
     );
     Ok(())

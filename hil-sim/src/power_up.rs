@@ -217,6 +217,83 @@ pub fn run(sc: &Scenario, duration_s: f64) -> Result<(Boot, Boot)> {
     Ok((first, second))
 }
 
+/// arg Zd over the oracle (root sums of squares) of one power-up's truth spectrum.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OracleRatios {
+    /// Over m = 1, 2, where the motion ripple is.
+    pub m1_m2: f64,
+    /// Over m = 1, 2, to the oracle's mean level over all harmonics
+    /// ([`TruthSpectrum::decoupled_over_floor_m1_m2`]).
+    pub m1_m2_floor: f64,
+    /// Over m = 3..16 with a path in the bank.
+    pub m3_up: f64,
+}
+
+/// A scenario with a truth spectrum run at several sensor-noise seeds. Per harmonic the
+/// oracle is one draw of the noise (a few µrad once the sensor error is corrected), so
+/// one run's ratio to it is one draw too; its spread over seeds is the figure.
+#[derive(Clone, Debug)]
+pub struct SeedSpread {
+    /// Per seed: both power-ups' ratios.
+    pub runs: Vec<(u64, [OracleRatios; 2])>,
+}
+
+impl SeedSpread {
+    /// Both power-ups at seeds 1, 3, .., 2·`seeds` - 1 (the second power-up of a run
+    /// takes the next seed: odd seeds keep every power-up's noise its own), in parallel.
+    pub fn run(sc: &Scenario, duration_s: f64, seeds: u64) -> Result<Self> {
+        use rayon::prelude::*;
+        if sc.file.commissioning.is_none() || sc.file.truth_spectrum.is_none() {
+            return Err(anyhow!(
+                "{}: a spread over seeds needs [commissioning] and [truth_spectrum]",
+                sc.file.name
+            ));
+        }
+        let runs = (0..seeds)
+            .into_par_iter()
+            .map(|k| {
+                let seed = 2 * k + 1;
+                let mut sc = sc.clone();
+                sc.file.seed = seed;
+                let (first, second) = run(&sc, duration_s)?;
+                let ratios = |b: &Boot| {
+                    b.truth_spectrum.as_ref().map(|t| OracleRatios {
+                        m1_m2: t.decoupled_over_oracle_m1_m2,
+                        m1_m2_floor: t.decoupled_over_floor_m1_m2(),
+                        m3_up: t.decoupled_over_oracle_m3_up_in_bank.unwrap_or(f64::NAN),
+                    })
+                };
+                match (ratios(&first), ratios(&second)) {
+                    (Some(a), Some(b)) => Ok((seed, [a, b])),
+                    _ => Err(anyhow!(
+                        "seed {seed}: a power-up was not in Run over the whole window"
+                    )),
+                }
+            })
+            .collect::<Result<_>>()?;
+        Ok(Self { runs })
+    }
+
+    fn over(&self, pick: fn(&OracleRatios) -> f64) -> crate::accuracy::stats::Dist {
+        crate::accuracy::stats::Dist::of(self.runs.iter().flat_map(|(_, r)| r.iter().map(pick)))
+    }
+
+    /// Over every power-up, m = 1, 2.
+    pub fn m1_m2(&self) -> crate::accuracy::stats::Dist {
+        self.over(|r| r.m1_m2)
+    }
+
+    /// Over every power-up, m = 1, 2 to the noise floor.
+    pub fn m1_m2_floor(&self) -> crate::accuracy::stats::Dist {
+        self.over(|r| r.m1_m2_floor)
+    }
+
+    /// Over every power-up, m = 3..16 with a path.
+    pub fn m3_up(&self) -> crate::accuracy::stats::Dist {
+        self.over(|r| r.m3_up)
+    }
+}
+
 /// The events of a power-up as text lines (state changes, faults, flash).
 pub fn event_lines(b: &Boot) -> Vec<String> {
     b.streamed

@@ -118,6 +118,28 @@ pub struct TruthSpectrum {
 }
 
 impl TruthSpectrum {
+    /// arg Zd at m = 1, 2 (root sum of squares) over the noise floor there: the oracle's
+    /// mean level over all 16 harmonics, for two. The oracle's own m = 1, 2 are two
+    /// draws of the noise, which scatter by several times between runs; the mean over
+    /// sixteen is its expected level.
+    pub fn decoupled_over_floor_m1_m2(&self) -> f64 {
+        let n = self.harmonics.len() as f64;
+        let floor2 = 2.0
+            * self
+                .harmonics
+                .iter()
+                .map(|r| r.oracle_mrad.powi(2))
+                .sum::<f64>()
+            / n;
+        let e2: f64 = self
+            .harmonics
+            .iter()
+            .filter(|r| r.m <= 2)
+            .map(|r| r.decoupled_mrad.powi(2))
+            .sum();
+        (e2 / floor2).sqrt()
+    }
+
     /// The row of harmonic `m` (1-based).
     pub fn row(&self, m: u32) -> Option<&HarmonicRow> {
         self.harmonics.iter().find(|r| r.m == m)

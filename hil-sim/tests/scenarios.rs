@@ -297,16 +297,9 @@ fn ripple_scenario_reports_motion_and_spectra(name: &str) -> [f64; 2] {
         // and the motion is not learned. The floor is the oracle's level over all 16
         // harmonics: its own m = 1, 2 are two noise draws (0.4-5 µrad at CI length, so
         // their ratio swung 1.6-3.6x between runs that differed by µrad). Measured at CI
-        // length: arg Zd 3.0-9.8 µrad at m = 1, 2, 1.0-2.1x that floor.
-        let floor = (2.0
-            * t.harmonics
-                .iter()
-                .map(|r| r.oracle_mrad.powi(2))
-                .sum::<f64>()
-            / t.harmonics.len() as f64)
-            .sqrt();
-        let (r1, r2) = (t.row(1).unwrap(), t.row(2).unwrap());
-        let m12 = r1.decoupled_mrad.hypot(r2.decoupled_mrad) / floor;
+        // length, seed 1: 0.85-1.53x that floor (the spread over seeds:
+        // `ripple_scenarios_reach_the_oracle_over_noise_seeds`).
+        let m12 = t.decoupled_over_floor_m1_m2();
         assert!(
             m12 < 3.0,
             "{what}: arg Zd at m = 1, 2 {m12}x the noise floor"
@@ -318,7 +311,7 @@ fn ripple_scenario_reports_motion_and_spectra(name: &str) -> [f64; 2] {
         }
         m1_mrad[k] = t.row(1).unwrap().decoupled_mrad;
         // The bank has a path for every harmonic, and the sensor error is removed at
-        // each (measured at CI length: 1.3-1.8x the oracle, at most 0.009 mrad).
+        // each (measured at CI length, seed 1: 1.15-1.38x the oracle).
         assert_eq!(t.decoupled_over_oracle_m3_up_not_in_bank, None, "{what}");
         let m3 = t.decoupled_over_oracle_m3_up_in_bank.unwrap();
         assert!(m3 < 3.0, "{what}: arg Zd at m = 3..16 {m3}x the oracle");
@@ -383,5 +376,22 @@ fn a_learned_torque_ripple_puts_theta_hat_on_the_rotor() {
             let m12 = t.decoupled_over_oracle_m1_m2;
             assert!(m12 < 4.0, "{what}: arg Zd at m = 1, 2 {m12}x the oracle");
         }
+    }
+}
+
+/// One run's arg Zd over the oracle is a draw of the noise (the oracle's harmonics are
+/// noise, a few µrad): the figure is the median over power-ups at several noise seeds.
+/// At CI length, 9 seeds: arg Zd at m = 1, 2 over the noise floor there measured a
+/// median of 1.20-1.21x, at m = 3..16 over the oracle 1.21-1.35x (full length:
+/// docs/hil-sim.md).
+#[test]
+fn ripple_scenarios_reach_the_oracle_over_noise_seeds() {
+    for name in ["ripple-1rev", "ripple-5rev"] {
+        let sc = Scenario::load(name).unwrap();
+        let s = hil_sim::power_up::SeedSpread::run(&sc, sc.file.ci_duration_s.unwrap(), 9).unwrap();
+        let (floor, m3) = (s.m1_m2_floor(), s.m3_up());
+        assert_eq!((floor.count, m3.count), (18, 18), "{name}");
+        assert!(floor.median <= 1.5, "{name}: m = 1, 2 {floor:?}");
+        assert!(m3.median <= 1.5, "{name}: m = 3..16 {m3:?}");
     }
 }
