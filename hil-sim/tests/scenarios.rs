@@ -355,7 +355,7 @@ fn the_second_speed_separates_the_motion() {
 
 /// Learning the torque ripple in Run (`learn_torque_ripple`): the observer is fed the
 /// ripple the rotor's motion comes from, and θ̂ follows the rotor at m = 1, 2 instead of
-/// lagging it by 2.7-3.6 mrad (measured at CI length: 0.005-0.084 mrad); the speed loop,
+/// lagging it by 2.7-3.6 mrad (measured at CI length: 0.002-0.007 mrad); the speed loop,
 /// now seeing the ripple, rejects more of it. The sensor correction is not touched.
 #[test]
 fn a_learned_torque_ripple_puts_theta_hat_on_the_rotor() {
