@@ -51,11 +51,13 @@ cargo xtask <command>
                 target/emu (installs Debian cmake and libclang-dev if missing)
   emu-report    every firmware-in-the-loop scenario; regenerates the scenario section
                 of docs/performance.md
-  perf          the control interrupt by stage at 20 and 40 kHz: cross-builds both
-                firmware rates (target/perf/drive-fw-20k, -40k), commissions each
-                to Run on the emulator, measures 0.5 s of Run (instructions and
-                estimated Cortex-M4 cycles per stage); regenerates the perf section
-                of docs/performance.md; fails if a build misses a control period
+  perf          the control interrupt by stage at 20 and 40 kHz, and at 20 kHz with
+                an N = 1 sensor and the bank from the data: cross-builds the three
+                (target/perf/drive-fw-20k, -40k, -n1), commissions each to Run on
+                the emulator (the last with an N = 1 sensor), measures 0.5 s of Run
+                (instructions and estimated Cortex-M4 cycles per stage); regenerates
+                the perf section of docs/performance.md; fails if a build misses a
+                control period
   regs          regenerate the emulator's STM32G474 register table (hil-sim/emu/src/
                 regs_g474.rs) from the stm32g4 PAC's sources
   regs --check  fail if the committed register table differs from what the PAC generates
@@ -272,10 +274,16 @@ fn emu(args: &[&str]) -> Result<()> {
     run(c)
 }
 
-/// The firmware's PWM rates `perf` measures: (label, cargo features, ELF name).
-const PERF_BUILDS: [(&str, &[&str], &str); 2] = [
+/// The firmware builds `perf` measures: (label, cargo features, ELF name); the last
+/// runs on the emulated board with an N = 1 sensor.
+const PERF_BUILDS: [(&str, &[&str], &str); 3] = [
     ("20 kHz", &[], "drive-fw-20k"),
     ("40 kHz", &["--features", "pwm-40khz"], "drive-fw-40k"),
+    (
+        "20 kHz, N = 1 sensor, bank from the data",
+        &["--features", "sensor-n1"],
+        "drive-fw-n1",
+    ),
 ];
 
 /// Both rates cross-built (each copied aside: they link to the same path), each
@@ -300,13 +308,18 @@ fn perf(report: Option<&str>) -> Result<()> {
         run(c)?;
         let out = dir.join(name);
         std::fs::copy(&built, &out).with_context(|| out.display().to_string())?;
-        builds.push(format!("{label}={}", out.display()));
+        let board = if features.contains(&"sensor-n1") {
+            "--n1-build"
+        } else {
+            "--build"
+        };
+        builds.push((board, format!("{label}={}", out.display())));
     }
     builds.reverse();
     let mut c = cargo();
     c.args(["run", "--release", "--locked", "-p", EMULATOR, "--", "perf"]);
-    for b in &builds {
-        c.arg("--build").arg(b);
+    for (board, b) in &builds {
+        c.arg(board).arg(b);
     }
     if let Some(r) = report {
         c.args(["--report", r]);

@@ -49,8 +49,12 @@ pub mod pins {
 /// the shield's amplifier, biased at mid-supply). Measure yours: docs/hardware.md step 3.
 pub const SENSOR_OFFSET_COUNTS: u16 = 2048;
 pub const SENSOR_AMPLITUDE_COUNTS: u16 = 1600;
-/// Sensor periods per mechanical revolution (KMZ41 over a diametral magnet: 2).
+/// Sensor periods per mechanical revolution (KMZ41 over a diametral magnet: 2; with the
+/// feature `sensor-n1`, an on-axis magnet or Hall array: 1).
+#[cfg(not(feature = "sensor-n1"))]
 pub const SENSOR_PERIODS: u16 = 2;
+#[cfg(feature = "sensor-n1")]
+pub const SENSOR_PERIODS: u16 = 1;
 
 /// Current sensing: shunt amplifier gain in A per count, nominal zero at mid-scale (the
 /// zero is measured at start-up with the bridge off). The sign is the board's: ST's
@@ -87,7 +91,8 @@ pub const WATCHDOG_TIMEOUT_US: u32 = 100_000;
 
 /// The core's configuration on this board.
 pub fn core_config() -> mras::Config {
-    mras::Config {
+    #[allow(unused_mut)]
+    let mut cfg = mras::Config {
         sample_period_s: CONTROL_PERIOD_S,
         sensor_periods: SENSOR_PERIODS,
         observer: mras::ObserverConfig {
@@ -95,7 +100,15 @@ pub fn core_config() -> mras::Config {
             inertia_kg_m2: INERTIA_KG_M2,
         },
         ..mras::Config::default()
+    };
+    // An N = 1 sensor's error harmonics land anywhere up to m = 16: the bank grows from
+    // the offset and C/D paths to the harmonics the commissioning measures. The first
+    // stage is two valid paths, so this cannot fail; were it to, the default bank stays.
+    #[cfg(feature = "sensor-n1")]
+    if cfg.set_paths(&mras::survey::FIRST_STAGE).is_ok() {
+        cfg.paths_from_data = true;
     }
+    cfg
 }
 
 /// The control period's configuration on this board.

@@ -155,43 +155,53 @@ impl Injection {
                 _ => [32 + order; 2],
             }
         };
+        // One pass counts the orders' users and takes the degrees, the second reads the
+        // counts back: each path's orders are derived once.
         let mut uses = [0u8; 64];
-        let mut count = |o: usize| {
-            if let Some(u) = uses.get_mut(o) {
+        let mut fed = [[0usize; 2]; MAX_PATHS];
+        for (&p, f) in self.kinds.iter().zip(fed.iter_mut()).take(self.len) {
+            let [a, b] = feeds(p);
+            *f = [a, b];
+            if let Some(u) = uses.get_mut(a) {
                 *u = u.saturating_add(1);
             }
-        };
-        for &p in self.kinds.iter().take(self.len) {
-            let [a, b] = feeds(p);
-            count(a);
             if b != a {
-                count(b);
+                if let Some(u) = uses.get_mut(b) {
+                    *u = u.saturating_add(1);
+                }
+            }
+            // Orders 32.. are the negative ones; C/D feeds order 1 of both.
+            if a < 32 {
+                self.pos_degree = self.pos_degree.max(a);
+            }
+            if b >= 32 {
+                self.neg_degree = self.neg_degree.max(b - 32);
             }
         }
-        for (i, &p) in self.kinds.iter().enumerate().take(self.len) {
-            let [a, b] = feeds(p);
+        for (alone, [a, b]) in self.alone.iter_mut().zip(fed).take(self.len) {
             let once = |o: usize| uses.get(o).is_some_and(|&u| u == 1);
-            if let Some(alone) = self.alone.get_mut(i) {
-                *alone = once(a) && once(b);
-            }
-            let h = p.sequence().unsigned_abs() as usize & POWER_MASK;
-            if p.sequence() >= 0 || p == PathKind::AmplitudeQuadrature {
-                self.pos_degree = self.pos_degree.max(h);
-            }
-            if p.sequence() < 0 {
-                self.neg_degree = self.neg_degree.max(h);
-            }
+            *alone = once(a) && once(b);
         }
     }
 
-    /// Another bank: the terms of kinds in both are kept, the others start at zero.
+    /// Another bank: the terms of kinds in both are kept, the others start at zero. It
+    /// runs in the control interrupt: the old terms are found through a table by kind
+    /// (one pass over each bank; a search per path cost ~2 300 instructions at 16 paths).
     #[inline(never)]
     pub(crate) fn rebank(&mut self, paths: &[PathKind]) {
-        let (kinds, coef, len) = (self.kinds, self.coef, self.len);
+        let (coef, len) = (self.coef, self.len);
+        let mut old_at = [u8::MAX; 32];
+        for (i, &k) in self.kinds.iter().enumerate().take(len) {
+            if let Some(slot) = old_at.get_mut(PackedBank::code(k) as usize) {
+                if *slot == u8::MAX {
+                    *slot = i as u8;
+                }
+            }
+        }
         self.derive(paths);
-        for (i, kind) in paths.iter().enumerate().take(self.len) {
-            let old = kinds.iter().take(len).position(|k| k == kind);
-            if let Some(&c) = old.and_then(|j| coef.get(j)) {
+        for (i, &kind) in paths.iter().enumerate().take(self.len) {
+            let j = old_at.get(PackedBank::code(kind) as usize).copied();
+            if let Some(&c) = j.and_then(|j| coef.get(j as usize)) {
                 self.set(i, c);
             }
         }
@@ -1011,6 +1021,44 @@ mod tests {
         }
         let got = inj.vector(u);
         assert!((got - expect).abs() < 1e-7, "{got:?} vs {expect:?}");
+    }
+
+    /// A bank grown to the full 16 paths of an N = 1 survey and shrunk again: each path
+    /// keeps its term through both rebanks, the new ones start at zero, and the vector
+    /// reaches the highest orders of either sign.
+    #[test]
+    fn a_full_bank_rebanks_with_its_terms() {
+        let mut full = [PathKind::Offset; MAX_PATHS];
+        full[1] = PathKind::AmplitudeQuadrature;
+        for (k, h) in full[2..14].iter_mut().zip(4..) {
+            *k = PathKind::Harmonic(h);
+        }
+        full[14] = PathKind::Harmonic(-14);
+        full[15] = PathKind::Harmonic(-15);
+        let coef = |k: PathKind| Cplx::new(1e-3 * k.sequence() as f32, 2e-3);
+        let expect = |kinds: &[PathKind], u: Cplx| {
+            let pw = powers_of(u);
+            kinds
+                .iter()
+                .fold(Cplx::ZERO, |s, &k| s + injection(k, coef(k), &pw))
+        };
+        let u = Cplx::new(libm::cosf(-2.1), libm::sinf(-2.1));
+        let first: [PathKind; 4] = [full[15], full[0], full[13], full[1]];
+        let mut inj = Injection::new(&first);
+        for (i, &k) in first.iter().enumerate() {
+            inj.set(i, coef(k));
+        }
+        inj.rebank(&full);
+        let kept = expect(&first, u);
+        assert!((inj.vector(u) - kept).abs() < 1e-6);
+        for (i, &k) in full.iter().enumerate() {
+            inj.set(i, coef(k));
+        }
+        assert!((inj.vector(u) - expect(&full, u)).abs() < 1e-6);
+        let last = [full[14], full[2], full[1]];
+        inj.rebank(&last);
+        assert_eq!(inj.kinds(), last);
+        assert!((inj.vector(u) - expect(&last, u)).abs() < 1e-6);
     }
 
     /// Every kind a bank can hold survives packing for the update queue, and an update

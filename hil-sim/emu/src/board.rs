@@ -35,11 +35,22 @@ impl Board {
     /// The `commissioning` scenario's motor and distorted, arbitrarily mounted sensor on
     /// this board's amplifiers.
     pub fn commissioning(seed: u64) -> anyhow::Result<Self> {
+        Self::with_sensor_of("commissioning", seed)
+    }
+
+    /// The same motor with an N = 1 sensor: `ripple-1rev`'s (error harmonics m = 1..16
+    /// of a few mrad falling with m), for the firmware built with `sensor-n1`.
+    pub fn commissioning_n1(seed: u64) -> anyhow::Result<Self> {
+        Self::with_sensor_of("ripple-1rev", seed)
+    }
+
+    /// The `commissioning` scenario's motor with the sensor of scenario `sensor_of`.
+    fn with_sensor_of(sensor_of: &str, seed: u64) -> anyhow::Result<Self> {
         let sc = Scenario::load("commissioning")?;
         let motor = sc.file.motor.to_params()?;
         // The sensor amplifier: the scenario's converter (12 bits over ±1.5 units), so
         // that its worst sensor (amplitude 1.2, offsets 0.1, harmonics) stays in range.
-        let sp = sc.file.sensor.to_params()?;
+        let sp = Scenario::load(sensor_of)?.file.sensor.to_params()?;
         let sensor = hil_sim::sensor::SensorSim::new(sp, seed)?;
         // Until the firmware starts TIM1 the plant only coasts at rest; its step is then
         // the period the firmware programmed (`advance_to`), so any PWM rate runs.

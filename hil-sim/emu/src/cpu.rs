@@ -369,8 +369,12 @@ impl Emu {
             if let Some(c0) = m.stats.isr_cycles_entered_at.take() {
                 let c = m.cycles - c0;
                 m.stats.isr_cycles_sum += c;
-                m.stats.isr_cycles_max = m.stats.isr_cycles_max.max(c);
                 m.stats.charge(Stage::EntryExit, 0, cost);
+                if c > m.stats.isr_cycles_max {
+                    m.stats.isr_cycles_max = c;
+                    m.stats.isr_cycles_max_at = m.now;
+                    m.stats.isr_max_stages = m.stats.stage_now;
+                }
                 m.stats.close_stages();
             }
             m.call_stack.clear();

@@ -41,8 +41,11 @@ enum Cmd {
     /// Fails when a build misses a control period.
     Perf {
         /// `LABEL=ELF`, once per build (e.g. `20 kHz=target/perf/drive-fw-20k`).
-        #[arg(long = "build", required = true)]
+        #[arg(long = "build", required_unless_present = "n1_builds")]
         builds: Vec<String>,
+        /// `LABEL=ELF` of a build with `sensor-n1`: run on the board with an N = 1 sensor.
+        #[arg(long = "n1-build")]
+        n1_builds: Vec<String>,
         /// Length of the measurement window in Run (emulated seconds).
         #[arg(long, default_value_t = 0.5)]
         window_s: f64,
@@ -68,9 +71,10 @@ fn main() -> Result<()> {
         Cmd::PowerUp { elf, out } => power_up(elf, out),
         Cmd::Perf {
             builds,
+            n1_builds,
             window_s,
             report,
-        } => perf(&builds, window_s, report),
+        } => perf(&builds, &n1_builds, window_s, report),
         Cmd::Scenarios { elf, report, names } => {
             let (path, bytes) = read_elf(elf)?;
             let names: Vec<String> = if names.is_empty() {
@@ -152,16 +156,26 @@ fn publish(report: Option<PathBuf>, text: &str, sec: Section) -> Result<()> {
     Ok(())
 }
 
-fn perf(builds: &[String], window_s: f64, report: Option<PathBuf>) -> Result<()> {
+fn perf(
+    builds: &[String],
+    n1_builds: &[String],
+    window_s: f64,
+    report: Option<PathBuf>,
+) -> Result<()> {
+    use scenarios::SensorBoard;
     let mut text = String::new();
     let mut missed = Vec::new();
-    for b in builds {
+    let all = builds
+        .iter()
+        .map(|b| (b, SensorBoard::Kmz41))
+        .chain(n1_builds.iter().map(|b| (b, SensorBoard::N1)));
+    for (b, sensor) in all {
         let (label, path) = b
-            .split_once('=')
+            .rsplit_once('=')
             .with_context(|| format!("`--build {b}`: expected LABEL=ELF"))?;
         let (path, bytes) = read_elf(Some(PathBuf::from(path)))?;
         eprintln!("drive-emu: perf {label} ({}) ...", path.display());
-        let p = scenarios::perf_run(&bytes, window_s).with_context(|| label.to_string())?;
+        let p = scenarios::perf_run(&bytes, window_s, sensor).with_context(|| label.to_string())?;
         let mut table = scenarios::perf_table(&p, label);
         // Where the firmware was at each overrun: the inlined chain's functions.
         for (ms, _, pc) in &p.missed {

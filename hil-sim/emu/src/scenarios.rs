@@ -608,21 +608,54 @@ pub struct Perf {
     /// (instructions, ending at ms), the longest interrupt (instructions, cycles).
     pub powerup_masked_max: (u64, f64),
     pub powerup_isr_max: (u64, u64),
+    /// When the power-up's longest interrupt ended (ms) and its largest stage (label,
+    /// est. cycles).
+    pub powerup_isr_max_at: (f64, &'static str, u64),
     /// The missed periods: (ms, why, pc of the code running then).
     pub missed: Vec<(f64, String, u32)>,
     pub window_s: f64,
     pub wall_s: f64,
+    /// Every path bank the stream named, in order (the first is init's).
+    pub banks: Vec<Vec<String>>,
+}
+
+/// The sensor the emulated board carries: it must be the one the firmware was built for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SensorBoard {
+    /// The `commissioning` scenario's N = 2 sensor (the default build).
+    Kmz41,
+    /// An N = 1 sensor with harmonics up to m = 16 ([`Board::commissioning_n1`]; the
+    /// `sensor-n1` build, which chooses its bank from the data).
+    N1,
 }
 
 /// Commission `elf` to Run and measure the control interrupt over `window_s` of Run.
-pub fn perf_run(elf: &[u8], window_s: f64) -> Result<Perf> {
+pub fn perf_run(elf: &[u8], window_s: f64, sensor: SensorBoard) -> Result<Perf> {
     let t0 = std::time::Instant::now();
-    let mut emu = fresh(elf, None)?;
-    run_until_state(&mut emu, "Run", 4.0)?;
+    let (board, to_run_s) = match sensor {
+        SensorBoard::Kmz41 => (Board::commissioning(1)?, 4.0),
+        // Survey rounds over whole revolutions at N = 1 (docs/theory.md §8).
+        SensorBoard::N1 => (Board::commissioning_n1(1)?, 15.0),
+    };
+    let mut emu = Emu::new(elf, board, None)?;
+    run_until_state(&mut emu, "Run", to_run_s)?;
     let missed_before = emu.m().adcs.missed_triggers;
     let st = &emu.m().stats;
     let powerup_masked_max = (st.masked_max, st.masked_max_at as f64 / TICK_HZ * 1e3);
     let powerup_isr_max = (st.isr_instrs_max, st.isr_cycles_max);
+    let powerup_isr_max_at = {
+        let (k, c) = st
+            .isr_max_stages
+            .iter()
+            .enumerate()
+            .max_by_key(|(_, s)| s.1)
+            .map_or((0, 0), |(k, s)| (k, s.1));
+        let label = crate::profile::Stage::ALL
+            .iter()
+            .find(|s| **s as usize == k)
+            .map_or("?", |s| s.label());
+        (st.isr_cycles_max_at as f64 / TICK_HZ * 1e3, label, c)
+    };
     emu.m_mut().stats.restart_window();
     emu.run_for(window_s)?;
     let out = finish("perf", &emu, t0, Vec::new())?;
@@ -643,7 +676,15 @@ pub fn perf_run(elf: &[u8], window_s: f64) -> Result<Perf> {
         })
         .collect();
     let d = stream::decode(&emu.elf, &m.rtt.bytes).context("decoding the RTT stream")?;
-    // "drive-fw: 20000 Hz PWM, SYSCLK ..."
+    // The bank in force: the last `mras-paths` line (init's, then each rebuild's).
+    let banks: Vec<Vec<String>> = d
+        .items
+        .iter()
+        .filter_map(|i| match i {
+            Item::Line(l) if l.kind == "mras-paths" => l.paths().ok(),
+            _ => None,
+        })
+        .collect();
     let firmware_pwm_hz = d.items.iter().find_map(|i| match i {
         Item::Other(o) => o
             .strip_prefix("drive-fw: ")?
@@ -654,6 +695,7 @@ pub fn perf_run(elf: &[u8], window_s: f64) -> Result<Perf> {
         _ => None,
     });
     Ok(Perf {
+        banks,
         pwm_hz: 1.0 / m.board.period_s(),
         firmware_pwm_hz,
         period_cycles: period_cycles(&emu),
@@ -672,6 +714,7 @@ pub fn perf_run(elf: &[u8], window_s: f64) -> Result<Perf> {
         masked_max_instrs: st.masked_max,
         powerup_masked_max,
         powerup_isr_max,
+        powerup_isr_max_at,
         missed: st
             .missed
             .iter()
@@ -751,12 +794,30 @@ pub fn perf_table(p: &Perf, title: &str) -> String {
     );
     let _ = writeln!(
         s,
-        "- before Run: longest interrupt-masked stretch {} instructions (ending at {:.1} ms), longest interrupt {} instructions / {} est. cycles",
-        p.powerup_masked_max.0, p.powerup_masked_max.1, p.powerup_isr_max.0, p.powerup_isr_max.1
+        "- before Run: longest interrupt-masked stretch {} instructions (ending at {:.1} ms), longest interrupt {} instructions / {} est. cycles ({:.1} % of the period; ending at {:.1} ms, {} of them in {})",
+        p.powerup_masked_max.0,
+        p.powerup_masked_max.1,
+        p.powerup_isr_max.0,
+        p.powerup_isr_max.1,
+        100.0 * p.powerup_isr_max.1 as f64 / p.period_cycles.max(1) as f64,
+        p.powerup_isr_max_at.0,
+        p.powerup_isr_max_at.2,
+        p.powerup_isr_max_at.1
     );
     for (ms, why, _) in &p.missed {
         let _ = writeln!(s, "- trigger overrun at {ms:.1} ms: {why}");
     }
     let _ = writeln!(s, "- power-up: {}", states.join(" → "));
+    if p.banks.len() > 1 {
+        let _ = writeln!(
+            s,
+            "- path banks streamed: {} (the last in force in Run)",
+            p.banks
+                .iter()
+                .map(|b| format!("`{}`", b.join(", ")))
+                .collect::<Vec<_>>()
+                .join(" → ")
+        );
+    }
     s
 }

@@ -37,6 +37,9 @@ pub struct Stats {
     pub isr_cycles_sum: u64,
     pub isr_cycles_max: u64,
     pub isr_cycles_entered_at: Option<u64>,
+    /// The longest interrupt (by cycles): when it returned (ticks), and its stages.
+    pub isr_cycles_max_at: u64,
+    pub isr_max_stages: [(u64, u64); STAGE_COUNT],
     /// Per stage: (instructions, cycles) of the interrupt under way, summed over the
     /// window, and the largest of one interrupt.
     pub stage_now: [(u64, u64); STAGE_COUNT],

@@ -138,7 +138,8 @@ fn a_host_that_stops_reading_rtt_costs_no_control_period() {
 /// firmware says it runs (its banner). `DRIVE_EMU_ELF` = the 40 kHz build checks that.
 #[test]
 fn the_control_interrupt_by_stage_adds_up_and_fits_the_period_in_run() {
-    let p = scenarios::perf_run(&elf(), 0.1).unwrap_or_else(|e| panic!("{e:#}"));
+    let p = scenarios::perf_run(&elf(), 0.1, scenarios::SensorBoard::Kmz41)
+        .unwrap_or_else(|e| panic!("{e:#}"));
     eprintln!("{}", scenarios::perf_table(&p, "test"));
     assert_eq!(p.missed_control, 0, "missed control periods");
     assert_eq!(p.firmware_pwm_hz, Some(p.pwm_hz.round() as u32));
