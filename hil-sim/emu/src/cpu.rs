@@ -5,7 +5,7 @@
 
 use crate::board::Board;
 use crate::elf::{self, Image, FLASH_BASE};
-use crate::machine::{Fault, Machine, ADC1_2_IRQ, SRAM, SRAM_BYTES};
+use crate::machine::{Fault, Machine, ADC1_2_IRQ, SRAM, SRAM_BYTES, USART3_IRQ};
 use crate::nvic;
 use crate::periph::rcc::ResetKind;
 use crate::periph::ticks;
@@ -321,6 +321,9 @@ impl Emu {
             m.call_stack.clear();
             m.stats.armed = true;
         }
+        if n == nvic::irq(USART3_IRQ) {
+            m.stats.task_entered_at = Some((m.cycles, m.stats.isr_count_total));
+        }
         m.cycles += cost;
         self.set_reg(RegisterARM::SP, frame)?;
         self.set_reg(RegisterARM::LR, exc_return)?;
@@ -378,6 +381,17 @@ impl Emu {
                 m.stats.close_stages();
             }
             m.call_stack.clear();
+        }
+        if done == Some(nvic::irq(USART3_IRQ)) {
+            if let Some((c0, isrs0)) = m.stats.task_entered_at.take() {
+                let c = m.cycles - c0;
+                if c > m.stats.task_cycles_max {
+                    m.stats.task_cycles_max = c;
+                    m.stats.task_max_at = m.now;
+                }
+                let spanned = m.stats.isr_count_total - isrs0;
+                m.stats.task_periods_max = m.stats.task_periods_max.max(spanned);
+            }
         }
         // A level-sensitive line still high pends again (B3.4.1).
         if (m.adc_irq_high || m.stuck_control_irq) && done == Some(nvic::irq(ADC1_2_IRQ)) {

@@ -52,6 +52,9 @@ pub const SRAM: u32 = 0x2000_0000;
 pub const SRAM_BYTES: u32 = 128 * 1024;
 /// The control interrupt: ADC1_2 is IRQ 18 (RM0440 §16.3 table 97).
 pub const ADC1_2_IRQ: u16 = 18;
+/// The adaptation task: RTIC binds it to USART3's vector, IRQ 39 (RM0440 §16.3 table
+/// 97), which no peripheral raises here; the control interrupt pends it.
+pub const USART3_IRQ: u16 = 39;
 
 /// Why the CPU must leave Unicorn at the next block boundary.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

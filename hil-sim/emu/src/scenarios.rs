@@ -611,6 +611,10 @@ pub struct Perf {
     /// When the power-up's longest interrupt ended (ms) and its largest stage (label,
     /// est. cycles).
     pub powerup_isr_max_at: (f64, &'static str, u64),
+    /// The adaptation task's longest run before Run and in the window: est. cycles
+    /// (preemptions included), control interrupts during it, when it ended (ms).
+    pub powerup_task_max: (u64, u64, f64),
+    pub task_max: (u64, u64, f64),
     /// The missed periods: (ms, why, pc of the code running then).
     pub missed: Vec<(f64, String, u32)>,
     pub window_s: f64,
@@ -643,6 +647,14 @@ pub fn perf_run(elf: &[u8], window_s: f64, sensor: SensorBoard) -> Result<Perf> 
     let st = &emu.m().stats;
     let powerup_masked_max = (st.masked_max, st.masked_max_at as f64 / TICK_HZ * 1e3);
     let powerup_isr_max = (st.isr_instrs_max, st.isr_cycles_max);
+    let task_max = |st: &crate::stats::Stats| {
+        (
+            st.task_cycles_max,
+            st.task_periods_max,
+            st.task_max_at as f64 / TICK_HZ * 1e3,
+        )
+    };
+    let powerup_task_max = task_max(st);
     let powerup_isr_max_at = {
         let (k, c) = st
             .isr_max_stages
@@ -715,6 +727,8 @@ pub fn perf_run(elf: &[u8], window_s: f64, sensor: SensorBoard) -> Result<Perf> 
         powerup_masked_max,
         powerup_isr_max,
         powerup_isr_max_at,
+        powerup_task_max,
+        task_max: task_max(st),
         missed: st
             .missed
             .iter()
@@ -803,6 +817,16 @@ pub fn perf_table(p: &Perf, title: &str) -> String {
         p.powerup_isr_max_at.0,
         p.powerup_isr_max_at.2,
         p.powerup_isr_max_at.1
+    );
+    let _ = writeln!(
+        s,
+        "- adaptation task (its updates are due {} periods after their sample): longest run {} est. cycles before Run (ending at {:.1} ms), {} in Run, control interrupts included; during it at most {} control periods before Run, {} in Run",
+        mras::UPDATE_LATENCY_PERIODS,
+        p.powerup_task_max.0,
+        p.powerup_task_max.2,
+        p.task_max.0,
+        p.powerup_task_max.1,
+        p.task_max.1
     );
     for (ms, why, _) in &p.missed {
         let _ = writeln!(s, "- trigger overrun at {ms:.1} ms: {why}");

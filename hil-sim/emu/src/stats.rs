@@ -45,6 +45,14 @@ pub struct Stats {
     pub stage_now: [(u64, u64); STAGE_COUNT],
     pub stage_sum: [(u64, u64); STAGE_COUNT],
     pub stage_max: [(u64, u64); STAGE_COUNT],
+    /// The adaptation task (USART3) under way: est. cycles and control interrupts
+    /// completed at its entry; over the window, its longest run from entry to return
+    /// (est. cycles, the control interrupts that preempted it included), how many
+    /// control periods that run spanned, and when it ended (ticks).
+    pub task_entered_at: Option<(u64, u64)>,
+    pub task_cycles_max: u64,
+    pub task_periods_max: u64,
+    pub task_max_at: u64,
     /// Longest wait from the request to the handler (instructions).
     pub latency_max: u64,
     /// Longest stretch with the control interrupt masked by PRIMASK or BASEPRI
@@ -75,6 +83,8 @@ impl Stats {
         self.stage_sum = Default::default();
         self.stage_max = Default::default();
         self.latency_max = 0;
+        self.task_cycles_max = 0;
+        self.task_periods_max = 0;
         self.masked_max = 0;
         self.masked_since = None;
     }
