@@ -688,7 +688,7 @@ pub fn perf_run(elf: &[u8], window_s: f64, sensor: SensorBoard) -> Result<Perf> 
         })
         .collect();
     let d = stream::decode(&emu.elf, &m.rtt.bytes).context("decoding the RTT stream")?;
-    // The bank in force: the last `mras-paths` line (init's, then each rebuild's).
+    // Every bank the stream named (`mras-paths`): init's, then each rebuild's.
     let banks: Vec<Vec<String>> = d
         .items
         .iter()
@@ -697,6 +697,7 @@ pub fn perf_run(elf: &[u8], window_s: f64, sensor: SensorBoard) -> Result<Perf> 
             _ => None,
         })
         .collect();
+    // "drive-fw: 20000 Hz PWM, SYSCLK ..."
     let firmware_pwm_hz = d.items.iter().find_map(|i| match i {
         Item::Other(o) => o
             .strip_prefix("drive-fw: ")?
