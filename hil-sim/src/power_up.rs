@@ -4,6 +4,7 @@
 //! (self-commissioning, electrical alignment, store), the second with what the first one
 //! stored.
 
+use crate::accuracy::stats::Dist;
 use crate::rig::{Rig, SimFlash, Step, Streamed};
 use crate::scenario::{NamedCoefficient, Probe, Scenario, Window, WindowStats};
 use crate::truth_spectrum::{Recorder, TruthSpectrum};
@@ -274,22 +275,22 @@ impl SeedSpread {
         Ok(Self { runs })
     }
 
-    fn over(&self, pick: fn(&OracleRatios) -> f64) -> crate::accuracy::stats::Dist {
-        crate::accuracy::stats::Dist::of(self.runs.iter().flat_map(|(_, r)| r.iter().map(pick)))
+    fn over(&self, pick: fn(&OracleRatios) -> f64) -> Dist {
+        Dist::of(self.runs.iter().flat_map(|(_, r)| r.iter().map(pick)))
     }
 
     /// Over every power-up, m = 1, 2.
-    pub fn m1_m2(&self) -> crate::accuracy::stats::Dist {
+    pub fn m1_m2(&self) -> Dist {
         self.over(|r| r.m1_m2)
     }
 
     /// Over every power-up, m = 1, 2 to the noise floor.
-    pub fn m1_m2_floor(&self) -> crate::accuracy::stats::Dist {
+    pub fn m1_m2_floor(&self) -> Dist {
         self.over(|r| r.m1_m2_floor)
     }
 
     /// Over every power-up, m = 3..16 with a path.
-    pub fn m3_up(&self) -> crate::accuracy::stats::Dist {
+    pub fn m3_up(&self) -> Dist {
         self.over(|r| r.m3_up)
     }
 }

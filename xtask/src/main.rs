@@ -274,19 +274,26 @@ fn emu(args: &[&str]) -> Result<()> {
     run(c)
 }
 
-/// The firmware builds `perf` measures: (label, cargo features, ELF name); the last
-/// runs on the emulated board with an N = 1 sensor.
-const PERF_BUILDS: [(&str, &[&str], &str); 3] = [
-    ("20 kHz", &[], "drive-fw-20k"),
-    ("40 kHz", &["--features", "pwm-40khz"], "drive-fw-40k"),
+/// The firmware builds `perf` measures: (label, cargo features, ELF name, the
+/// `drive-emu perf` option that names the board it runs on: `--n1-build` for the
+/// N = 1 sensor).
+const PERF_BUILDS: [(&str, &[&str], &str, &str); 3] = [
+    ("20 kHz", &[], "drive-fw-20k", "--build"),
+    (
+        "40 kHz",
+        &["--features", "pwm-40khz"],
+        "drive-fw-40k",
+        "--build",
+    ),
     (
         "20 kHz, N = 1 sensor, bank from the data",
         &["--features", "sensor-n1"],
         "drive-fw-n1",
+        "--n1-build",
     ),
 ];
 
-/// Both rates cross-built (each copied aside: they link to the same path), each
+/// Every build cross-built (each copied aside: they link to the same path), each
 /// commissioned to Run on the emulator and measured by stage; `report` regenerates
 /// that document's section. The default build is rebuilt last, so the release ELF
 /// other commands use stays the 20 kHz one.
@@ -302,18 +309,13 @@ fn perf(report: Option<&str>) -> Result<()> {
         .join("release")
         .join(FIRMWARE);
     let mut builds = Vec::new();
-    for (label, features, name) in PERF_BUILDS.iter().rev() {
+    for (label, features, name, board) in PERF_BUILDS.iter().rev() {
         let mut c = cross_build(FIRMWARE);
         c.args(*features);
         run(c)?;
         let out = dir.join(name);
         std::fs::copy(&built, &out).with_context(|| out.display().to_string())?;
-        let board = if features.contains(&"sensor-n1") {
-            "--n1-build"
-        } else {
-            "--build"
-        };
-        builds.push((board, format!("{label}={}", out.display())));
+        builds.push((*board, format!("{label}={}", out.display())));
     }
     builds.reverse();
     let mut c = cargo();
