@@ -40,7 +40,8 @@ cargo xtask <command>
                 scan)
   flash         build, flash and attach to the RTT stream (probe-rs, board attached)
   qemu          the core on an emulated Cortex-M4F: bit-exact against the host
-  cycles        instructions and estimated cycles per core step (emulator trace)
+  cycles        instructions and estimated cycles per core step (QEMU's instruction
+                trace; installs Debian qemu-system-arm if missing)
   docs-tables   regenerate the tables of docs/theory.md (prints markdown)
   bench-accuracy  the accuracy benchmark against offline calibrations (500 sensors,
                 release): regenerates docs/results.md and docs/results/; further
@@ -300,7 +301,6 @@ const PERF_BUILDS: [(&str, &[&str], &str, &str); 3] = [
 fn perf(report: Option<&str>) -> Result<()> {
     setup()?;
     emu_setup()?;
-    qemu::ensure("arm-none-eabi-objdump", "binutils-arm-none-eabi")?;
     let dir = root().join("target").join("perf");
     std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
     let built = root()
