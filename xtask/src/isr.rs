@@ -1,218 +1,38 @@
-//! `cargo xtask isr-check`: what the control interrupt can reach, proven on the release
-//! ELF's disassembly.
+//! `cargo xtask isr-check`: what the control interrupt can reach, proven on a firmware
+//! ELF's disassembly, failing closed.
 //!
 //! From the `ADC1_2` handler (and the `USART3` one, the adaptation task the control
-//! interrupt hands its samples to), every direct call (`bl`, `blx <imm>`) and every branch that
-//! leaves the current function (a tail call: `b`, `b<cond>`, `cbz`, `cbnz`) is followed,
-//! transitively. The check fails if the reachable code
-//! - calls an f64 soft-float routine (`__aeabi_d*`, `__aeabi_*2d`, libgcc's `__*df*`):
+//! interrupt hands its samples to), every path is followed instruction by instruction
+//! (`m4_cycles::Image`: Capstone's decoding, the ELF's mapping symbols and function
+//! symbols): fall-through, branches in and out of a function (a tail call), calls, both
+//! sides of anything conditional (`b<c>`, `cbz`, and whatever an IT block makes
+//! conditional: `bleq` is a call and a fall-through, `bxne lr` a return and a
+//! fall-through), and jump tables (`tbb`/`tbh [pc, ..]`, decoded from the bytes). The
+//! check fails if the reachable code
+//! - enters an f64 soft-float routine (`__aeabi_d*`, `__aeabi_*2d`, libgcc's `__*df*`):
 //!   the Cortex-M4F's FPU is single precision, so f64 is software, hundreds of cycles a
 //!   operation;
-//! - reaches a panic path (`core::panicking::*`, `*_fail`, `unwrap_failed`, ...) or an
-//!   `udf`: a panic in the control interrupt leaves the bridge to whatever the panic
+//! - enters a panic path (`core::panicking::*`, `*_fail`, `unwrap_failed`, ...) or runs
+//!   an `udf`: a panic in the control interrupt leaves the bridge to whatever the panic
 //!   handler does, instead of the control period's own safe state;
-//! - jumps or calls through a register out of its function (`blx rN`, `bx rN` other than
-//!   `bx lr`, `mov pc, rN`, `ldr pc, ...` other than a pop): what it reaches cannot be
-//!   proven here.
+//! - writes the PC in any way it cannot follow: `bx rN` other than `bx lr`, `blx rN`,
+//!   `ldr pc, ..` other than the one-register pop, `ldm .., {.., pc}` other than a pop,
+//!   `add pc, ..`, `mov pc, ..`, a jump table it cannot decode, `blx` to the Arm state;
+//! - runs into what is not code it can prove: bytes that decode to no Cortex-M4F
+//!   instruction, data (`$d`: literal pools, tables), an address that is not an
+//!   instruction's first byte, code outside every function symbol, the end of a function
+//!   (falling through into whatever follows);
+//! - branches or calls into the middle of a function (followed from the target, so that
+//!   what it reaches from there is checked too).
 
-use crate::{output_of, root, TARGET};
 use anyhow::{anyhow, Context, Result};
-use std::collections::{BTreeMap, HashMap, VecDeque};
+use m4_cycles::{Flow, Function, Image, Insn};
+use std::collections::{HashMap, HashSet};
+use std::path::{Path, PathBuf};
 
 /// The control interrupt, and the adaptation task it hands every sample to (RTIC binds it
-/// to USART3's vector): neither may reach f64 soft-float, a panic or an indirect call.
+/// to USART3's vector): neither may reach f64 soft-float, a panic or an unprovable jump.
 const ROOTS: [&str; 2] = ["ADC1_2", "USART3"];
-
-/// One instruction of the disassembly.
-#[derive(Clone, Debug, PartialEq)]
-struct Insn {
-    addr: u64,
-    mnemonic: String,
-    operands: String,
-}
-
-/// Functions (by name, in address order of their start) and their instructions, and
-/// the loaded bytes (for jump tables).
-#[derive(Debug, Default)]
-struct Program {
-    functions: BTreeMap<u64, (String, Vec<Insn>)>,
-    /// (address, bytes) of each loaded section.
-    memory: Vec<(u64, Vec<u8>)>,
-}
-
-impl Program {
-    /// From `objdump -d --no-show-raw-insn -C` text.
-    fn parse(text: &str) -> Self {
-        let mut functions = BTreeMap::new();
-        let mut current: Option<(u64, String, Vec<Insn>)> = None;
-        for line in text.lines() {
-            if let Some((addr, name)) = function_header(line) {
-                if let Some((a, n, body)) = current.take() {
-                    functions.insert(a, (n, body));
-                }
-                current = Some((addr, name.to_string(), Vec::new()));
-            } else if let (Some(i), Some(f)) = (instruction(line), current.as_mut()) {
-                f.2.push(i);
-            }
-        }
-        if let Some((a, n, body)) = current {
-            functions.insert(a, (n, body));
-        }
-        Self {
-            functions,
-            memory: Vec::new(),
-        }
-    }
-
-    fn byte(&self, addr: u64) -> Option<u8> {
-        self.memory.iter().find_map(|(start, data)| {
-            let off = addr.checked_sub(*start)?;
-            data.get(usize::try_from(off).ok()?).copied()
-        })
-    }
-
-    /// The targets of the jump table of `tbb [pc, rN]` / `tbh [pc, rN, lsl #1]` at
-    /// `i`: entries (bytes or halfwords) right after the instruction, each a forward
-    /// offset in halfwords from there; the table ends where the first target begins.
-    fn table_targets(&self, i: &Insn) -> Option<Vec<u64>> {
-        if !i.operands.starts_with("[pc,") {
-            return None;
-        }
-        let half = base(&i.mnemonic) == "tbh";
-        let table = i.addr + 4;
-        let size = if half { 2 } else { 1 };
-        let mut end = u64::MAX;
-        let mut targets = Vec::new();
-        let mut k = 0;
-        while table + k * size < end && k < 4096 {
-            let at = table + k * size;
-            let entry = if half {
-                u16::from_le_bytes([self.byte(at)?, self.byte(at + 1)?]) as u64
-            } else {
-                self.byte(at)? as u64
-            };
-            let t = table + 2 * entry;
-            k += 1;
-            if t < table + k * size {
-                // Into the table itself: alignment padding after the last entry.
-                break;
-            }
-            end = end.min(t);
-            targets.push(t);
-        }
-        Some(targets)
-    }
-
-    fn by_name(&self, name: &str) -> Option<u64> {
-        self.functions
-            .iter()
-            .find(|(_, (n, _))| n == name)
-            .map(|(a, _)| *a)
-    }
-
-    /// The function containing `addr`.
-    fn containing(&self, addr: u64) -> Option<u64> {
-        let (&start, (_, body)) = self.functions.range(..=addr).next_back()?;
-        let end = body.last().map_or(start, |i| i.addr);
-        (addr <= end).then_some(start)
-    }
-}
-
-/// `08000238 <ADC1_2>:` → (0x08000238, "ADC1_2").
-fn function_header(line: &str) -> Option<(u64, &str)> {
-    let (addr, rest) = line.split_once(' ')?;
-    let name = rest.strip_prefix('<')?.strip_suffix(">:")?;
-    Some((u64::from_str_radix(addr, 16).ok()?, name))
-}
-
-/// ` 8000238:\tpush\t{r4, lr}` → the instruction.
-fn instruction(line: &str) -> Option<Insn> {
-    let (addr, rest) = line.trim_start().split_once(":\t")?;
-    let addr = u64::from_str_radix(addr, 16).ok()?;
-    let mut parts = rest.splitn(2, '\t');
-    let mnemonic = parts.next()?.trim().to_string();
-    if mnemonic.is_empty() || mnemonic.starts_with('.') {
-        return None;
-    }
-    let operands = parts.next().unwrap_or("").trim().to_string();
-    Some(Insn {
-        addr,
-        mnemonic,
-        operands,
-    })
-}
-
-/// A direct branch's target address (`bl 800d940 <...>`, `cbz r0, 8000a10 <...>`).
-fn direct_target(i: &Insn) -> Option<u64> {
-    let m = i.mnemonic.trim_end_matches(".w").trim_end_matches(".n");
-    let is_branch = m == "bl"
-        || m == "blx"
-        || m == "b"
-        || m == "cbz"
-        || m == "cbnz"
-        || (m.len() == 3 && m.starts_with('b') && is_condition(&m[1..]));
-    if !is_branch {
-        return None;
-    }
-    let ops = i.operands.split('<').next().unwrap_or("");
-    let target = ops.rsplit([' ', ',']).find(|s| !s.is_empty())?;
-    u64::from_str_radix(target.trim(), 16).ok()
-}
-
-fn is_condition(c: &str) -> bool {
-    [
-        "eq", "ne", "cs", "cc", "hs", "lo", "mi", "pl", "vs", "vc", "hi", "ls", "ge", "lt", "gt",
-        "le",
-    ]
-    .contains(&c)
-}
-
-/// How an instruction ends or continues the path through its function.
-#[derive(Debug, PartialEq)]
-enum Flow {
-    /// Falls through to the next instruction.
-    Next,
-    /// Return: the path ends.
-    Return,
-    /// Unconditional branch to `target` (in or out of the function).
-    Jump(u64),
-    /// Conditional branch to `target`, or fall through.
-    Branch(u64),
-    /// Call of `target`, then fall through.
-    Call(u64),
-    /// Through a register out of the function: unprovable.
-    Indirect,
-    /// A jump table (`tbb`, `tbh`): its targets are data.
-    Table,
-    Udf,
-}
-
-fn base(mnemonic: &str) -> &str {
-    mnemonic.trim_end_matches(".w").trim_end_matches(".n")
-}
-
-fn flow(i: &Insn) -> Flow {
-    let m = base(&i.mnemonic);
-    let ops = i.operands.as_str();
-    let pops_pc = ops.contains("pc}");
-    match m {
-        "udf" => Flow::Udf,
-        "tbb" | "tbh" => Flow::Table,
-        "bx" if ops == "lr" => Flow::Return,
-        "bx" => Flow::Indirect,
-        "pop" if pops_pc => Flow::Return,
-        "ldmia" | "ldm" if ops.starts_with("sp!") && pops_pc => Flow::Return,
-        "ldr" if ops.starts_with("pc, [sp]") => Flow::Return,
-        "ldr" | "mov" if ops.starts_with("pc,") => Flow::Indirect,
-        "blx" if !ops.starts_with(|c: char| c.is_ascii_hexdigit()) => Flow::Indirect,
-        _ => match (direct_target(i), m) {
-            (Some(t), "bl" | "blx") => Flow::Call(t),
-            (Some(t), "b") => Flow::Jump(t),
-            (Some(t), _) => Flow::Branch(t),
-            (None, _) => Flow::Next,
-        },
-    }
-}
 
 /// An f64 soft-float routine, by its (demangled) name's last segment.
 fn is_f64_routine(name: &str) -> bool {
@@ -234,192 +54,338 @@ fn is_panic_path(name: &str) -> bool {
         || last.contains("rust_begin_unwind")
 }
 
-/// What the scan found.
+/// What the scan of one root found.
 #[derive(Debug, Default, PartialEq)]
 struct Findings {
+    /// Functions with at least one reachable instruction.
     reachable_functions: usize,
     reachable_instructions: usize,
-    /// Offending (function or instruction) with the call chain from the root.
+    /// Each offence, with the call chain from the root.
     problems: Vec<String>,
 }
 
-fn scan(p: &Program, root_name: &str) -> Result<Findings> {
-    let root_addr = p
-        .by_name(root_name)
-        .ok_or_else(|| anyhow!("no function `{root_name}` in the disassembly"))?;
-    let mut parent: HashMap<u64, Option<u64>> = HashMap::from([(root_addr, None)]);
-    let mut queue = VecDeque::from([root_addr]);
-    let mut f = Findings::default();
-    let chain = |parent: &HashMap<u64, Option<u64>>, mut at: u64| {
-        let mut names = Vec::new();
-        loop {
-            names.push(
-                p.functions
-                    .get(&at)
-                    .map_or("?", |(n, _)| n.as_str())
-                    .to_string(),
-            );
-            match parent.get(&at).copied().flatten() {
-                Some(up) => at = up,
-                None => break,
-            }
+/// Where the scan entered code: the root, a call's or a tail call's target.
+struct Entry {
+    /// The function's name, `+0x..` when entered in its middle.
+    name: String,
+    /// The entry it was reached from.
+    parent: Option<usize>,
+}
+
+struct Scan<'a> {
+    image: &'a Image,
+    entries: Vec<Entry>,
+    entered: HashMap<u32, usize>,
+    /// (address, entry it belongs to, the instruction that led there).
+    todo: Vec<(u32, usize, Option<u32>)>,
+    seen: HashSet<u32>,
+    functions: HashSet<u32>,
+    problems: Vec<String>,
+}
+
+fn text(i: &Insn) -> String {
+    if i.operands.is_empty() {
+        i.mnemonic.clone()
+    } else {
+        format!("{} {}", i.mnemonic, i.operands)
+    }
+}
+
+impl<'a> Scan<'a> {
+    /// `root -> caller -> .. -> entry`.
+    fn chain(&self, mut at: usize) -> String {
+        let mut names = vec![self.entries[at].name.as_str()];
+        while let Some(up) = self.entries[at].parent {
+            names.push(&self.entries[up].name);
+            at = up;
         }
         names.reverse();
         names.join(" -> ")
-    };
-    while let Some(start) = queue.pop_front() {
-        let Some((name, body)) = p.functions.get(&start) else {
-            continue;
+    }
+
+    fn problem(&mut self, what: String, entry: usize) {
+        let chain = self.chain(entry);
+        self.problems.push(format!("{what}: {chain}"));
+    }
+
+    /// `addr` reached by a call or a branch out of its function from the instruction at
+    /// `site` (in `from`): checked by the name of the function it enters, then followed.
+    fn enter(&mut self, addr: u32, from: usize, site: u32) {
+        if self.entered.contains_key(&addr) {
+            return;
+        }
+        let image = self.image;
+        let function = image.function_containing(addr);
+        let name = match function {
+            Some(f) if f.start == addr => f.name.clone(),
+            Some(f) => format!("{}+{:#x}", f.name, addr - f.start),
+            None => format!("{addr:#x}"),
         };
-        f.reachable_functions += 1;
-        if is_f64_routine(name) {
-            f.problems
-                .push(format!("f64 soft-float: {}", chain(&parent, start)));
-            continue;
+        let k = self.entries.len();
+        self.entries.push(Entry {
+            name,
+            parent: Some(from),
+        });
+        self.entered.insert(addr, k);
+        let Some(f) = function else {
+            self.problem(
+                format!("branch at {site:#x} to {addr:#x}, in no function"),
+                k,
+            );
+            return;
+        };
+        if is_f64_routine(&f.name) {
+            self.problem("f64 soft-float".into(), k);
+            return;
         }
-        if is_panic_path(name) {
-            f.problems
-                .push(format!("panic path: {}", chain(&parent, start)));
-            continue;
+        if is_panic_path(&f.name) {
+            self.problem("panic path".into(), k);
+            return;
         }
-        // The function's own control flow from its entry: padding and literal pools
-        // after its last return are data, not code.
-        let index: HashMap<u64, usize> =
-            body.iter().enumerate().map(|(k, i)| (i.addr, k)).collect();
-        let mut seen = vec![false; body.len()];
-        let mut todo = vec![0usize];
-        let mut enter =
-            |callee: u64, at: &Insn, f: &mut Findings, parent: &mut HashMap<u64, Option<u64>>| {
-                match p.containing(callee) {
-                    Some(c) if c != start => {
-                        if let std::collections::hash_map::Entry::Vacant(e) = parent.entry(c) {
-                            e.insert(Some(start));
-                            queue.push_back(c);
-                        }
-                    }
-                    Some(_) => {}
-                    None => f.problems.push(format!(
-                        "branch to {callee:#x} outside any function at {:#x}: {}",
-                        at.addr,
-                        chain(parent, start)
-                    )),
-                }
+        if f.start != addr {
+            self.problem(
+                format!(
+                    "branch at {site:#x} into the middle of `{}` ({addr:#x}), followed from there",
+                    f.name
+                ),
+                k,
+            );
+        }
+        self.todo.push((addr, k, Some(site)));
+    }
+
+    /// A branch from `site` in `function` to `target`: inside it, the path goes on
+    /// there; elsewhere, a tail call.
+    fn branch(&mut self, function: &Function, target: u32, entry: usize, site: u32) {
+        if (function.start..function.end()).contains(&target) {
+            self.todo.push((target, entry, Some(site)));
+        } else {
+            self.enter(target, entry, site);
+        }
+    }
+
+    /// The targets of the jump table of `tbb [pc, rN]` / `tbh [pc, rN, lsl #1]` at
+    /// `site`: entries (bytes or halfwords) right after the instruction, each a forward
+    /// offset in halfwords from there; the table ends where its data (`$d`) ends or the
+    /// first target begins, whichever is first.
+    fn table_targets(&self, site: u32, halfwords: bool) -> Result<Vec<u32>, String> {
+        let table = site + 4;
+        let size = if halfwords { 2 } else { 1 };
+        let mut end = self.image.data_at(table).map_or(u32::MAX, |r| r.end);
+        let mut targets = Vec::new();
+        let mut k = 0;
+        while table + k * size < end {
+            let at = table + k * size;
+            let byte = |a: u32| {
+                self.image
+                    .byte(a)
+                    .ok_or_else(|| format!("table entry at {a:#x} outside the image"))
             };
-        while let Some(k) = todo.pop() {
-            let mut k = k;
-            while let Some(i) = body.get(k) {
-                if std::mem::replace(&mut seen[k], true) {
-                    break;
+            let entry = if halfwords {
+                u32::from(u16::from_le_bytes([byte(at)?, byte(at + 1)?]))
+            } else {
+                u32::from(byte(at)?)
+            };
+            let t = table + 2 * entry;
+            k += 1;
+            if t < table + k * size {
+                // Into the table itself: no entry can (its targets follow it), so this
+                // is the alignment padding after the last one.
+                break;
+            }
+            end = end.min(t);
+            targets.push(t);
+        }
+        if targets.is_empty() {
+            return Err("no entries".into());
+        }
+        Ok(targets)
+    }
+
+    /// Follow every path from the queue.
+    fn run(&mut self) {
+        let image = self.image;
+        while let Some((addr, entry, from)) = self.todo.pop() {
+            if !self.seen.insert(addr) {
+                continue;
+            }
+            let via = from.map_or(String::new(), |s| format!(" (from {s:#x})"));
+            let Some(i) = image.insns.get(&addr) else {
+                let what = if let Some(r) = image.data_at(addr) {
+                    format!(
+                        "data reached as code at {addr:#x}{via} (data {:#x}..{:#x})",
+                        r.start, r.end
+                    )
+                } else if image.undecodable.contains(&addr) {
+                    format!("no Cortex-M4F instruction decodes at {addr:#x}{via}")
+                } else if let Some((a, i)) = image.insns.range(..addr).next_back() {
+                    if a + i.size > addr {
+                        format!(
+                            "{addr:#x}{via} is inside the instruction at {a:#x} (`{}`), not at its start",
+                            text(i)
+                        )
+                    } else {
+                        format!("{addr:#x}{via} is not code")
+                    }
+                } else {
+                    format!("{addr:#x}{via} is not code")
+                };
+                self.problem(what, entry);
+                continue;
+            };
+            let Some(function) = image.function_containing(addr) else {
+                self.problem(
+                    format!("`{}` at {addr:#x}{via} is in no function", text(i)),
+                    entry,
+                );
+                continue;
+            };
+            self.functions.insert(function.start);
+            let next = addr + i.size;
+            let at = |what: &str| format!("{what} `{}` at {addr:#x}", text(i));
+            // The path past this instruction, where it has one.
+            let mut falls_through = i.conditional;
+            match i.flow {
+                Flow::Udf => self.problem(at("udf"), entry),
+                Flow::Next => falls_through = true,
+                Flow::Branch { target } => self.branch(function, target, entry, addr),
+                Flow::Call { to_arm: true, .. } => {
+                    self.problem(at("call to the Arm state"), entry);
                 }
-                f.reachable_instructions += 1;
-                let local = |t: u64| index.get(&t).copied();
-                match flow(i) {
-                    Flow::Next => k += 1,
-                    Flow::Return => break,
-                    Flow::Udf => {
-                        f.problems
-                            .push(format!("udf at {:#x}: {}", i.addr, chain(&parent, start)));
-                        break;
-                    }
-                    Flow::Indirect => {
-                        f.problems.push(format!(
-                            "indirect `{} {}` at {:#x}: {}",
-                            i.mnemonic,
-                            i.operands,
-                            i.addr,
-                            chain(&parent, start)
-                        ));
-                        break;
-                    }
-                    Flow::Table => {
-                        match p.table_targets(i) {
-                            Some(ts) if ts.iter().all(|t| local(*t).is_some()) => {
-                                todo.extend(ts.iter().filter_map(|t| local(*t)));
+                Flow::Call { target, .. } => {
+                    self.enter(target, entry, addr);
+                    falls_through = true;
+                }
+                // Returns.
+                Flow::Register {
+                    reg: 14,
+                    link: false,
+                }
+                | Flow::Load { pop: true }
+                | Flow::LoadMultiple {
+                    base: 13,
+                    writeback: true,
+                    increment_after: true,
+                } => {}
+                Flow::Register { .. } => self.problem(at("indirect branch"), entry),
+                Flow::Load { pop: false } => self.problem(at("PC loaded from memory"), entry),
+                Flow::LoadMultiple { .. } => {
+                    self.problem(at("PC loaded from memory, not a pop"), entry)
+                }
+                Flow::Table {
+                    base: 15,
+                    halfwords,
+                } => match self.table_targets(addr, halfwords) {
+                    Ok(targets) => {
+                        for t in targets {
+                            if (function.start..function.end()).contains(&t) {
+                                self.todo.push((t, entry, Some(addr)));
+                            } else {
+                                self.problem(
+                                    format!(
+                                        "{}: target {t:#x} outside `{}`",
+                                        at("jump table"),
+                                        function.name
+                                    ),
+                                    entry,
+                                );
                             }
-                            _ => f.problems.push(format!(
-                                "jump table `{} {}` at {:#x} not decoded: {}",
-                                i.mnemonic,
-                                i.operands,
-                                i.addr,
-                                chain(&parent, start)
-                            )),
                         }
-                        break;
                     }
-                    Flow::Call(t) => {
-                        enter(t, i, &mut f, &mut parent);
-                        k += 1;
+                    Err(why) => {
+                        self.problem(format!("{} not decoded: {why}", at("jump table")), entry)
                     }
-                    Flow::Jump(t) => match local(t) {
-                        Some(j) => k = j,
-                        None => {
-                            enter(t, i, &mut f, &mut parent);
-                            break;
-                        }
-                    },
-                    Flow::Branch(t) => {
-                        match local(t) {
-                            Some(j) => todo.push(j),
-                            None => enter(t, i, &mut f, &mut parent),
-                        }
-                        k += 1;
-                    }
+                },
+                Flow::Table { .. } => {
+                    self.problem(at("jump table not at the PC"), entry);
+                }
+                Flow::Other => self.problem(at("PC write not followed"), entry),
+            }
+            if falls_through {
+                if next < function.end() {
+                    self.todo.push((next, entry, None));
+                } else {
+                    self.problem(
+                        format!(
+                            "{} falls through past the end of `{}` ({:#x})",
+                            at("the path through"),
+                            function.name,
+                            function.end()
+                        ),
+                        entry,
+                    );
                 }
             }
         }
     }
-    f.problems.sort();
-    Ok(f)
 }
 
-/// (address, bytes) of the ELF's sections that hold code or data.
-fn loaded_sections(elf: &[u8]) -> Result<Vec<(u64, Vec<u8>)>> {
-    use object::{Object, ObjectSection};
-    let file = object::File::parse(elf)?;
-    Ok(file
-        .sections()
-        .filter(|s| s.address() != 0)
-        .filter_map(|s| Some((s.address(), s.data().ok()?.to_vec())))
-        .collect())
+fn scan(image: &Image, root: &str) -> Result<Findings> {
+    let start = image
+        .function(root)
+        .ok_or_else(|| anyhow!("no function `{root}` in the symbol table"))?
+        .start;
+    let mut s = Scan {
+        image,
+        entries: vec![Entry {
+            name: root.to_string(),
+            parent: None,
+        }],
+        entered: HashMap::from([(start, 0)]),
+        todo: vec![(start, 0, None)],
+        seen: HashSet::new(),
+        functions: HashSet::new(),
+        problems: Vec::new(),
+    };
+    s.run();
+    let mut problems = s.problems;
+    problems.sort();
+    problems.dedup();
+    Ok(Findings {
+        reachable_functions: s.functions.len(),
+        reachable_instructions: s
+            .seen
+            .iter()
+            .filter(|a| image.insns.contains_key(a))
+            .count(),
+        problems,
+    })
 }
 
-/// Scan the release firmware; error (listing every problem) if any.
-pub fn check() -> Result<()> {
-    crate::qemu::ensure("arm-none-eabi-objdump", "binutils-arm-none-eabi")?;
-    let elf = root()
+/// The default build's ELF (`cargo xtask build-cross`), what `isr-check` and `ci` scan.
+pub fn release_elf() -> PathBuf {
+    crate::root()
         .join("target")
-        .join(TARGET)
+        .join(crate::TARGET)
         .join("release")
-        .join(crate::FIRMWARE);
-    let elf = elf.to_string_lossy().into_owned();
-    let text = output_of(
-        "arm-none-eabi-objdump",
-        &["-d", "--no-show-raw-insn", "-C", &elf],
-    )
-    .ok_or_else(|| anyhow!("arm-none-eabi-objdump -d {elf} failed (build the firmware first)"))?;
-    let data = std::fs::read(&elf).with_context(|| elf.clone())?;
-    let mut program = Program::parse(&text);
-    program.memory = loaded_sections(&data).with_context(|| elf.clone())?;
+        .join(crate::FIRMWARE)
+}
+
+/// Scan the firmware ELF `elf`; error (listing every problem) if any.
+pub fn check(elf: &Path) -> Result<()> {
+    let name = elf.display().to_string();
+    let data = std::fs::read(elf).with_context(|| format!("{name} (build the firmware first)"))?;
+    let image = Image::parse(&data).with_context(|| name.clone())?;
     let mut failed = 0;
     for root in ROOTS {
-        let f = scan(&program, root)?;
-        if f.problems.is_empty() {
-            eprintln!(
-                "isr-check: {root} reaches {} functions, {} instructions: no f64 soft-float routine, no panic path, no indirect call",
-                f.reachable_functions, f.reachable_instructions
-            );
-        } else {
-            for p in &f.problems {
-                eprintln!("isr-check: {p}");
-            }
-            failed += f.problems.len();
+        let f = scan(&image, root).with_context(|| name.clone())?;
+        eprintln!(
+            "isr-check {name}: {root} reaches {} functions, {} instructions",
+            f.reachable_functions, f.reachable_instructions
+        );
+        for p in &f.problems {
+            eprintln!("isr-check: {p}");
         }
+        failed += f.problems.len();
     }
     if failed == 0 {
+        eprintln!(
+            "isr-check {name}: no f64 soft-float routine, no panic path, every PC write followed"
+        );
         Ok(())
     } else {
         Err(anyhow!(
-            "the control interrupt or the adaptation task reaches {failed} forbidden routine(s) or unprovable jump(s)"
+            "{name}: the control interrupt or the adaptation task reaches {failed} forbidden routine(s), unprovable jump(s) or non-code"
         ))
     }
 }
@@ -427,43 +393,129 @@ pub fn check() -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use m4_cycles::Mapping;
 
-    /// A small program: the root calls a helper that tail-calls into f64 addition, and
-    /// calls a safe single-precision routine; another helper panics; one is unreachable.
-    const TEXT: &str = "
-08000100 <ADC1_2>:
- 8000100:\tpush\t{r7, lr}
- 8000102:\tbl\t8000200 <helper>
- 8000106:\tbl\t8000300 <__aeabi_fmul>
- 800010a:\tbeq.w\t8000110 <ADC1_2+0x10>
- 800010e:\tcbz\tr0, 8000400 <checked>
- 8000110:\tpop\t{r7, pc}
+    /// One Thumb instruction of a hand-assembled test program.
+    #[derive(Clone, Copy)]
+    enum I {
+        /// A 16-bit encoding.
+        H(u16),
+        /// A 32-bit encoding (first halfword first).
+        W(u16, u16),
+        /// `bl <target>`
+        Bl(u32),
+        /// `b.w <target>`
+        Bw(u32),
+        /// `b<cond>.n <target>`
+        Bc(u8, u32),
+    }
+    use I::*;
 
-08000200 <helper>:
- 8000200:\tvmov\ts0, r0
- 8000204:\tb.w\t8000500 <compiler_builtins::float::add::__adddf3>
+    /// The halfwords of BL (`link`) or B.W (T4) at `pc` to `target` (ARM ARM A7.7.12,
+    /// A7.7.18): S, J1, J2, imm10, imm11 of the offset from `pc + 4`.
+    fn branch_t4(pc: u32, target: u32, link: bool) -> [u16; 2] {
+        let off = target.wrapping_sub(pc + 4) as i32;
+        assert!((-(1 << 24)..(1 << 24)).contains(&off) && off % 2 == 0);
+        let s = u16::from(off < 0);
+        let i1 = ((off >> 23) & 1) as u16;
+        let i2 = ((off >> 22) & 1) as u16;
+        let (j1, j2) = ((i1 ^ 1) ^ s, (i2 ^ 1) ^ s);
+        let imm10 = ((off >> 12) & 0x3ff) as u16;
+        let imm11 = ((off >> 1) & 0x7ff) as u16;
+        let second = if link { 0xd000 } else { 0x9000 };
+        [
+            0xf000 | s << 10 | imm10,
+            second | j1 << 13 | j2 << 11 | imm11,
+        ]
+    }
 
-08000300 <__aeabi_fmul>:
- 8000300:\tvmul.f32\ts0, s0, s1
- 8000304:\tbx\tlr
+    fn assemble(start: u32, body: &[I]) -> Vec<u16> {
+        let mut out = Vec::new();
+        for i in body {
+            let pc = start + 2 * out.len() as u32;
+            match *i {
+                H(h) => out.push(h),
+                W(a, b) => out.extend([a, b]),
+                Bl(t) => out.extend(branch_t4(pc, t, true)),
+                Bw(t) => out.extend(branch_t4(pc, t, false)),
+                Bc(cond, t) => {
+                    let off = t.wrapping_sub(pc + 4) as i32 / 2;
+                    assert!((-128..128).contains(&off));
+                    out.push(0xd000 | u16::from(cond) << 8 | (off as u16 & 0xff));
+                }
+            }
+        }
+        out
+    }
 
-08000400 <checked>:
- 8000400:\tbl\t8000600 <core::panicking::panic_bounds_check>
- 8000404:\tbx\tlr
+    const BASE: u32 = 0x0800_0000;
+    /// Each function at its own 0x100 bytes; the gaps hold `udf`.
+    fn at(k: u32) -> u32 {
+        BASE + 0x100 * k
+    }
 
-08000500 <compiler_builtins::float::add::__adddf3>:
- 8000500:\tbx\tlr
+    /// An image of `functions` (name, slot, body) with `data` (from, to) marked `$d`.
+    fn image(functions: &[(&str, u32, Vec<I>)], data: &[(u32, u32)]) -> Image {
+        let slots = functions.iter().map(|f| f.1).max().unwrap() + 1;
+        let mut halfwords = vec![0xde00u16; (0x80 * slots) as usize];
+        let mut symbols = Vec::new();
+        for (name, slot, body) in functions {
+            let code = assemble(at(*slot), body);
+            let from = (0x80 * slot) as usize;
+            halfwords[from..from + code.len()].copy_from_slice(&code);
+            symbols.push(Function {
+                name: name.to_string(),
+                start: at(*slot),
+                size: 2 * code.len() as u32,
+            });
+        }
+        let mut mapping = Vec::new();
+        for &(from, to) in data {
+            mapping.extend([(from, Mapping::Data), (to, Mapping::Thumb)]);
+        }
+        let bytes: Vec<u8> = halfwords.iter().flat_map(|h| h.to_le_bytes()).collect();
+        Image::from_code(BASE, &bytes, &mapping, symbols).unwrap()
+    }
 
-08000600 <core::panicking::panic_bounds_check>:
- 8000600:\tudf\t#254
+    const PUSH: I = H(0xb580); // push {r7, lr}
+    const POP: I = H(0xbd80); // pop {r7, pc}
+    const BX_LR: I = H(0x4770);
+    const NOP: I = H(0xbf00);
+    const CMP: I = H(0x2800); // cmp r0, #0
+    const EQ: u8 = 0;
+    const NE: u8 = 1;
 
-08000700 <unreachable_udf>:
- 8000700:\tudf\t#254
-";
-
+    /// The root calls a helper that tail-calls into f64 addition, and a safe
+    /// single-precision routine; a conditional branch skips a `cbz`-guarded call of a
+    /// checked routine that panics; one function is unreachable.
     #[test]
     fn follows_calls_and_tail_calls_and_names_the_chain() {
-        let f = scan(&Program::parse(TEXT), "ADC1_2").unwrap();
+        let p = image(
+            &[
+                (
+                    "ADC1_2",
+                    0,
+                    vec![
+                        PUSH,
+                        Bl(at(1)),
+                        Bl(at(2)),
+                        CMP,
+                        Bc(EQ, at(0) + 20),
+                        H(0xb108), // cbz r0, +6 (to the pop)
+                        Bl(at(3)),
+                        POP,
+                    ],
+                ),
+                ("helper", 1, vec![W(0xee00, 0x0a10), Bw(at(4))]), // vmov s0, r0
+                ("__aeabi_fmul", 2, vec![W(0xee20, 0x0a20), BX_LR]), // vmul.f32 s0, s0, s1
+                ("checked", 3, vec![PUSH, Bl(at(5)), POP]),
+                ("compiler_builtins::float::add::__adddf3", 4, vec![BX_LR]),
+                ("core::panicking::panic_bounds_check", 5, vec![H(0xdefe)]),
+                ("unreachable_udf", 6, vec![H(0xdefe)]),
+            ],
+            &[],
+        );
+        let f = scan(&p, "ADC1_2").unwrap();
         assert_eq!(
             f.problems,
             [
@@ -471,81 +523,233 @@ mod tests {
                 "panic path: ADC1_2 -> checked -> core::panicking::panic_bounds_check",
             ]
         );
-        // ADC1_2, helper, fmul, checked, adddf3, panic: not the unreachable one.
-        assert_eq!(f.reachable_functions, 6);
+        // ADC1_2, helper, fmul, checked: the f64 and panic routines are named, not run.
+        assert_eq!(f.reachable_functions, 4);
+        assert_eq!(f.reachable_instructions, 8 + 2 + 2 + 3);
     }
 
-    /// Indirect calls and reachable `udf`s are problems; what follows a return or an
-    /// unconditional branch is not code unless something branches to it (padding,
-    /// literal pools).
+    /// The issue's case: `it ne; blxne r3` in a routine the handler calls.
     #[test]
-    fn indirect_calls_and_udf_are_problems_and_returns_end_a_path() {
-        let text = "
-08000100 <ADC1_2>:
- 8000100:\tpush\t{r4, lr}
- 8000102:\tcbz\tr0, 800010a <ADC1_2+0xa>
- 8000104:\tcmp\tr1, #0
- 8000106:\tbeq.n\t800010e <ADC1_2+0xe>
- 8000108:\tblx\tr3
- 800010a:\tudf\t#0
- 800010c:\tudf\t#1
- 800010e:\tpop\t{r4, pc}
- 8000110:\tudf\t#2
- 8000112:\tbmi.n\t8000200 <panic>
- 8000114:\tb.n\t8000118 <ADC1_2+0x18>
- 8000116:\tudf\t#3
- 8000118:\tbx\tlr
-
-08000200 <panic>:
- 8000200:\tudf\t#254
-";
-        let f = scan(&Program::parse(text), "ADC1_2").unwrap();
-        assert_eq!(
-            f.problems,
-            [
-                "indirect `blx r3` at 0x8000108: ADC1_2",
-                "udf at 0x800010a: ADC1_2"
+    fn a_conditional_indirect_call_in_an_it_block_fails_naming_it() {
+        let p = image(
+            &[
+                ("ADC1_2", 0, vec![PUSH, Bl(at(1)), POP]),
+                (
+                    "dispatch",
+                    1,
+                    vec![CMP, H(0xbf18), H(0x4798), BX_LR], // it ne; blxne r3
+                ),
             ],
+            &[],
         );
-        assert_eq!(f.reachable_functions, 1);
-        // Neither the padding after the return nor the dead branch to `panic`.
-        assert_eq!(f.reachable_instructions, 7);
-    }
-
-    /// A `tbb` table: its entries are followed, the table bytes are not code.
-    #[test]
-    fn jump_tables_are_followed() {
-        let text = "
-08000100 <ADC1_2>:
- 8000100:\ttbb\t[pc, r0]
- 8000104:\tmovs\tr0, r0
- 8000106:\tudf\t#7
- 8000108:\tbl\t8000200 <a>
- 800010c:\tbx\tlr
- 800010e:\tbl\t8000300 <__aeabi_dmul>
- 8000112:\tbx\tlr
-
-08000200 <a>:
- 8000200:\tbx\tlr
-
-08000300 <__aeabi_dmul>:
- 8000300:\tbx\tlr
-";
-        let mut p = Program::parse(text);
-        // Two entries (bytes 2 and 5): targets 0x8000108 and 0x800010e; the table
-        // (0x8000104..0x8000106) and its padding up to the first target are data.
-        p.memory = vec![(0x0800_0104, vec![2, 5, 0, 0])];
         let f = scan(&p, "ADC1_2").unwrap();
         assert_eq!(
             f.problems,
-            ["f64 soft-float: ADC1_2 -> __aeabi_dmul"],
+            ["indirect branch `blxne r3` at 0x8000104: ADC1_2 -> dispatch"]
+        );
+        // Both sides of the IT: the not-taken path reaches the return.
+        assert_eq!(f.reachable_instructions, 3 + 4);
+    }
+
+    /// Conditional calls and returns in IT blocks are followed on both sides.
+    #[test]
+    fn conditional_calls_and_returns_are_followed_both_ways() {
+        let p = image(
+            &[
+                (
+                    "ADC1_2",
+                    0,
+                    vec![
+                        PUSH,
+                        CMP,
+                        H(0xbf08), // it eq
+                        Bl(at(1)), // bleq __aeabi_dmul
+                        H(0xbf18), // it ne
+                        H(0xbd80), // popne {r7, pc}
+                        H(0xbf08), // it eq
+                        H(0x4770), // bxeq lr
+                        Bl(at(2)), // after both conditional returns
+                        POP,
+                    ],
+                ),
+                ("__aeabi_dmul", 1, vec![BX_LR]),
+                ("core::option::unwrap_failed", 2, vec![H(0xdefe)]),
+            ],
+            &[],
+        );
+        let f = scan(&p, "ADC1_2").unwrap();
+        assert_eq!(
+            f.problems,
+            [
+                "f64 soft-float: ADC1_2 -> __aeabi_dmul",
+                "panic path: ADC1_2 -> core::option::unwrap_failed",
+            ]
+        );
+    }
+
+    /// Every PC write that is not a branch, call, return or PC-relative table is an
+    /// error naming the instruction, whether or not it is conditional.
+    #[test]
+    fn pc_writes_it_cannot_follow_are_errors() {
+        for (body, named) in [
+            (vec![H(0x4487)], "PC write not followed `add pc, r0`"),
+            (vec![H(0x46f7)], "PC write not followed `mov pc, lr`"),
+            (
+                vec![W(0xe890, 0x8001)],
+                "PC loaded from memory, not a pop `ldm.w r0, {r0, pc}`",
+            ),
+            (
+                vec![W(0xf8d0, 0xf004)],
+                "PC loaded from memory `ldr.w pc, [r0, #4]`",
+            ),
+            (
+                vec![CMP, H(0xbf18), H(0x4718), BX_LR],
+                "indirect branch `bxne r3`",
+            ),
+            (
+                vec![W(0xe8d1, 0xf010)],
+                "jump table not at the PC `tbh [r1, r0, lsl #1]`",
+            ),
+            (vec![H(0xdefe)], "udf `udf #254`"),
+        ] {
+            let p = image(&[("ADC1_2", 0, body)], &[]);
+            let f = scan(&p, "ADC1_2").unwrap();
+            assert_eq!(f.problems.len(), 1, "{named}: {:?}", f.problems);
+            assert!(
+                f.problems[0].starts_with(named),
+                "{named}: {:?}",
+                f.problems
+            );
+        }
+    }
+
+    /// A branch into data, into the middle of an instruction, out of the code, or a path
+    /// that runs off its function's end: each an error.
+    #[test]
+    fn what_is_not_code_is_an_error() {
+        // ADC1_2: beq into the literal pool, bne into the second halfword of the
+        // `ldr.w`.
+        let p = image(
+            &[(
+                "ADC1_2",
+                0,
+                vec![
+                    CMP,
+                    Bc(EQ, at(0) + 12),
+                    Bc(NE, at(0) + 8),
+                    W(0xf8d0, 0x0004), // ldr.w r0, [r0, #4]
+                    BX_LR,
+                    H(0x1234),
+                    H(0x5678),
+                    BX_LR,
+                ],
+            )],
+            &[(at(0) + 12, at(0) + 16)],
+        );
+        let f = scan(&p, "ADC1_2").unwrap();
+        assert_eq!(
+            f.problems,
+            [
+                "0x8000008 (from 0x8000004) is inside the instruction at 0x8000006 (`ldr.w r0, [r0, #4]`), not at its start: ADC1_2",
+                "data reached as code at 0x800000c (from 0x8000002) (data 0x800000c..0x8000010): ADC1_2",
+            ]
+        );
+        // Falling off the end into the next function; an undecodable halfword.
+        let p = image(
+            &[
+                (
+                    "ADC1_2",
+                    0,
+                    vec![CMP, Bc(EQ, at(0) + 8), NOP, H(0xffff), H(0xffff)],
+                ),
+                ("next", 1, vec![BX_LR]),
+            ],
+            &[],
+        );
+        let f = scan(&p, "ADC1_2").unwrap();
+        assert_eq!(f.problems.len(), 2, "{:?}", f.problems);
+        assert!(f.problems[0].starts_with("no Cortex-M4F instruction decodes at 0x8000006"));
+        assert!(f.problems[1].starts_with("no Cortex-M4F instruction decodes at 0x8000008"));
+        let p = image(&[("ADC1_2", 0, vec![NOP]), ("next", 1, vec![BX_LR])], &[]);
+        let f = scan(&p, "ADC1_2").unwrap();
+        assert_eq!(
+            f.problems,
+            ["the path through `nop` at 0x8000000 falls through past the end of `ADC1_2` (0x8000002): ADC1_2"]
+        );
+    }
+
+    /// A call into the middle of a function is an error, and what it reaches from its
+    /// target (not from the function's entry) is checked.
+    #[test]
+    fn a_mid_function_entry_is_an_error_and_followed_from_the_target() {
+        let p = image(
+            &[
+                ("ADC1_2", 0, vec![PUSH, Bl(at(1) + 6), POP]),
+                (
+                    "two_ways",
+                    1,
+                    vec![PUSH, Bl(at(2)), Bl(at(3)), POP], // entered at the second call
+                ),
+                ("core::panicking::panic", 2, vec![H(0xdefe)]),
+                ("__aeabi_ddiv", 3, vec![BX_LR]),
+            ],
+            &[],
+        );
+        let f = scan(&p, "ADC1_2").unwrap();
+        assert_eq!(
+            f.problems,
+            [
+                "branch at 0x8000002 into the middle of `two_ways` (0x8000106), followed from there: ADC1_2 -> two_ways+0x6",
+                "f64 soft-float: ADC1_2 -> two_ways+0x6 -> __aeabi_ddiv",
+            ]
+        );
+    }
+
+    /// A `tbb` table: its entries are followed, the table bytes are data; an entry out
+    /// of the function is an error.
+    #[test]
+    fn jump_tables_are_followed() {
+        // tbb [pc, r0]; the table (2, 5) and its padding; targets +8 and +14.
+        let body = |second: u8| {
+            vec![
+                W(0xe8df, 0xf000),
+                H(u16::from_le_bytes([2, second])),
+                H(0x0000),
+                Bl(at(1)),
+                BX_LR,
+                Bl(at(2)),
+                BX_LR,
+            ]
+        };
+        let table = [(at(0) + 4, at(0) + 8)];
+        let p = image(
+            &[
+                ("ADC1_2", 0, body(5)),
+                ("a", 1, vec![BX_LR]),
+                ("__aeabi_dmul", 2, vec![BX_LR]),
+            ],
+            &table,
+        );
+        let f = scan(&p, "ADC1_2").unwrap();
+        assert_eq!(f.problems, ["f64 soft-float: ADC1_2 -> __aeabi_dmul"]);
+        assert_eq!(f.reachable_instructions, 5 + 1);
+        // An entry far beyond the function.
+        let p = image(
+            &[
+                ("ADC1_2", 0, body(0x7f)),
+                ("a", 1, vec![BX_LR]),
+                ("__aeabi_dmul", 2, vec![BX_LR]),
+            ],
+            &table,
+        );
+        let f = scan(&p, "ADC1_2").unwrap();
+        assert!(
+            f.problems.iter().any(|p| p.starts_with(
+                "jump table `tbb [pc, r0]` at 0x8000000: target 0x8000102 outside `ADC1_2`"
+            )),
             "{:?}",
             f.problems
         );
-        let mut undecoded = Program::parse(text);
-        undecoded.memory.clear();
-        let f = scan(&undecoded, "ADC1_2").unwrap();
-        assert!(f.problems[0].contains("not decoded"), "{:?}", f.problems);
     }
 
     #[test]
@@ -579,8 +783,87 @@ mod tests {
         assert!(!is_panic_path("drive::control::ControlPeriod<T>::step"));
     }
 
+    /// A relocatable ARM ELF as the linker's output looks to the check: `.text` at 0,
+    /// Thumb function symbols (bit 0 set, Rust-mangled where Rust's are), mapping
+    /// symbols around a literal pool. `dispatch` is the body of the routine the handler
+    /// calls.
+    fn elf(dispatch: &[I]) -> Vec<u8> {
+        use object::write::{Object, Symbol, SymbolSection};
+        use object::{
+            Architecture, BinaryFormat, Endianness, SymbolFlags, SymbolKind, SymbolScope,
+        };
+        // ADC1_2 at 0: push; bl dispatch; ldr r0, [pc, #4] (the pool at 12); pop; nop;
+        // the pool word. USART3 at 0x10, the dispatch routine at 0x20.
+        let mut code = assemble(0, &[PUSH, Bl(0x20), H(0x4801), POP, NOP]);
+        code.extend([0x5678, 0x1234]);
+        code.extend(assemble(0x10, &[BX_LR]));
+        code.resize(0x10, 0xde00);
+        code.extend(assemble(0x20, dispatch));
+        let bytes: Vec<u8> = code.iter().flat_map(|h| h.to_le_bytes()).collect();
+        let mut o = Object::new(BinaryFormat::Elf, Architecture::Arm, Endianness::Little);
+        let text = o.add_section(Vec::new(), b".text".to_vec(), object::SectionKind::Text);
+        o.append_section_data(text, &bytes, 4);
+        let mut symbol = |name: &str, value: u64, size: u64, kind| {
+            o.add_symbol(Symbol {
+                name: name.as_bytes().to_vec(),
+                value,
+                size,
+                kind,
+                scope: if kind == SymbolKind::Text {
+                    SymbolScope::Linkage
+                } else {
+                    SymbolScope::Compilation
+                },
+                weak: false,
+                section: SymbolSection::Section(text),
+                flags: SymbolFlags::None,
+            });
+        };
+        symbol("ADC1_2", 1, 0x10, SymbolKind::Text);
+        symbol("USART3", 0x11, 2, SymbolKind::Text);
+        symbol(
+            "_ZN5drive8dispatch17h0123456789abcdefE",
+            0x21,
+            2 * dispatch.len() as u64,
+            SymbolKind::Text,
+        );
+        symbol("$t", 0, 0, SymbolKind::Label);
+        symbol("$d", 0xc, 0, SymbolKind::Label);
+        symbol("$t", 0x10, 0, SymbolKind::Label);
+        o.write().unwrap()
+    }
+
+    /// The issue's case on an ELF file: the check reads the symbols and the mapping
+    /// symbols and fails naming `blxne r3`; without it, the same file passes.
+    #[test]
+    fn check_fails_on_an_elf_whose_handler_reaches_blxne_r3() {
+        let dir = std::env::temp_dir();
+        let good = dir.join(format!("isr-check-good-{}.elf", std::process::id()));
+        let bad = dir.join(format!("isr-check-blxne-{}.elf", std::process::id()));
+        std::fs::write(&good, elf(&[CMP, H(0xbf18), H(0x4608), BX_LR])).unwrap(); // movne r0, r1
+        let blxne = elf(&[CMP, H(0xbf18), H(0x4798), BX_LR]);
+        std::fs::write(&bad, &blxne).unwrap();
+        let (ok, failed) = (check(&good), check(&bad));
+        let _ = (std::fs::remove_file(&good), std::fs::remove_file(&bad));
+        ok.unwrap();
+        let e = failed.unwrap_err().to_string();
+        assert!(e.contains("reaches 1 forbidden"), "{e}");
+        let image = Image::parse(&blxne).unwrap();
+        assert_eq!(image.data, vec![0xc..0x10]);
+        let f = scan(&image, "ADC1_2").unwrap();
+        assert_eq!(
+            f.problems,
+            ["indirect branch `blxne r3` at 0x24: ADC1_2 -> drive::dispatch"]
+        );
+        assert_eq!(
+            (f.reachable_functions, f.reachable_instructions),
+            (2, 4 + 4)
+        );
+    }
+
     #[test]
     fn a_missing_root_is_an_error() {
-        assert!(scan(&Program::parse(TEXT), "TIM1_UP").is_err());
+        let p = image(&[("ADC1_2", 0, vec![BX_LR])], &[]);
+        assert!(scan(&p, "TIM1_UP").is_err());
     }
 }

@@ -36,11 +36,13 @@ cargo xtask <command>
   build-cross   release cross-build of the portable crates and the firmware, size report
   size          size report of the firmware (flash and static RAM against budgets)
   isr-check     the release firmware's control interrupt and adaptation task reach no
-                f64 soft-float routine, no panic path and no indirect call (disassembly
-                scan)
+                f64 soft-float routine, no panic path, no PC write the scan cannot
+                follow and nothing that is not code (disassembly scan; perf scans
+                each of its builds the same way)
   flash         build, flash and attach to the RTT stream (probe-rs, board attached)
   qemu          the core on an emulated Cortex-M4F: bit-exact against the host
-  cycles        instructions and estimated cycles per core step (emulator trace)
+  cycles        instructions and estimated cycles per core step (QEMU's instruction
+                trace; installs Debian qemu-system-arm if missing)
   docs-tables   regenerate the tables of docs/theory.md (prints markdown)
   bench-accuracy  the accuracy benchmark against offline calibrations (500 sensors,
                 release): regenerates docs/results.md and docs/results/; further
@@ -56,8 +58,8 @@ cargo xtask <command>
                 (target/perf/drive-fw-20k, -40k, -n1), commissions each to Run on
                 the emulator (the last with an N = 1 sensor), measures 0.5 s of Run
                 (instructions and estimated Cortex-M4 cycles per stage); regenerates
-                the perf section of docs/performance.md; fails if a build misses a
-                control period
+                the perf section of docs/performance.md; fails if a build fails
+                isr-check (each is scanned before it runs) or misses a control period
   regs          regenerate the emulator's STM32G474 register table (hil-sim/emu/src/
                 regs_g474.rs) from the stm32g4 PAC's sources
   regs --check  fail if the committed register table differs from what the PAC generates
@@ -72,7 +74,7 @@ fn main() -> ExitCode {
         Some("size") => setup().and_then(|_| build_cross()),
         Some("isr-check") => setup()
             .and_then(|_| build_cross())
-            .and_then(|_| isr::check()),
+            .and_then(|_| isr::check(&isr::release_elf())),
         Some("flash") => setup().and_then(|_| flash()),
         Some("docs-tables") => docs_tables(),
         Some("bench-accuracy") => bench_accuracy(&args[1..]),
@@ -293,14 +295,13 @@ const PERF_BUILDS: [(&str, &[&str], &str, &str); 3] = [
     ),
 ];
 
-/// Every build cross-built (each copied aside: they link to the same path), each
-/// commissioned to Run on the emulator and measured by stage; `report` regenerates
-/// that document's section. The default build is rebuilt last, so the release ELF
-/// other commands use stays the 20 kHz one.
+/// Every build cross-built (each copied aside: they link to the same path) and scanned
+/// by `isr-check`, then each commissioned to Run on the emulator and measured by stage;
+/// `report` regenerates that document's section. The default build is rebuilt last, so
+/// the release ELF other commands use stays the 20 kHz one.
 fn perf(report: Option<&str>) -> Result<()> {
     setup()?;
     emu_setup()?;
-    qemu::ensure("arm-none-eabi-objdump", "binutils-arm-none-eabi")?;
     let dir = root().join("target").join("perf");
     std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
     let built = root()
@@ -315,6 +316,8 @@ fn perf(report: Option<&str>) -> Result<()> {
         run(c)?;
         let out = dir.join(name);
         std::fs::copy(&built, &out).with_context(|| out.display().to_string())?;
+        // The control interrupt of every build CI measures, proven before it runs.
+        isr::check(&out)?;
         builds.push((*board, format!("{label}={}", out.display())));
     }
     builds.reverse();
@@ -359,7 +362,7 @@ fn ci() -> Result<()> {
     c.args(["--", "-D", "warnings"]);
     run(c)?;
     build_cross()?;
-    isr::check()?;
+    isr::check(&isr::release_elf())?;
     qemu::bit_exact()?;
     test_host()?;
     // The release firmware on the emulated board: the scenarios and the rule models.

@@ -170,7 +170,6 @@ pub fn cycles() -> Result<()> {
     ensure("qemu-system-arm", "qemu-system-arm")?;
     let (v, _) = vector()?;
     let img = image(&v, "cycles")?;
-    ensure("arm-none-eabi-objdump", "binutils-arm-none-eabi")?;
     let insns = m4_cycles::disassemble(&img)?;
     eprintln!(
         "\n$ qemu-system-arm -M {MACHINE} -singlestep -d exec,nochain ... (instruction trace)"
@@ -277,7 +276,7 @@ pub fn cycles() -> Result<()> {
     println!("| stage | cycles/step | share |");
     println!("|---|---:|---:|");
     let stages = stages(&img, &insns, &by_pc)?;
-    // Per-address profile for whoever optimises next (`arm-none-eabi-objdump -d` beside it).
+    // Per-address profile for whoever optimises next (a disassembly beside it).
     let mut pcs: Vec<_> = by_pc.iter().collect();
     pcs.sort_by_key(|x| *x.0);
     let profile: String = pcs
@@ -343,13 +342,13 @@ const STAGES: [(&str, &str); 13] = [
 /// Function entry and exit: register saves and restores, charged to their own line.
 const ENTRY_EXIT: &str = "function entry and exit (register saves)";
 
-/// Sum the per-address cycles into [`STAGES`] with `addr2line -i` (inlined frames).
+/// Sum the per-address cycles into [`STAGES`] by the inlined frames of each address (the
+/// image's DWARF).
 fn stages(
     image: &Path,
     insns: &HashMap<u32, Insn>,
     by_pc: &HashMap<u32, (u64, String)>,
 ) -> Result<Vec<(&'static str, u64)>> {
-    ensure("arm-none-eabi-addr2line", "binutils-arm-none-eabi")?;
     let pcs: Vec<u32> = by_pc.keys().copied().collect();
     let chains = m4_cycles::inlined_chains(image, &pcs)?;
     let mut totals = vec![0u64; STAGES.len()];

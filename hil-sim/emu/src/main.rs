@@ -179,7 +179,7 @@ fn perf(
         let mut table = scenarios::perf_table(&p, label);
         // Where the firmware was at each overrun: the inlined chain's functions.
         for (ms, _, pc) in &p.missed {
-            if let Ok(c) = m4_cycles::inlined_chains(&path, &[*pc]) {
+            if let Ok(c) = m4_cycles::chains_of_elf(&bytes, &[*pc]) {
                 let names: Vec<String> = c
                     .get(pc)
                     .into_iter()

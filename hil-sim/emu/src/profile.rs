@@ -5,8 +5,8 @@
 //! single-load pipelining inside the block), and the taken-branch refill of a block's
 //! last instruction is charged when the next block does not start where it ends.
 //!
-//! Stages: each address is attributed once, by its inlined call chain
-//! (`arm-none-eabi-addr2line -i`); at run time a shadow call stack gives out-of-line
+//! Stages: each address is attributed once, by its inlined call chain (the ELF's DWARF,
+//! `m4_cycles::chains_of_elf`); at run time a shadow call stack gives out-of-line
 //! callees (`fmaxf`, `mras_vsqrt_f32`, `memclr`) the stage of their call site.
 
 use anyhow::{anyhow, Context, Result};
@@ -195,7 +195,7 @@ impl Profile {
         {
             return Ok(p.clone());
         }
-        let p = Arc::new(Self::compute(elf, key)?);
+        let p = Arc::new(Self::compute(elf)?);
         cache
             .lock()
             .map_err(|_| anyhow!("profile cache"))?
@@ -203,26 +203,19 @@ impl Profile {
         Ok(p)
     }
 
-    fn compute(elf: &[u8], key: u64) -> Result<Profile> {
-        // binutils read files: the ELF as the emulator got it, in a file of its own.
-        let path =
-            std::env::temp_dir().join(format!("drive-emu-{}-{key:016x}.elf", std::process::id()));
-        std::fs::write(&path, elf).with_context(|| path.display().to_string())?;
-        let result = Self::from_file(elf, &path);
-        let _ = std::fs::remove_file(&path);
-        result
-    }
-
-    fn from_file(elf: &[u8], path: &std::path::Path) -> Result<Profile> {
+    fn compute(elf: &[u8]) -> Result<Profile> {
         let file = object::File::parse(elf).context("not an ELF file")?;
         let handler = file
             .symbols()
             .find(|s| s.name() == Ok(HANDLER))
             .map(|s| (s.address() as u32 & !1)..(s.address() + s.size()) as u32);
-        let insns: HashMap<u32, Insn> = m4_cycles::disassemble(path)
-            .map_err(|e| anyhow!("{e} (install binutils-arm-none-eabi)"))?;
+        let insns: HashMap<u32, Insn> = m4_cycles::Image::parse(elf)
+            .context("disassembling the firmware ELF")?
+            .insns
+            .into_iter()
+            .collect();
         let pcs: Vec<u32> = insns.keys().copied().collect();
-        let chains = m4_cycles::inlined_chains(path, &pcs)?;
+        let chains = m4_cycles::chains_of_elf(elf, &pcs).context("the firmware ELF's DWARF")?;
         Ok(Self::from_parts(&insns, &chains, handler))
     }
 
@@ -370,11 +363,15 @@ mod tests {
 
     #[test]
     fn a_block_sums_its_instructions_with_pipelined_loads_and_keeps_the_refill_for_later() {
-        let listing = " 8000238:\tb580      \tpush\t{r7, lr}\n\
-                       \x20800023a:\t6808      \tldr\tr0, [r1, #0]\n\
-                       \x20800023c:\t6811      \tldr\tr1, [r2, #0]\n\
-                       \x20800023e:\tf000 f801 \tbl\t8000244\n";
-        let insns = m4_cycles::parse_objdump(listing);
+        // push {r7, lr}; ldr r0, [r1, #0]; ldr r1, [r2, #0]; bl 0x8000244
+        let code: Vec<u8> = [0xb580u16, 0x6808, 0x6811, 0xf000, 0xf801]
+            .iter()
+            .flat_map(|h| h.to_le_bytes())
+            .collect();
+        let insns: HashMap<u32, Insn> = m4_cycles::decode_thumb(0x0800_0238, &code)
+            .unwrap()
+            .into_iter()
+            .collect();
         assert_eq!(insns.len(), 4);
         let mut chains = HashMap::new();
         for pc in [0x0800_023a, 0x0800_023c] {

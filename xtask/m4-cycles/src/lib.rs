@@ -2,92 +2,72 @@
 //! trace, `drive-emu` on the firmware in the loop): each instruction of an image's
 //! disassembly weighted after the Cortex-M4 TRM (r0p1, table 3-1 and §3.3.2; table 7-1
 //! for the FPU), and the inlined call chain of an address from its debug line info, to
-//! sum cycles into stages. Uses the `binutils-arm-none-eabi` commands.
+//! sum cycles into stages.
+//!
+//! The disassembly is Capstone's (Thumb-2 and FPv4-SP as an M-profile core runs them),
+//! guided by the ELF's mapping symbols so that literal pools and jump tables stay data,
+//! with its text in the conventions the cost model reads (binutils' register names and
+//! branch targets); each instruction also says how it can change the PC ([`Flow`]), for
+//! `cargo xtask isr-check`. The inlined call chains come from the ELF's DWARF (gimli's
+//! `addr2line`). No external tool is run.
 //!
 //! MIT: the GPL emulator may depend on this crate, never the reverse.
 
-use std::collections::HashMap;
-use std::io::Write;
-use std::path::{Path, PathBuf};
-use std::process::{Command, ExitStatus, Stdio};
+mod disasm;
+mod dwarf;
 
-/// A binutils command that could not run or failed. A leaf error: the I/O error's text
-/// is part of the message, so it is not repeated as a source.
+pub use disasm::{decode_thumb, Flow, Function, Image, Mapping};
+pub use dwarf::{chains_of_elf, Chains};
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+/// An image that could not be read, disassembled or symbolised.
 #[derive(Debug, thiserror::Error)]
-pub enum ToolError {
-    /// The command could not be started or talked to (not installed, broken pipe).
-    #[error("{command}: {error}")]
-    Run {
-        command: &'static str,
+pub enum Error {
+    #[error("{}: {error}", .path.display())]
+    Read {
+        path: PathBuf,
         error: std::io::Error,
     },
-    /// objdump refused the image.
-    #[error("arm-none-eabi-objdump -d {}: {stderr}", .image.display())]
-    Disassemble { image: PathBuf, stderr: String },
-    /// addr2line exited with an error.
-    #[error("arm-none-eabi-addr2line failed ({0})")]
-    Addr2line(ExitStatus),
-    #[error("addr2line: no stdin")]
-    NoStdin,
-    #[error("addr2line: writer panicked")]
-    WriterPanicked,
-}
-
-const OBJDUMP: &str = "arm-none-eabi-objdump";
-const ADDR2LINE: &str = "arm-none-eabi-addr2line";
-
-fn run_error(command: &'static str) -> impl FnOnce(std::io::Error) -> ToolError {
-    move |error| ToolError::Run { command, error }
+    #[error("not an ELF file: {0}")]
+    Elf(#[from] object::Error),
+    #[error("Capstone (the disassembler): {0}")]
+    Capstone(String),
+    #[error("DWARF debug info: {0}")]
+    Dwarf(#[from] addr2line::gimli::Error),
 }
 
 /// One disassembled instruction.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Insn {
+    /// As binutils spells it: condition and width suffixes included (`addne`, `ldr.w`).
     pub mnemonic: String,
+    /// As binutils spells them: `r9` (not `sb`), `sl`, `fp`, `ip`; a branch's target as
+    /// bare hex (`bl 8000244`).
     pub operands: String,
     /// Bytes (2 or 4).
     pub size: u32,
+    /// The encoding: the halfword, or the first halfword above the second, as the
+    /// Architecture Reference Manual writes a 32-bit Thumb instruction (`0xf8d01004`).
+    pub encoding: u32,
+    /// Executes under a condition: inside an IT block (other than `al`), `b<c>`, `cbz`,
+    /// `cbnz`. A conditional PC write may also not happen.
+    pub conditional: bool,
+    /// How it can change the PC.
+    pub flow: Flow,
 }
 
-/// Every instruction of `image` by address (`arm-none-eabi-objdump -d`).
-pub fn disassemble(image: &Path) -> Result<HashMap<u32, Insn>, ToolError> {
-    let out = Command::new(OBJDUMP)
-        .arg("-d")
-        .arg(image)
-        .output()
-        .map_err(run_error(OBJDUMP))?;
-    if !out.status.success() {
-        return Err(ToolError::Disassemble {
-            image: image.to_path_buf(),
-            stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-        });
-    }
-    Ok(parse_objdump(&String::from_utf8_lossy(&out.stdout)))
+fn read(image: &Path) -> Result<Vec<u8>, Error> {
+    std::fs::read(image).map_err(|error| Error::Read {
+        path: image.to_path_buf(),
+        error,
+    })
 }
 
-/// The instructions of an `objdump -d` listing by address.
-pub fn parse_objdump(listing: &str) -> HashMap<u32, Insn> {
-    let mut map = HashMap::new();
-    for line in listing.lines() {
-        // " 8002090:\tb580      \tpush\t{r7, lr}"
-        let mut f = line.split('\t');
-        let (Some(addr), Some(hex), Some(mn)) = (f.next(), f.next(), f.next()) else {
-            continue;
-        };
-        let Ok(addr) = u32::from_str_radix(addr.trim().trim_end_matches(':'), 16) else {
-            continue;
-        };
-        let size = hex.split_whitespace().map(|w| w.len() as u32 / 2).sum();
-        map.insert(
-            addr,
-            Insn {
-                mnemonic: mn.trim().to_string(),
-                operands: f.next().unwrap_or("").trim().to_string(),
-                size,
-            },
-        );
-    }
-    map
+/// Every instruction of the code sections of the ELF file `image` by address.
+pub fn disassemble(image: &Path) -> Result<HashMap<u32, Insn>, Error> {
+    Ok(Image::parse(&read(image)?)?.insns.into_iter().collect())
 }
 
 /// Registers in a `{r4, r5, lr}` / `{s16-s19}` / `{d8}` list (d counts as two words).
@@ -195,7 +175,9 @@ pub fn taken_refill(i: &Insn) -> u32 {
 
 /// Whether `i` saves or restores registers on the stack (function entry and exit).
 pub fn is_register_save(i: &Insn) -> bool {
-    matches!(i.mnemonic.as_str(), "push" | "pop" | "vpush" | "vpop")
+    // `push.w` / `pop.w` are binutils' `stmdb sp!` / `ldmia.w sp!`.
+    let base = i.mnemonic.split('.').next().unwrap_or("");
+    matches!(base, "push" | "pop" | "vpush" | "vpop")
         || (i.operands.starts_with("sp!") && i.mnemonic.starts_with("stmdb"))
         || (i.operands.starts_with("sp!") && i.mnemonic.starts_with("ldmia"))
 }
@@ -203,85 +185,31 @@ pub fn is_register_save(i: &Insn) -> bool {
 /// One frame of an inlined call chain: the function and the `file:line` in it.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Frame {
+    /// Demangled, without the hash (`drive::foc::svpwm`); `??` where the DWARF names none.
     pub function: String,
+    /// `file:line`, the file as the DWARF names it; `??:?` where it has none.
     pub location: String,
 }
 
-/// The inlined call chain of each address, innermost frame first
-/// (`arm-none-eabi-addr2line -a -f -i -C`; addresses on stdin, so any number fits).
-pub fn inlined_chains(image: &Path, pcs: &[u32]) -> Result<HashMap<u32, Vec<Frame>>, ToolError> {
-    let mut child = Command::new(ADDR2LINE)
-        .arg("-e")
-        .arg(image)
-        .args(["-a", "-f", "-i", "-C"])
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .spawn()
-        .map_err(run_error(ADDR2LINE))?;
-    let input: String = pcs.iter().map(|pc| format!("{pc:#x}\n")).collect();
-    let mut stdin = child.stdin.take().ok_or(ToolError::NoStdin)?;
-    // Written from a thread: addr2line answers as it reads, and a full stdout pipe
-    // would otherwise block both sides.
-    let writer = std::thread::spawn(move || stdin.write_all(input.as_bytes()));
-    let out = child.wait_with_output().map_err(run_error(ADDR2LINE))?;
-    writer
-        .join()
-        .map_err(|_| ToolError::WriterPanicked)?
-        .map_err(run_error(ADDR2LINE))?;
-    if !out.status.success() {
-        return Err(ToolError::Addr2line(out.status));
-    }
-    Ok(parse_chains(&String::from_utf8_lossy(&out.stdout)))
-}
-
-/// `addr2line -a -f -i` output: an address line "0x0800048c", then (function,
-/// file:line) pairs, innermost first.
-pub fn parse_chains(text: &str) -> HashMap<u32, Vec<Frame>> {
-    let mut chains: HashMap<u32, Vec<Frame>> = HashMap::new();
-    let mut current: Option<u32> = None;
-    let mut function: Option<String> = None;
-    for line in text.lines() {
-        if let Some(pc) = line
-            .strip_prefix("0x")
-            .and_then(|h| u32::from_str_radix(h, 16).ok())
-        {
-            current = Some(pc);
-            chains.entry(pc).or_default();
-            function = None;
-            continue;
-        }
-        let Some(pc) = current else { continue };
-        match function.take() {
-            None => function = Some(line.to_string()),
-            Some(f) => chains.entry(pc).or_default().push(Frame {
-                function: f,
-                location: line.to_string(),
-            }),
-        }
-    }
-    chains
+/// The inlined call chain of each address, innermost frame first, from the DWARF of the
+/// ELF file `image`.
+pub fn inlined_chains(image: &Path, pcs: &[u32]) -> Result<HashMap<u32, Vec<Frame>>, Error> {
+    chains_of_elf(&read(image)?, pcs)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    fn insn(m: &str, ops: &str) -> Insn {
-        Insn {
-            mnemonic: m.into(),
-            operands: ops.into(),
-            size: 2,
-        }
+    /// Thumb encodings as the ARM ARM writes them (first halfword first).
+    pub(crate) fn code(halfwords: &[u16]) -> Vec<u8> {
+        halfwords.iter().flat_map(|h| h.to_le_bytes()).collect()
     }
 
-    #[test]
-    fn objdump_lines_parse_to_address_mnemonic_operands_size() {
-        let l =
-            " 8002090:\tb580      \tpush\t{r7, lr}\n 8002092:\tf8d0 1004 \tldr.w\tr1, [r0, #4]\n";
-        let m = parse_objdump(l);
-        assert_eq!(m[&0x0800_2090], insn("push", "{r7, lr}"));
-        assert_eq!(m[&0x0800_2092].size, 4);
-        assert_eq!(m[&0x0800_2092].mnemonic, "ldr.w");
+    fn one(halfwords: &[u16]) -> Insn {
+        let d = decode_thumb(0x0800_0000, &code(halfwords)).unwrap();
+        assert_eq!(d.len(), 1, "{d:?}");
+        d.into_iter().next().unwrap().1
     }
 
     #[test]
@@ -289,37 +217,50 @@ mod tests {
         assert_eq!(reg_count("{r4, r5, r6, r7, lr}"), 5);
         assert_eq!(reg_count("{s16-s19}"), 4);
         assert_eq!(reg_count("{d8-d9}"), 4);
+        assert_eq!(reg_count("{s16, s17, s18, s19}"), 4);
     }
 
+    /// The costs of TRM table 3-1 on instructions decoded from their encodings.
     #[test]
     fn trm_costs() {
+        // push {r4, r5, r7, lr}
+        let push = one(&[0xb5b0]);
         assert_eq!(
-            insn_cycles(&insn("push", "{r4, r5, r7, lr}"), false, false),
-            5
+            (push.mnemonic.as_str(), push.operands.as_str()),
+            ("push", "{r4, r5, r7, lr}")
         );
-        assert_eq!(insn_cycles(&insn("pop", "{r4, pc}"), true, false), 5);
-        assert_eq!(insn_cycles(&insn("b.n", "8000"), true, false), 3);
-        assert_eq!(insn_cycles(&insn("bne.n", "8000"), false, false), 1);
-        assert_eq!(taken_refill(&insn("bl", "8000")), 2);
-        assert_eq!(taken_refill(&insn("adds", "r0, #1")), 0);
-        let ld = insn("ldr", "r0, [r1, #4]");
+        assert_eq!(insn_cycles(&push, false, false), 5);
+        assert!(is_register_save(&push));
+        // pop {r4, pc}
+        assert_eq!(insn_cycles(&one(&[0xbd10]), true, false), 5);
+        // b.n (to itself), bne.n not taken, bl
+        assert_eq!(insn_cycles(&one(&[0xe7fe]), true, false), 3);
+        let bne = one(&[0xd1fe]);
+        assert_eq!(bne.mnemonic, "bne");
+        assert_eq!(insn_cycles(&bne, false, false), 1);
+        assert_eq!(taken_refill(&one(&[0xf000, 0xf800])), 2);
+        // adds r0, #1
+        assert_eq!(taken_refill(&one(&[0x3001])), 0);
+        // ldr r0, [r1, #4]: 2, 1 behind a single load or store
+        let ld = one(&[0x6848]);
+        assert_eq!(ld.operands, "r0, [r1, #4]");
         assert_eq!(insn_cycles(&ld, false, false), 2);
         assert_eq!(insn_cycles(&ld, false, true), 1);
-        assert_eq!(insn_cycles(&insn("ldr", "r0, [pc, #8]"), false, true), 3);
-        assert_eq!(
-            insn_cycles(&insn("vdiv.f32", "s0, s1, s2"), false, false),
-            14
-        );
-        assert!(is_single_ldst(&ld) && !is_single_ldst(&insn("ldrd", "r0, r1, [r2]")));
-    }
-
-    #[test]
-    fn addr2line_chains_keep_function_and_location_innermost_first() {
-        let t = "0x08000238\ninner\n/a/firmware/app/src/adc.rs:3\nouter\n/a/main.rs:9\n0x0800023a\nonly\n??:0\n";
-        let c = parse_chains(t);
-        assert_eq!(c[&0x0800_0238].len(), 2);
-        assert_eq!(c[&0x0800_0238][0].function, "inner");
-        assert_eq!(c[&0x0800_0238][1].location, "/a/main.rs:9");
-        assert_eq!(c[&0x0800_023a][0].function, "only");
+        // ldr r0, [pc, #8]: a literal load
+        assert_eq!(insn_cycles(&one(&[0x4802]), false, true), 3);
+        // vdiv.f32 s0, s1, s2
+        let vdiv = one(&[0xee80, 0x0a81]);
+        assert_eq!(vdiv.mnemonic, "vdiv.f32");
+        assert_eq!(insn_cycles(&vdiv, false, false), 14);
+        // ldrd r0, r1, [r2]
+        let ldrd = one(&[0xe9d2, 0x0100]);
+        assert!(is_single_ldst(&ld) && !is_single_ldst(&ldrd));
+        assert_eq!(insn_cycles(&ldrd, false, false), 3);
+        // str r0, [r1, r9]: a register offset, named as binutils names r9
+        let str_reg = one(&[0xf841, 0x0009]);
+        assert_eq!(str_reg.operands, "r0, [r1, r9]");
+        assert_eq!(insn_cycles(&str_reg, false, false), 2);
+        // vpush {d8, d9}: four words
+        assert_eq!(insn_cycles(&one(&[0xed2d, 0x8b04]), false, false), 5);
     }
 }
