@@ -7,12 +7,15 @@
 use crate::accuracy::stats::Dist;
 use crate::rig::{Rig, SimFlash, Step, Streamed};
 use crate::scenario::{NamedCoefficient, Probe, Scenario, Window, WindowStats};
+use crate::stream::Losses;
 use crate::truth_spectrum::{Recorder, TruthSpectrum};
 use anyhow::{anyhow, Result};
 use calib_record::{Alignment, RamFlash};
 use drive::commissioning::{Cause, State};
+use drive::handoff::{HANDOFF_DEPTH, UPDATE_DEPTH};
 use drive::supervisor::Supervisor;
-use drive::telemetry::Event;
+use drive::telemetry::{Event, Line};
+use mras::F32Trig;
 use std::f64::consts::TAU;
 
 /// What one power-up did.
@@ -44,8 +47,8 @@ pub struct Boot {
     pub run_speed_rad_s: Option<f64>,
     /// Control periods that did not run (CPU stalled by flash).
     pub missed_periods: u64,
-    /// Records and events, with the time they came out.
-    pub streamed: Vec<(f64, Streamed)>,
+    /// The supervisor's lines, with the time they came out.
+    pub streamed: Vec<Streamed>,
     /// The scenario's `[truth_spectrum]` over the end of Run (None without the table, or
     /// when the window was not all in Run).
     pub truth_spectrum: Option<TruthSpectrum>,
@@ -58,10 +61,25 @@ impl Boot {
             .find(|(_, x)| *x == s)
             .map(|(t, _)| *t)
     }
+
+    /// What the stream says was lost: the firmware's counters in the records
+    /// (hand-over, updates, events) and gaps in `seq`.
+    pub fn losses(&self) -> Losses {
+        crate::stream::losses_of(&self.streamed)
+    }
+
+    /// The records streamed, in order.
+    pub fn records(&self) -> impl Iterator<Item = &drive::telemetry::Record> + '_ {
+        self.streamed.iter().filter_map(|s| match &s.line {
+            Line::Record(r) => Some(r),
+            _ => None,
+        })
+    }
 }
 
 /// What an experiment does to the rig during a power-up, after each period.
-pub type Hook<'a> = &'a mut dyn FnMut(&mut Rig, &Step);
+pub type Hook<'a, const H: usize = HANDOFF_DEPTH, const U: usize = UPDATE_DEPTH> =
+    &'a mut dyn FnMut(&mut Rig<F32Trig, H, U>, &Step);
 
 /// The scenario's rig with the firmware's supervisor on `flash`.
 pub fn rig(sc: &Scenario, flash: SimFlash, seed: u64) -> Result<Rig> {
@@ -102,8 +120,13 @@ pub fn boot(
     Ok((boot, flash))
 }
 
-/// Run a power-up on a rig made by [`rig`] or [`rig_with`].
-pub fn run_boot(rig: &mut Rig, sc: &Scenario, duration_s: f64, mut hook: Option<Hook>) -> Boot {
+/// Run a power-up on a rig made by [`rig`] or [`rig_with`] (with any queue depths).
+pub fn run_boot<const H: usize, const U: usize>(
+    rig: &mut Rig<F32Trig, H, U>,
+    sc: &Scenario,
+    duration_s: f64,
+    mut hook: Option<Hook<H, U>>,
+) -> Boot {
     let t_s = sc.sample_period_s();
     let probe = Probe::of(&rig.plant.sensor.params);
     let kt = rig.plant.motor.torque_constant_nm_a();
@@ -127,10 +150,10 @@ pub fn run_boot(rig: &mut Rig, sc: &Scenario, duration_s: f64, mut hook: Option<
     for _ in 0..steps {
         let s = rig.step();
         faulted += s.fault.is_some() as u32;
-        for (_, item) in &rig.streamed()[seen..] {
-            match item {
-                Streamed::Event(Event::State { state: x, .. }) => state = *x,
-                Streamed::Event(Event::Fault { .. }) => state = State::Safe,
+        for item in &rig.streamed()[seen..] {
+            match item.line {
+                Line::Event(Event::State { state: x, .. }) => state = x,
+                Line::Event(Event::Fault { .. }) => state = State::Safe,
                 _ => {}
             }
         }
@@ -299,13 +322,16 @@ impl SeedSpread {
 pub fn event_lines(b: &Boot) -> Vec<String> {
     b.streamed
         .iter()
-        .filter_map(|(t, s)| match s {
-            Streamed::Event(e) => Some(format!("{t:8.3} s  {}", describe(e))),
-            Streamed::Record(_) => None,
-            Streamed::Paths(b) => Some(format!(
-                "{t:8.3} s  paths: {}",
-                drive::telemetry::bank_names(b.as_slice())
-            )),
+        .filter_map(|s| {
+            let t = s.t_s;
+            match &s.line {
+                Line::Event(e) => Some(format!("{t:8.3} s  {}", describe(e))),
+                Line::Record(_) => None,
+                Line::Paths(b) => Some(format!(
+                    "{t:8.3} s  paths: {}",
+                    drive::telemetry::bank_names(b.as_slice())
+                )),
+            }
         })
         .collect()
 }
@@ -365,6 +391,8 @@ struct BootJson<'a> {
     adapt_revs: Option<f64>,
     faulted_samples: u32,
     run_speed_rev_s: Option<f64>,
+    /// What the stream lost (zero everywhere on a healthy drive).
+    losses: Losses,
     coefficients: &'a [NamedCoefficient],
     truth_spectrum: Option<&'a TruthSpectrum>,
 }
@@ -389,6 +417,7 @@ pub fn summary_json(sc: &Scenario, duration_s: f64, boots: &[(&str, &Boot)]) -> 
             adapt_revs: b.adapt_revs,
             faulted_samples: b.faulted_samples,
             run_speed_rev_s: b.run_speed_rad_s.map(|w| w / TAU),
+            losses: b.losses(),
             coefficients: &b.coefficients,
             truth_spectrum: b.truth_spectrum.as_ref(),
         })
@@ -464,6 +493,7 @@ pub fn report(sc: &Scenario, boots: &[(&str, &Boot)]) -> String {
             "    faulted periods: {}, missed control periods: {}",
             b.faulted_samples, b.missed_periods
         );
+        let _ = writeln!(s, "    losses: {}", b.losses().describe());
         if sc.file.truth_spectrum.is_some() {
             match &b.truth_spectrum {
                 Some(t) => s += &t.text("    "),

@@ -1,8 +1,13 @@
 //! The firmware's wiring on the host: the [`Plant`] in place of the board, and the
-//! firmware's own control period (`drive::control`) and supervisor (`drive::supervisor`)
-//! called exactly as its RTIC tasks call them: per PWM period read the ADC, take the
-//! install mailbox, [`ControlPeriod::step`], apply the output; at the divider ticks
-//! publish a snapshot and run the supervisor, whose command applies from the next period.
+//! firmware's own control period (`drive::control`), adaptation task
+//! (`drive::adaptation`, over `drive::handoff`'s bounded queues) and supervisor
+//! (`drive::supervisor`) called exactly as its RTIC tasks call them: per PWM period read
+//! the ADC, [`ControlPeriod::apply_due`], [`ControlPeriod::step`], apply the output,
+//! [`ControlPeriod::hand_over`]; then the adaptation task on the queued samples (with
+//! the install mailbox); at the divider ticks publish a snapshot and run the supervisor,
+//! whose command applies from the next period. The queues have the firmware's depths
+//! and drop rules; [`Rig::set_adaptation_every`] runs the task late, and
+//! [`Rig::with_queue_depths`] gives it other depths, to see what the firmware would drop.
 //!
 //! The supervisor's flash is [`SimFlash`]: the calibration pages with the chip's erase
 //! and programming times. While a flash operation runs the supervisor is blocked (its
@@ -14,13 +19,13 @@
 use crate::plant::{Plant, Truth};
 use anyhow::anyhow;
 use calib_record::{FlashSlots, RamFlash, RamFlashError, Slot};
-use drive::adaptation::AdaptationTask;
+use drive::adaptation::{AdaptReport, AdaptationTask};
 use drive::control::{ControlPeriod, DriveConfig, MotorConfig, Output};
+use drive::handoff::{Queue, HANDOFF_DEPTH, UPDATE_DEPTH};
 use drive::motion::{Angle, LoopMode, MotionRef};
 use drive::supervisor::{NamedError, Supervisor};
-use drive::telemetry::{Command, Event, Fault, Install, Record, TelemetrySlot};
-use mras::{Estimate, F32Trig, InjectionUpdate, Trig};
-use std::collections::VecDeque;
+use drive::telemetry::{Command, Fault, Install, Line, TelemetrySlot};
+use mras::{AdaptSample, Estimate, F32Trig, InjectionUpdate, Trig};
 use std::f64::consts::TAU;
 
 /// The motion profile the application asks for.
@@ -205,13 +210,13 @@ impl FlashSlots for SimFlash {
     }
 }
 
-/// What the supervisor streamed, with the simulated time it came out.
+/// A line the supervisor streamed, with the simulated time it came out and its `seq`
+/// (`drive::supervisor::Output::lines`).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Streamed {
-    Record(Record),
-    Event(Event),
-    /// A new `mras-paths` line: the core's bank changed.
-    Paths(mras::Bank),
+pub struct Streamed {
+    pub t_s: f64,
+    pub seq: u32,
+    pub line: Line,
 }
 
 /// The supervisor task on the host.
@@ -246,21 +251,30 @@ pub struct Step {
     pub tracking_error_rad: f64,
 }
 
-/// Plant + control period (+ supervisor): the firmware on a simulated board.
-pub struct Rig<T: Trig = F32Trig> {
+/// Plant + control period (+ supervisor): the firmware on a simulated board, with the
+/// hand-over queues `H` samples and `U` updates deep (the firmware's by default).
+pub struct Rig<T: Trig = F32Trig, const H: usize = HANDOFF_DEPTH, const U: usize = UPDATE_DEPTH> {
     pub plant: Plant,
     pub period: ControlPeriod<T>,
-    /// The firmware's adaptation task, run right after each control period (the next
-    /// priority down), and its updates on their way back to the control period.
+    /// The firmware's adaptation task, the queues between it and the control period,
+    /// and the report it last published for the supervisor.
     adaptation: AdaptationTask,
-    updates: VecDeque<InjectionUpdate>,
+    handoff: Queue<AdaptSample, H>,
+    updates: Queue<InjectionUpdate, U>,
+    report: AdaptReport,
+    /// The task is pended (a sample was handed over since it last ran).
+    adapt_pended: bool,
+    /// It runs once every this many control periods (1: right after each, as the
+    /// firmware's scheduler runs it at the next priority down).
+    adapt_every: u32,
+    periods: u64,
     /// The command in force. Without a supervisor the experiment sets it.
     pub command: Command,
     reference: Option<Reference>,
     mailbox: Option<Install>,
     telemetry: TelemetrySlot,
     task: Option<SupervisorTask>,
-    streamed: Vec<(f64, Streamed)>,
+    streamed: Vec<Streamed>,
     /// Control periods that did not run (CPU stalled by a flash operation).
     pub missed_periods: u64,
     last_output: Output,
@@ -273,7 +287,12 @@ impl<T: Trig> Rig<T> {
             plant,
             adaptation: AdaptationTask::new(period.tracker().config())
                 .expect("the control period validated this configuration"),
-            updates: VecDeque::new(),
+            handoff: Queue::new(),
+            updates: Queue::new(),
+            report: AdaptReport::EMPTY,
+            adapt_pended: false,
+            adapt_every: 1,
+            periods: 0,
             period,
             command: Command::OFF,
             reference,
@@ -288,6 +307,38 @@ impl<T: Trig> Rig<T> {
                 supervisor_due: false,
             },
         }
+    }
+}
+
+impl<T: Trig, const H: usize, const U: usize> Rig<T, H, U> {
+    /// The same rig with hand-over queues `H2` samples and `U2` updates deep (before its
+    /// first period: the queues start empty).
+    pub fn with_queue_depths<const H2: usize, const U2: usize>(self) -> Rig<T, H2, U2> {
+        Rig {
+            plant: self.plant,
+            period: self.period,
+            adaptation: self.adaptation,
+            handoff: Queue::new(),
+            updates: Queue::new(),
+            report: self.report,
+            adapt_pended: false,
+            adapt_every: self.adapt_every,
+            periods: self.periods,
+            command: self.command,
+            reference: self.reference,
+            mailbox: self.mailbox,
+            telemetry: self.telemetry,
+            task: self.task,
+            streamed: self.streamed,
+            missed_periods: self.missed_periods,
+            last_output: self.last_output,
+        }
+    }
+
+    /// Run the adaptation task only once every `periods` control periods (at least 1),
+    /// on everything queued by then: a task held off by work at its priority or above.
+    pub fn set_adaptation_every(&mut self, periods: u32) {
+        self.adapt_every = periods.max(1);
     }
 
     /// The MRAS adaptation: coefficients and convergence.
@@ -329,7 +380,7 @@ impl<T: Trig> Rig<T> {
     }
 
     /// Everything streamed so far, with its time.
-    pub fn streamed(&self) -> &[(f64, Streamed)] {
+    pub fn streamed(&self) -> &[Streamed] {
         &self.streamed
     }
 
@@ -355,23 +406,28 @@ impl<T: Trig> Rig<T> {
                 ..self.last_output
             }
         } else {
-            if let Some(i) = self.mailbox.take() {
-                let updates = &mut self.updates;
-                self.adaptation.install(&i, |u| updates.push_back(u));
+            self.period.apply_due(&mut self.updates);
+            let out = self.period.step(&sample, &self.command);
+            self.adapt_pended |= self.period.hand_over(&mut self.handoff);
+            if out.supervisor_due {
+                self.telemetry.publish(self.period.snapshot());
             }
-            while let Some(u) = self.updates.front() {
-                if !self.period.apply(u) {
-                    break;
-                }
-                self.updates.pop_front();
+            self.periods += 1;
+            if self.adapt_pended && self.periods.is_multiple_of(u64::from(self.adapt_every)) {
+                self.adapt_pended = false;
+                let report = &mut self.report;
+                self.adaptation.run(
+                    &mut self.handoff,
+                    &mut self.updates,
+                    self.mailbox.take(),
+                    |r| *report = *r,
+                );
             }
-            self.period.step(&sample, &self.command)
+            out
         };
-        if let (false, Some(h)) = (stalled, self.period.handoff()) {
-            self.updates.extend(self.adaptation.step(h));
-        }
+        // The supervisor runs below the adaptation task: on the report of this period's
+        // sample.
         if out.supervisor_due {
-            self.telemetry.publish(self.period.snapshot());
             self.run_supervisor(t);
         }
         self.plant.advance(&out);
@@ -413,7 +469,7 @@ impl<T: Trig> Rig<T> {
         let Some(snapshot) = self.telemetry.take() else {
             return;
         };
-        let tm = snapshot.merged(self.adaptation.report());
+        let tm = snapshot.merged(&self.report);
         let out = task.sup.step(&tm, &mut task.flash);
         let busy = task.flash.take_busy_s();
         if busy > 0.0 {
@@ -443,12 +499,9 @@ impl<T: Trig> Rig<T> {
         if out.install.is_some() {
             self.mailbox = out.install;
         }
-        self.streamed
-            .extend(out.paths.map(|b| (t, Streamed::Paths(b))));
-        self.streamed
-            .extend(out.events.iter().map(|e| (t, Streamed::Event(*e))));
-        if let Some(r) = out.record {
-            self.streamed.push((t, Streamed::Record(r)));
-        }
+        let lines = out
+            .lines()
+            .map(|(seq, line)| Streamed { t_s: t, seq, line });
+        self.streamed.extend(lines);
     }
 }

@@ -4,8 +4,11 @@
 //! to capture it on a bench; `hil-sim` writes the same for its simulated power-ups),
 //! decoded with `defmt-decoder` against the firmware ELF that produced it
 //! ([`crate::stream`]). A `mras-paths` line names the coefficient columns of the
-//! records after it; records carry `t_ms`, so records the firmware dropped (RTT buffer
-//! full or contended, the supervisor busy with flash) show as gaps and are counted.
+//! records after it. Every line of ours carries `seq`: frames RTT dropped (buffer full
+//! or contended) show as gaps and are counted, whatever line was lost; records carry
+//! `t_ms`, so records never written (the supervisor busy with flash) show as gaps in
+//! time. The summary prints the losses: the drive's counters from the records
+//! (hand-over, updates, events) and the frames lost ([`crate::stream::Losses`]).
 //!
 //! A drive engineer resets boards mid-capture, so a capture is split into segments, one
 //! CSV each: a new segment starts where the path list changes or time goes back.
@@ -18,7 +21,7 @@
 
 use crate::pending::{Pending, PendingDir};
 use crate::plots::{self, Series};
-use crate::stream::{self, Item, Line, Value};
+use crate::stream::{self, Item, Line, Losses, Value};
 use anyhow::{anyhow, bail, Context, Result};
 use drive::telemetry::{FieldValue, Record, RECORD_KEYS};
 use std::fmt::Write as _;
@@ -35,10 +38,11 @@ pub struct Args {
     /// build, target/thumbv7em-none-eabihf/release/drive-fw).
     #[arg(long)]
     pub elf: Option<PathBuf>,
-    /// CSV to write: t_s, state, faults, omega_rad_s, amplitude, converged, revs,
-    /// residual_max_rad, cycles_max, cycles_mean, cycles_min, then <path>_re, <path>_im per
-    /// path. Later segments (firmware restarts) go to OUT.2.csv, OUT.3.csv, ...; the
-    /// events (state changes, faults, flash) to OUT.events.csv.
+    /// CSV to write: t_s, seq, state, faults, theta_rad, omega_rad_s, amplitude,
+    /// converged, revs, residual_max_rad, cycles_max, cycles_mean, cycles_min,
+    /// handoffs_dropped, updates_dropped, updates_late, events_dropped, then <path>_re,
+    /// <path>_im per path. Later segments (firmware restarts) go to OUT.2.csv, OUT.3.csv,
+    /// ...; the events (state changes, faults, flash) to OUT.events.csv.
     #[arg(long)]
     pub output: PathBuf,
     /// Directory for PNG/SVG plots (none if absent): coefficients and speed vs time,
@@ -66,10 +70,13 @@ struct Segment {
     paths: Vec<String>,
     start: SegmentStart,
     records: Vec<Record>,
+    /// Each record's `seq` (None from a firmware before it).
+    seqs: Vec<Option<u32>>,
 }
 
 struct EventRow {
     t_ms: u32,
+    seq: Option<u32>,
     kind: String,
     details: String,
     /// Segment the event belongs to (1-based): times restart with every segment.
@@ -88,6 +95,7 @@ struct Capture {
     bad_lines: Vec<String>,
     /// Records missing between two received ones (gaps in t_ms).
     missing_records: u64,
+    losses: Losses,
 }
 
 impl Capture {
@@ -121,6 +129,7 @@ fn read_capture(a: &Args) -> Result<Capture> {
         events: Vec::new(),
         others: Vec::new(),
         malformed: decoded.malformed,
+        losses: decoded.losses(),
         bad_lines: decoded.bad_lines,
         missing_records: 0,
     };
@@ -146,7 +155,8 @@ fn read_capture(a: &Args) -> Result<Capture> {
                             cap.name
                         );
                     };
-                    add_record(&mut cap, p, r, std::mem::take(&mut paths_changed));
+                    let changed = std::mem::take(&mut paths_changed);
+                    add_record(&mut cap, p, l.seq(), r, changed);
                 }
                 Err(e) => cap.bad_lines.push(format!("`mras` record: {e:#}")),
             },
@@ -185,7 +195,13 @@ fn read_capture(a: &Args) -> Result<Capture> {
     Ok(cap)
 }
 
-fn add_record(cap: &mut Capture, paths: &[String], r: Record, paths_changed: bool) {
+fn add_record(
+    cap: &mut Capture,
+    paths: &[String],
+    seq: Option<u32>,
+    r: Record,
+    paths_changed: bool,
+) {
     let last = cap
         .segments
         .last()
@@ -202,6 +218,7 @@ fn add_record(cap: &mut Capture, paths: &[String], r: Record, paths_changed: boo
             paths: paths.to_vec(),
             start,
             records: Vec::new(),
+            seqs: Vec::new(),
         });
     }
     let seg = cap.segments.last_mut().expect("pushed above");
@@ -214,6 +231,7 @@ fn add_record(cap: &mut Capture, paths: &[String], r: Record, paths_changed: boo
         }
     }
     seg.records.push(r);
+    seg.seqs.push(seq);
 }
 
 fn add_event(cap: &mut Capture, l: &Line, paths_changed: bool) {
@@ -227,6 +245,7 @@ fn add_event(cap: &mut Capture, l: &Line, paths_changed: bool) {
     };
     cap.events.push(EventRow {
         t_ms,
+        seq: l.seq(),
         kind: l.kind.clone(),
         details: l.describe(),
         segment,
@@ -282,8 +301,10 @@ fn write_csv(
 }
 
 fn write_segment(seg: &Segment, dest: &Path) -> Result<Pending> {
-    // The record's fields in stream order, time in seconds, then the coefficients.
-    let mut header: Vec<String> = std::iter::once("t_s")
+    // Time in seconds, the line's seq, the record's fields in stream order, then the
+    // coefficients.
+    let mut header: Vec<String> = ["t_s", "seq"]
+        .into_iter()
         .chain(
             RECORD_KEYS
                 .iter()
@@ -297,7 +318,7 @@ fn write_segment(seg: &Segment, dest: &Path) -> Result<Pending> {
         header.push(format!("{p}_im"));
     }
     let width = 2 * seg.paths.len();
-    let rows = seg.records.iter().map(move |r| {
+    let rows = seg.records.iter().zip(&seg.seqs).map(move |(r, seq)| {
         let mut row: Vec<String> = r
             .fields()
             .filter(|(k, _)| *k != "coef")
@@ -306,6 +327,7 @@ fn write_segment(seg: &Segment, dest: &Path) -> Result<Pending> {
                 (_, v) => Value::from(v).text(),
             })
             .collect();
+        row.insert(1, seq.map_or(String::new(), |s| s.to_string()));
         row.extend(r.coef.iter().take(width).map(|c| c.to_string()));
         row
     });
@@ -313,10 +335,11 @@ fn write_segment(seg: &Segment, dest: &Path) -> Result<Pending> {
 }
 
 fn write_events(events: &[EventRow], dest: &Path) -> Result<Pending> {
-    let header = ["t_s", "event", "details", "segment"].map(String::from);
+    let header = ["t_s", "seq", "event", "details", "segment"].map(String::from);
     let rows = events.iter().map(|e| {
         vec![
             t_s(e.t_ms).to_string(),
+            e.seq.map_or(String::new(), |s| s.to_string()),
             e.kind.clone(),
             e.details.clone(),
             e.segment.to_string(),
@@ -461,10 +484,16 @@ fn summary(
         cap.malformed,
         cap.bad_lines.len()
     );
+    let _ = writeln!(s, "  losses: {}", cap.losses.describe());
     if cap.missing_records > 0 {
+        // With `seq` counted and no frame lost, the gap is records never written.
+        let why = match (cap.losses.frames_lost, cap.losses.uncounted_lines) {
+            (0, 0) => "no frame lost: the supervisor did not write them (a flash operation)",
+            _ => "frames lost, or the supervisor was busy with flash",
+        };
         let _ = writeln!(
             s,
-            "  {} records missing (gaps in t_ms: dropped by RTT, or the supervisor was busy with flash)",
+            "  {} records missing (gaps in t_ms: {why})",
             cap.missing_records
         );
     }

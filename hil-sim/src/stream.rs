@@ -8,13 +8,19 @@
 //! previous name: `coef=` is a list), its value from the decoder's rendering of that one
 //! parameter (exact: f32 prints shortest-round-trip). Nothing is matched by pattern over
 //! printed text.
+//!
+//! Every line of ours carries `seq`, its number since boot (`drive::telemetry`'s doc):
+//! [`Decoded::losses`] counts the frames lost from its gaps, beside the drive's own loss
+//! counters from the records. Captures of a firmware from before `seq`, θ̂ and the loss
+//! counters still decode: θ̂ reads as NaN, the counters as 0, and [`Losses`] says how
+//! many lines it could not count losses in.
 
 use crate::rig::Streamed;
 use anyhow::{anyhow, bail, Context, Result};
 use defmt_decoder::{DecodeError, Table};
 use defmt_parser::{Fragment, ParserMode, Type};
 use drive::commissioning::State;
-use drive::telemetry::{FieldValue, Record, RECORD_KEYS};
+use drive::telemetry::{FieldValue, Line as StreamLine, Record, INIT_SEQ, RECORD_KEYS, SEQ_KEY};
 use mras::MAX_PATHS;
 use serde_json::Value as Json;
 use std::path::{Path, PathBuf};
@@ -93,11 +99,19 @@ impl Line {
         }
     }
 
-    /// `key=value` pairs as text, for event tables.
+    /// The line's number since boot (None from a firmware before `seq`).
+    pub fn seq(&self) -> Option<u32> {
+        match self.get(SEQ_KEY)? {
+            Value::Uint(v) => u32::try_from(*v).ok(),
+            _ => None,
+        }
+    }
+
+    /// `key=value` pairs as text, for event tables (without `t_ms` and `seq`).
     pub fn describe(&self) -> String {
         self.fields
             .iter()
-            .filter(|(k, _)| k != "t_ms")
+            .filter(|(k, _)| k != "t_ms" && k != SEQ_KEY)
             .map(|(k, v)| format!("{k}={}", v.text()))
             .collect::<Vec<_>>()
             .join(" ")
@@ -115,7 +129,7 @@ impl Line {
             bail!("a `{}` line is not a record", self.kind);
         }
         for (k, _) in &self.fields {
-            if !RECORD_KEYS.contains(&k.as_str()) {
+            if !RECORD_KEYS.contains(&k.as_str()) && k != SEQ_KEY {
                 bail!("unknown field `{k}`");
             }
         }
@@ -154,11 +168,19 @@ impl Line {
         let mut coef = [0.0; 2 * MAX_PATHS];
         coef[..coefs.len()].copy_from_slice(&coefs);
         let f32_at = |key: &str| f32_of(key, one(key)?);
+        // Fields a firmware from before the loss counters and θ̂ does not send.
+        let newer = !self.values("handoffs_dropped").is_empty();
+        let counter = |key: &str| if newer { uint(key, u32::MAX) } else { Ok(0) };
         Ok(Record {
             t_ms: uint("t_ms", u32::MAX)?,
             state: State::from_name(state_name)
                 .ok_or_else(|| anyhow!("`state`: unknown state `{state_name}`"))?,
             faults: uint("faults", u8::MAX.into())? as u8,
+            theta_rad: if newer {
+                f32_at("theta_rad")?
+            } else {
+                f32::NAN
+            },
             omega_rad_s: f32_at("omega_rad_s")?,
             amplitude: f32_at("amplitude")?,
             converged: match one("converged")? {
@@ -170,14 +192,32 @@ impl Line {
             cycles_max: uint("cycles_max", u32::MAX)?,
             cycles_mean: uint("cycles_mean", u32::MAX)?,
             cycles_min: uint("cycles_min", u32::MAX)?,
+            handoffs_dropped: counter("handoffs_dropped")?,
+            updates_dropped: counter("updates_dropped")?,
+            updates_late: counter("updates_late")?,
+            events_dropped: counter("events_dropped")?,
             coef,
         })
     }
 
-    /// The path names of a `mras-paths` line.
+    /// Whether a record line carries the loss counters (a firmware from before them
+    /// does not).
+    pub fn has_loss_counters(&self) -> bool {
+        self.get("handoffs_dropped").is_some()
+    }
+
+    /// The path names of a `mras-paths` line (`paths=`, or the one unnamed field of a
+    /// firmware from before `seq`).
     pub fn paths(&self) -> Result<Vec<String>> {
-        match (self.kind.as_str(), self.fields.as_slice()) {
-            ("mras-paths", [(_, Value::Str(s))]) => {
+        let names = match self.fields.as_slice() {
+            [(_, Value::Str(s))] => Some(s),
+            _ => match self.get("paths") {
+                Some(Value::Str(s)) => Some(s),
+                _ => None,
+            },
+        };
+        match (self.kind.as_str(), names) {
+            ("mras-paths", Some(s)) => {
                 let names: Vec<String> = s.split(',').map(|n| n.trim().to_string()).collect();
                 if names.iter().any(|n| n.is_empty()) {
                     bail!("empty path name in `{s}`");
@@ -261,6 +301,185 @@ pub struct Decoded {
     pub malformed: u64,
     /// Lines of ours whose fields did not fit the schema, with the reason.
     pub bad_lines: Vec<String>,
+}
+
+/// Whether a line not of ours is the firmware's banner, written first at every boot.
+pub fn is_banner(text: &str) -> bool {
+    text.starts_with("drive-fw:")
+}
+
+/// What a stream lost. The drive's counters are cumulative since boot: per boot, those
+/// of its last record received, summed over the boots.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Losses {
+    /// Samples the adaptation task never got (its queue was full).
+    pub handoffs_dropped: u64,
+    /// Updates the adaptation's queue could not take when they were made.
+    pub updates_dropped: u64,
+    /// Updates applied after the period they were due in.
+    pub updates_late: u64,
+    /// Events a supervisor step could not hold (never a fault).
+    pub events_dropped: u64,
+    /// Lines of ours that never arrived (records, events, `mras-paths`): gaps in `seq`,
+    /// and a boot's lines before its first one received. Lines before the first of a
+    /// capture that starts mid-boot are not counted.
+    pub frames_lost: u64,
+    /// Boots seen (a banner, or `seq` not increasing).
+    pub boots: u32,
+    /// Lines of ours without `seq` and records without the counters (a firmware from
+    /// before them): their losses are unknown, not zero.
+    pub uncounted_lines: u64,
+}
+
+impl Losses {
+    /// Nothing lost, and every line counted.
+    pub fn is_none(&self) -> bool {
+        self.handoffs_dropped == 0
+            && self.updates_dropped == 0
+            && self.updates_late == 0
+            && self.events_dropped == 0
+            && self.frames_lost == 0
+            && self.uncounted_lines == 0
+    }
+
+    /// One line: `none`, or each loss that is not zero.
+    pub fn describe(&self) -> String {
+        if self.is_none() {
+            return "none".into();
+        }
+        let parts = [
+            (
+                self.handoffs_dropped,
+                "samples not handed to the adaptation",
+            ),
+            (self.updates_dropped, "updates dropped"),
+            (self.updates_late, "updates late"),
+            (self.events_dropped, "events dropped"),
+            (self.frames_lost, "frames lost (gaps in seq)"),
+            (
+                self.uncounted_lines,
+                "lines without seq or counters (not counted)",
+            ),
+        ];
+        let named: Vec<String> = parts
+            .iter()
+            .filter(|(n, _)| *n > 0)
+            .map(|(n, what)| format!("{n} {what}"))
+            .collect();
+        named.join(", ")
+    }
+}
+
+/// Counts [`Losses`] over a stream's lines in order.
+#[derive(Debug, Default)]
+pub struct LossCounter {
+    losses: Losses,
+    /// The `seq` the next line should have (None: unknown, at the start of a capture).
+    expect: Option<u32>,
+    /// The current boot's counters from its last record.
+    counters: [u64; 4],
+    in_boot: bool,
+}
+
+impl LossCounter {
+    /// The banner: a new boot, whose first line of ours is `seq` = INIT_SEQ.
+    pub fn banner(&mut self) {
+        self.new_boot();
+        self.expect = Some(INIT_SEQ);
+    }
+
+    /// A line of ours: its `seq`, and for a record, its counters (None when the record
+    /// has none).
+    pub fn line(&mut self, seq: Option<u32>, record: Option<Option<&Record>>) {
+        if !self.in_boot {
+            self.new_boot();
+        }
+        match seq {
+            None => self.losses.uncounted_lines += 1,
+            Some(s) => {
+                match self.expect {
+                    // `seq` went back with no banner: a new boot whose banner was lost;
+                    // its lines before this one too.
+                    Some(e) if s < e => {
+                        self.new_boot();
+                        self.losses.frames_lost += u64::from(s - INIT_SEQ);
+                    }
+                    Some(e) => self.losses.frames_lost += u64::from(s - e),
+                    None => {}
+                }
+                self.expect = Some(s.wrapping_add(1));
+            }
+        }
+        match record {
+            Some(Some(r)) => {
+                self.counters = [
+                    r.handoffs_dropped,
+                    r.updates_dropped,
+                    r.updates_late,
+                    r.events_dropped,
+                ]
+                .map(u64::from)
+            }
+            Some(None) => self.losses.uncounted_lines += u64::from(seq.is_some()),
+            None => {}
+        }
+    }
+
+    fn new_boot(&mut self) {
+        self.close_boot();
+        self.in_boot = true;
+        self.losses.boots += 1;
+    }
+
+    fn close_boot(&mut self) {
+        let [h, u, l, e] = std::mem::take(&mut self.counters);
+        self.losses.handoffs_dropped += h;
+        self.losses.updates_dropped += u;
+        self.losses.updates_late += l;
+        self.losses.events_dropped += e;
+    }
+
+    pub fn finish(mut self) -> Losses {
+        self.close_boot();
+        self.losses
+    }
+}
+
+/// The losses of hil-sim's stream of a power-up (init's `mras-paths` line, then the
+/// supervisor's lines), as [`Decoded::losses`] counts them in its encoding.
+pub fn losses_of(streamed: &[Streamed]) -> Losses {
+    let mut c = LossCounter::default();
+    c.banner();
+    c.line(Some(INIT_SEQ), None);
+    for s in streamed {
+        let record = match &s.line {
+            StreamLine::Record(r) => Some(Some(r)),
+            _ => None,
+        };
+        c.line(Some(s.seq), record);
+    }
+    c.finish()
+}
+
+impl Decoded {
+    /// What the stream lost: the drive's counters from the records, frames from `seq`.
+    pub fn losses(&self) -> Losses {
+        let mut c = LossCounter::default();
+        for item in &self.items {
+            match item {
+                Item::Other(o) if is_banner(o) => c.banner(),
+                Item::Other(_) => {}
+                Item::Line(l) => {
+                    let record = (l.kind == "mras").then(|| match l.has_loss_counters() {
+                        true => l.record().ok(),
+                        false => None,
+                    });
+                    c.line(l.seq(), record.as_ref().map(Option::as_ref));
+                }
+            }
+        }
+        c.finish()
+    }
 }
 
 /// Decode a raw defmt byte stream (RTT channel 0) against the ELF that produced it.
@@ -380,30 +599,36 @@ impl Formats {
         Ok(())
     }
 
-    /// The `mras-paths` line naming the coefficient columns, as the firmware's init sends it.
-    pub fn encode_paths(&self, names: &str, out: &mut Vec<u8>) -> Result<()> {
-        self.encode("mras-paths", [("", Value::Str(names.into()))], out)
+    /// A `mras-paths` line naming the coefficient columns (init's is `seq` INIT_SEQ).
+    pub fn encode_paths(&self, seq: u32, names: &str, out: &mut Vec<u8>) -> Result<()> {
+        let fields = [
+            (SEQ_KEY, Value::Uint(seq.into())),
+            ("paths", Value::Str(names.into())),
+        ];
+        self.encode("mras-paths", fields, out)
     }
 }
 
-/// The stream a simulated power-up would have sent: the `mras-paths` line (as the
-/// firmware's init sends it), then the supervisor's records and events in order.
-pub fn encode_streamed(
-    formats: &Formats,
-    path_names: &str,
-    items: &[(f64, Streamed)],
-) -> Result<Vec<u8>> {
+/// The stream a simulated power-up would have sent (without the banner, which is not
+/// ours): init's `mras-paths` line, then the supervisor's lines in order, each with its
+/// `seq`.
+pub fn encode_streamed(formats: &Formats, path_names: &str, items: &[Streamed]) -> Result<Vec<u8>> {
     let mut out = Vec::new();
-    formats.encode_paths(path_names, &mut out)?;
+    formats.encode_paths(INIT_SEQ, path_names, &mut out)?;
     let named = |(k, v): (&'static str, FieldValue)| (k, Value::from(v));
-    for (_, item) in items {
-        match item {
-            Streamed::Record(r) => formats.encode("mras", r.fields().map(named), &mut out)?,
-            Streamed::Event(e) => {
-                formats.encode(e.kind(), e.fields().into_iter().map(named), &mut out)?
+    for s in items {
+        let seq = std::iter::once((SEQ_KEY, Value::Uint(s.seq.into())));
+        match &s.line {
+            StreamLine::Record(r) => {
+                formats.encode("mras", seq.chain(r.fields().map(named)), &mut out)?
             }
-            Streamed::Paths(b) => {
-                formats.encode_paths(&drive::telemetry::bank_names(b.as_slice()), &mut out)?
+            StreamLine::Event(e) => {
+                let fields = seq.chain(e.fields().into_iter().map(named));
+                formats.encode(e.kind(), fields, &mut out)?
+            }
+            StreamLine::Paths(b) => {
+                let names = drive::telemetry::bank_names(b.as_slice());
+                formats.encode_paths(s.seq, &names, &mut out)?
             }
         }
     }
@@ -474,12 +699,12 @@ mod tests {
         assert!(format!("{e:#}").contains("junk"), "{e:#}");
     }
 
-    #[test]
-    fn record_lines_check_the_schema() {
-        let r = Record {
+    fn record() -> Record {
+        Record {
             t_ms: 5,
             state: State::Adapt,
             faults: 0,
+            theta_rad: 1.5,
             omega_rad_s: 125.0,
             amplitude: 1.0,
             converged: false,
@@ -488,13 +713,29 @@ mod tests {
             cycles_max: 0,
             cycles_mean: 0,
             cycles_min: 0,
+            handoffs_dropped: 0,
+            updates_dropped: 0,
+            updates_late: 0,
+            events_dropped: 0,
             coef: [0.25; 2 * MAX_PATHS],
-        };
-        let line = Line {
+        }
+    }
+
+    fn record_line(seq: u32, r: &Record) -> Line {
+        let seq = (SEQ_KEY.to_string(), Value::Uint(seq.into()));
+        let fields = r.fields().map(|(k, v)| (k.into(), v.into()));
+        Line {
             kind: "mras".into(),
-            fields: r.fields().map(|(k, v)| (k.into(), v.into())).collect(),
-        };
+            fields: std::iter::once(seq).chain(fields).collect(),
+        }
+    }
+
+    #[test]
+    fn record_lines_check_the_schema() {
+        let r = record();
+        let line = record_line(7, &r);
         assert_eq!(line.record().unwrap(), r);
+        assert_eq!(line.seq(), Some(7));
         let mut short = line.clone();
         short.fields.pop();
         assert!(format!("{:#}", short.record().unwrap_err()).contains("coef"));
@@ -509,8 +750,105 @@ mod tests {
         let mut padded = r;
         padded.coef[MAX_PATHS..].fill(0.0);
         assert_eq!(eight_paths.record().unwrap(), padded);
-        let mut state = line;
-        state.fields[1].1 = Value::Str("Spinning".into());
+        let mut state = line.clone();
+        state.fields[2].1 = Value::Str("Spinning".into());
         assert!(format!("{:#}", state.record().unwrap_err()).contains("Spinning"));
+        // A firmware from before seq, θ̂ and the loss counters: θ̂ unknown (NaN), the
+        // counters 0, and the line says it has none.
+        let older_keys = [SEQ_KEY, "theta_rad", "handoffs_dropped", "updates_dropped"];
+        let older_keys = [&older_keys[..], &["updates_late", "events_dropped"]].concat();
+        let mut older = line;
+        older
+            .fields
+            .retain(|(k, _)| !older_keys.contains(&k.as_str()));
+        let got = older.record().unwrap();
+        assert!(got.theta_rad.is_nan());
+        assert_eq!(
+            Record {
+                theta_rad: r.theta_rad,
+                ..got
+            },
+            r
+        );
+        assert!(!older.has_loss_counters() && older.seq().is_none());
+    }
+
+    fn event(seq: Option<u32>) -> Item {
+        let mut fields = vec![("state".to_string(), Value::Str("Run".into()))];
+        fields.extend(seq.map(|s| (SEQ_KEY.to_string(), Value::Uint(s.into()))));
+        Item::Line(Line {
+            kind: "mras-state".into(),
+            fields,
+        })
+    }
+
+    fn banner() -> Item {
+        Item::Other("drive-fw: 20000 Hz PWM, SYSCLK 170000000 Hz, N = 2, p = 4".into())
+    }
+
+    fn rec(seq: u32, f: impl Fn(&mut Record)) -> Item {
+        let mut r = record();
+        f(&mut r);
+        Item::Line(record_line(seq, &r))
+    }
+
+    fn losses(items: Vec<Item>) -> Losses {
+        Decoded {
+            items,
+            ..Decoded::default()
+        }
+        .losses()
+    }
+
+    #[test]
+    fn losses_count_seq_gaps_and_each_boots_last_counters() {
+        assert!(losses(vec![]).is_none());
+        assert_eq!(losses(vec![]).describe(), "none");
+        // One boot, nothing lost.
+        let clean = losses(vec![
+            banner(),
+            event(Some(0)),
+            rec(1, |_| {}),
+            event(Some(2)),
+        ]);
+        assert!(clean.is_none(), "{clean:?}");
+        assert_eq!(clean.boots, 1);
+        let items = vec![
+            banner(),
+            event(Some(0)),
+            rec(1, |r| r.handoffs_dropped = 1),
+            // seq 2 lost
+            rec(3, |r| {
+                r.handoffs_dropped = 2;
+                r.updates_late = 5;
+            }),
+            // A reset: the banner, init's line (seq 0) lost, then seq 1.
+            banner(),
+            rec(1, |r| r.updates_dropped = 3),
+            event(Some(2)),
+            // The banner of the next boot lost: seq goes back; its seq 0..1 lost too.
+            rec(2, |r| r.events_dropped = 4),
+        ];
+        let l = losses(items);
+        assert_eq!(
+            l,
+            Losses {
+                handoffs_dropped: 2,
+                updates_dropped: 3,
+                updates_late: 5,
+                events_dropped: 4,
+                frames_lost: 1 + 1 + 2,
+                boots: 3,
+                uncounted_lines: 0,
+            }
+        );
+        assert!(l.describe().contains("4 frames lost"), "{}", l.describe());
+        // A capture that starts mid-boot: nothing before its first line is counted.
+        let mid = losses(vec![rec(40, |_| {}), event(Some(41))]);
+        assert!(mid.is_none(), "{mid:?}");
+        // Lines of a firmware from before seq: unknown, not zero.
+        let old = losses(vec![banner(), event(None)]);
+        assert_eq!(old.uncounted_lines, 1);
+        assert!(!old.is_none());
     }
 }

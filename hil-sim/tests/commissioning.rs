@@ -1,12 +1,13 @@
 //! The firmware's control period and supervisor commissioning the simulated drive:
 //! alignment at any sensor mounting, a wire break in Run (ridden through, or the safe
-//! state when it lasts), a store in Run.
+//! state when it lasts), a store in Run. Every power-up that runs its tasks on time
+//! streams no loss of any kind.
 
 use calib_record::RamFlash;
 use drive::commissioning::{Cause, State};
-use drive::telemetry::Event;
+use drive::telemetry::{Event, Line};
 use hil_sim::power_up::{self, Boot};
-use hil_sim::rig::{SimFlash, Streamed};
+use hil_sim::rig::SimFlash;
 use hil_sim::scenario::Scenario;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -18,6 +19,13 @@ fn scenario(offset_deg: f64, reversed: bool) -> Scenario {
     sc.file.sensor.mount_offset_deg = offset_deg;
     sc.file.sensor.mount_reversed = reversed;
     sc
+}
+
+/// The stream says nothing was lost, and it has records to say it with.
+fn assert_no_loss(b: &Boot, what: &str) {
+    assert!(b.records().count() > 10, "{what}: no records");
+    let losses = b.losses();
+    assert!(losses.is_none(), "{what}: {losses:?}");
 }
 
 /// One power-up on an erased flash, long enough for a Run window.
@@ -59,6 +67,7 @@ fn any_mounting_either_direction_commissions_with_full_torque_per_amp() {
         worst = worst.min(k);
         assert!(k > 0.98, "{what}: torque per amp {k:.4} of the aligned run");
         assert_eq!(b.faulted_samples, 0, "{what}");
+        assert_no_loss(b, &what);
     }
     eprintln!(
         "{} mountings: worst torque per amp {worst:.4} of the aligned run, worst electrical angle error {:.1} mrad",
@@ -78,12 +87,13 @@ fn a_wrong_pole_pair_count_is_refused_by_the_sweep() {
     let b = power_up::run_boot(&mut rig, &sc, 2.0, None);
     assert_eq!(b.cause, Some(Cause::PolePairs), "{:?}", b.transitions);
     assert!(b.entered(State::SpinUp).is_none());
-    let ratio = b.streamed.iter().find_map(|(_, s)| match s {
-        Streamed::Event(Event::Aligned { ratio, .. }) => Some(*ratio),
+    let ratio = b.streamed.iter().find_map(|s| match s.line {
+        Line::Event(Event::Aligned { ratio, .. }) => Some(ratio),
         _ => None,
     });
     // Refused before it is accepted: no alignment event.
     assert_eq!(ratio, None);
+    assert_no_loss(&b, "wrong pole pairs");
 }
 
 /// Wire break in Run for 20 ms: the bridge is off from the faulted period on, the
@@ -158,10 +168,11 @@ fn a_wire_break_in_run_is_ridden_through_unless_it_lasts() {
             "fault {tf} vs break {tb}: in the first period"
         );
         assert_eq!(enabled_while_broken, 0, "bridge on without a sensor");
-        let fault = b.streamed.iter().find_map(|(t, s)| match s {
-            Streamed::Event(Event::Fault { cause, state, .. }) => Some((*t, *cause, *state)),
+        let fault = b.streamed.iter().find_map(|s| match s.line {
+            Line::Event(Event::Fault { cause, state, .. }) => Some((s.t_s, cause, state)),
             _ => None,
         });
+        assert_no_loss(&b, &format!("wire break {break_s} s"));
         if break_s < timeout_s {
             // Ridden through: locked again within a few ms of the sensor's return, the
             // bridge on again, the adaptation running again.
@@ -230,7 +241,7 @@ fn a_store_in_run_at_speed_keeps_lock_unless_the_flash_stalls_the_cpu() {
         let stored: Vec<f64> = b
             .streamed
             .iter()
-            .filter_map(|(t, s)| matches!(s, Streamed::Event(Event::Stored { .. })).then_some(*t))
+            .filter_map(|s| matches!(s.line, Line::Event(Event::Stored { .. })).then_some(s.t_s))
             .collect();
         if stall {
             // The timer keeps the last duties while the CPU stalls: a standing voltage
@@ -253,6 +264,7 @@ fn a_store_in_run_at_speed_keeps_lock_unless_the_flash_stalls_the_cpu() {
             assert_eq!(b.missed_periods, 0);
             assert_eq!(b.final_state, State::Run, "{:?}", b.transitions);
             assert_eq!(b.faulted_samples, 0);
+            assert_no_loss(&b, "store in Run");
             // Commissioning's store and the operator's; the latter took the erase time.
             assert_eq!(stored.len(), 2, "{stored:?}");
             let took = stored[1] - t_req;
@@ -273,13 +285,14 @@ fn a_store_that_hits_a_flash_error_ends_safe_with_its_cause() {
     let (b, flash) = power_up::boot(&sc, flash, 1, 3.0, None).unwrap();
     assert_eq!(b.final_state, State::Safe, "{:?}", b.transitions);
     assert_eq!(b.cause, Some(Cause::StoreFailed));
-    assert!(b.streamed.iter().any(|(_, s)| matches!(
-        s,
-        Streamed::Event(Event::StoreFailed {
+    assert!(b.streamed.iter().any(|s| matches!(
+        s.line,
+        Line::Event(Event::StoreFailed {
             reason: "ProgErr",
             ..
         })
     )));
+    assert_no_loss(&b, "store failed");
     let (again, _) = power_up::boot(&sc, flash, 2, 0.5, None).unwrap();
     assert!(
         again.entered(State::Align).is_some(),
@@ -301,11 +314,12 @@ fn a_bank_from_the_data_is_commissioned_stored_and_loaded_again() {
     let what = format!("{:?} cause {:?}", first.transitions, first.cause);
     assert_eq!(first.final_state, State::Run, "{what}");
     assert!(!first.loaded_from_flash);
+    assert_no_loss(&first, "bank from the data");
     let banks = |b: &Boot| -> Vec<mras::Bank> {
         b.streamed
             .iter()
-            .filter_map(|(_, s)| match s {
-                Streamed::Paths(bank) => Some(*bank),
+            .filter_map(|s| match s.line {
+                Line::Paths(bank) => Some(bank),
                 _ => None,
             })
             .collect()
@@ -330,6 +344,7 @@ fn a_bank_from_the_data_is_commissioned_stored_and_loaded_again() {
     let what = format!("{:?} cause {:?}", second.transitions, second.cause);
     assert_eq!(second.final_state, State::Run, "{what}");
     assert!(second.loaded_from_flash, "{what}");
+    assert_no_loss(&second, "stored bank loaded");
     assert_eq!(
         banks(&second),
         vec![bank],

@@ -8,9 +8,9 @@
 
 use calib_record::RamFlash;
 use drive::commissioning::State;
-use drive::telemetry::Record;
+use drive::telemetry::{Line, Record};
 use hil_sim::power_up::{self, Boot};
-use hil_sim::rig::{SimFlash, Streamed};
+use hil_sim::rig::SimFlash;
 use hil_sim::scenario::Scenario;
 use hil_sim::stream::{self, Formats, Item};
 use std::fs;
@@ -47,9 +47,10 @@ fn capture(b: &Boot) -> Vec<u8> {
     stream::encode_streamed(&formats, &names, &b.streamed).unwrap()
 }
 
-/// The release build's stream format carries every record and event bit for bit, and
-/// the coefficients are live: they move through Adapt, are zero before it and frozen in
-/// Verify.
+/// The release build's stream format carries every record and event bit for bit, each
+/// line with its `seq`; the coefficients are live (they move through Adapt, are zero
+/// before it and frozen in Verify), and the losses read from the decoded stream are
+/// none, as the power-up streamed them.
 #[test]
 fn the_release_format_round_trips_and_the_coefficients_move_during_adapt() {
     let (first, _) = boots();
@@ -67,10 +68,12 @@ fn the_release_format_round_trips_and_the_coefficients_move_during_adapt() {
         .collect();
     let names = lines[0].paths().unwrap();
     assert_eq!(names.len(), 7);
+    assert_eq!(lines[0].seq(), Some(drive::telemetry::INIT_SEQ));
     let mut records = Vec::new();
-    for (line, (_, sent)) in lines[1..].iter().zip(&first.streamed) {
-        match sent {
-            Streamed::Record(r) => {
+    for (line, sent) in lines[1..].iter().zip(&first.streamed) {
+        assert_eq!(line.seq(), Some(sent.seq));
+        match &sent.line {
+            Line::Record(r) => {
                 let got = line.record().unwrap();
                 let bits = |r: &Record| r.coef.map(f32::to_bits);
                 assert_eq!(
@@ -78,9 +81,11 @@ fn the_release_format_round_trips_and_the_coefficients_move_during_adapt() {
                     (r.t_ms, r.state, bits(r))
                 );
                 assert_eq!(got.omega_rad_s.to_bits(), r.omega_rad_s.to_bits());
+                assert_eq!(got.theta_rad.to_bits(), r.theta_rad.to_bits());
+                assert_eq!(got, *r);
                 records.push(got);
             }
-            Streamed::Event(e) => {
+            Line::Event(e) => {
                 assert_eq!(line.kind, e.kind());
                 assert_eq!(
                     line.t_ms(),
@@ -93,13 +98,21 @@ fn the_release_format_round_trips_and_the_coefficients_move_during_adapt() {
                         })
                 );
             }
-            Streamed::Paths(b) => {
+            Line::Paths(b) => {
                 let names = drive::telemetry::bank_names(b.as_slice());
                 assert_eq!(line.paths().unwrap().join(","), names.as_str());
             }
         }
     }
     assert_eq!(lines.len(), first.streamed.len() + 1);
+    // Numbered from init's line on, one by one.
+    assert!(lines
+        .iter()
+        .enumerate()
+        .all(|(k, l)| l.seq() == Some(k as u32)));
+    let losses = decoded.losses();
+    assert!(losses.is_none(), "{losses:?}");
+    assert_eq!(losses, first.losses());
     let in_state = |s: State| -> Vec<&Record> { records.iter().filter(|r| r.state == s).collect() };
     for r in in_state(State::SpinUp) {
         assert!(r.coef.iter().all(|c| *c == 0.0), "{r:?}");
@@ -122,6 +135,9 @@ fn the_release_format_round_trips_and_the_coefficients_move_during_adapt() {
     assert!(change > 0.05, "largest change over Adapt {change}");
     let verify = in_state(State::Verify);
     assert!(verify.windows(2).all(|w| w[0].coef == w[1].coef));
+    // θ̂ in [0, 2π) (against the rotor: tests/telemetry.rs).
+    let tau = std::f32::consts::TAU;
+    assert!(records.iter().all(|r| (0.0..tau).contains(&r.theta_rad)));
 }
 
 /// Runs `hil-sim rtt-log --input IN --output OUT [--plots DIR]`: (success, stdout, stderr).
@@ -181,20 +197,50 @@ fn a_capture_with_a_reset_gives_two_csvs_events_and_plots() {
         "{stdout}"
     );
     let (header, rows) = read_csv(&out);
-    assert_eq!(header[..3], ["t_s", "state", "faults"]);
-    assert_eq!(header.len(), 11 + 14);
-    assert_eq!(header[11], "offset_re");
-    assert!(rows.iter().any(|r| r[1] == "Adapt"));
-    assert_eq!(rows.last().unwrap()[1], "Run");
+    assert_eq!(
+        header[..17],
+        [
+            "t_s",
+            "seq",
+            "state",
+            "faults",
+            "theta_rad",
+            "omega_rad_s",
+            "amplitude",
+            "converged",
+            "revs",
+            "residual_max_rad",
+            "cycles_max",
+            "cycles_mean",
+            "cycles_min",
+            "handoffs_dropped",
+            "updates_dropped",
+            "updates_late",
+            "events_dropped"
+        ]
+    );
+    assert_eq!(header.len(), 17 + 14);
+    assert_eq!(header[17], "offset_re");
+    // Each record's seq, from the first supervisor lines on.
+    let seqs: Vec<u32> = rows.iter().map(|r| r[1].parse().unwrap()).collect();
+    assert!(
+        seqs.windows(2).all(|w| w[0] < w[1]) && seqs[0] >= 1,
+        "{seqs:?}"
+    );
+    assert!(rows.iter().all(|r| r[13..17] == ["0", "0", "0", "0"]));
+    assert!(rows.iter().any(|r| r[2] == "Adapt"));
+    assert_eq!(rows.last().unwrap()[2], "Run");
     let (_, second_rows) = read_csv(&dir.path().join("out").join("run.2.csv"));
-    assert!(second_rows.iter().all(|r| r[1] != "Adapt"));
+    assert!(second_rows.iter().all(|r| r[2] != "Adapt"));
     let (eh, events) = read_csv(&dir.path().join("out").join("run.events.csv"));
-    assert_eq!(eh, ["t_s", "event", "details", "segment"]);
-    assert!(events.iter().any(|e| e[1] == "mras-aligned" && e[3] == "1"));
-    assert!(events.iter().any(|e| e[1] == "mras-stored"));
+    assert_eq!(eh, ["t_s", "seq", "event", "details", "segment"]);
+    assert!(events.iter().any(|e| e[2] == "mras-aligned" && e[4] == "1"));
+    assert!(events.iter().any(|e| e[2] == "mras-stored"));
     assert!(events
         .iter()
-        .any(|e| e[1] == "mras-loaded" && e[2] == "sequence=1" && e[3] == "2"));
+        .any(|e| e[2] == "mras-loaded" && e[3] == "sequence=1" && e[4] == "2"));
+    // Two boots in the capture (seq back to 0 at the second's init line), nothing lost.
+    assert!(stdout.contains("losses: none"), "{stdout}");
     assert_eq!(
         names(&plots),
         [
@@ -209,7 +255,10 @@ fn a_capture_with_a_reset_gives_two_csvs_events_and_plots() {
         ]
     );
     // The store blocked the supervisor for the erase: its records are missing, and said.
-    assert!(stdout.contains("records missing"), "{stdout}");
+    assert!(
+        stdout.contains("records missing (gaps in t_ms: no frame lost"),
+        "{stdout}"
+    );
 }
 
 /// A damaged frame is counted and reported, the rest decodes; a capture cut off in the
@@ -235,11 +284,25 @@ fn damaged_and_cut_off_captures_lose_only_the_damaged_frames() {
     let bad = decoded.malformed + decoded.bad_lines.len() as u64;
     assert!((1..=2).contains(&bad), "{bad}");
     assert!(stdout.contains(&format!("{} malformed frames", decoded.malformed)));
+    // The damaged frame shows as a gap in seq: every line of ours before the last one
+    // received is there or counted lost.
+    let seqs: Vec<u32> = decoded
+        .items
+        .iter()
+        .filter_map(|i| match i {
+            Item::Line(l) => l.seq(),
+            Item::Other(_) => None,
+        })
+        .collect();
+    let lost = decoded.losses().frames_lost;
+    assert!(lost >= 1, "{lost}");
+    assert_eq!(lost, (*seqs.last().unwrap() as u64 + 1) - seqs.len() as u64);
+    assert!(stdout.contains(&format!("{lost} frames lost")), "{stdout}");
     let (_, rows) = read_csv(&out);
     let sent = first
         .streamed
         .iter()
-        .filter(|s| matches!(s.1, Streamed::Record(_)))
+        .filter(|s| matches!(s.line, Line::Record(_)))
         .count();
     assert!(
         rows.len() >= sent - 3 && rows.len() < sent,
@@ -273,6 +336,7 @@ fn records_before_the_path_list_and_foreign_inputs_fail_clearly() {
     let mut paths_only = Vec::new();
     formats
         .encode_paths(
+            drive::telemetry::INIT_SEQ,
             "offset,amplitude_quadrature,h4,h5,h6,h7,h8",
             &mut paths_only,
         )
@@ -307,6 +371,7 @@ fn the_elf_format_names_match_the_schema() {
     let e = formats.encode("mras", wrong, &mut out).unwrap_err();
     assert!(format!("{e:#}").contains("parameters"), "{e:#}");
     let renamed = [
+        ("seq", stream::Value::Uint(1)),
         ("state", stream::Value::Str("Run".into())),
         ("time", stream::Value::Uint(1)),
     ];

@@ -186,6 +186,9 @@ fn commissioning_scenario_commissions_stores_and_reloads() {
     for b in [&first, &second] {
         assert!(b.run_angle_error_e_rad.unwrap().abs() < 0.02, "{b:?}");
         assert!(b.run_torque_per_amp.unwrap() > 0.99);
+        // Nothing dropped, late or lost, and the stream has the records to say so.
+        assert!(b.records().count() > 100);
+        assert!(b.losses().is_none(), "{:?}", b.losses());
     }
     let run = first.run.as_ref().unwrap();
     assert!(
@@ -252,6 +255,8 @@ fn ripple_power_ups(sc: &Scenario, name: &str) -> Vec<(String, TruthSpectrum)> {
                 b.cause
             );
             assert_eq!(b.faulted_samples, 0, "{what}");
+            // The bank from the data grows through the update queue: nothing dropped.
+            assert!(b.losses().is_none(), "{what}: {:?}", b.losses());
             let t = b.truth_spectrum.expect("window all in Run");
             print!("{what}:\n{}", t.text("  "));
             (what, t)

@@ -6,10 +6,11 @@
 //!    It hands the accepted sample to `adapt` and, at the supervisor's divider ticks,
 //!    publishes a telemetry snapshot.
 //! 2. `adapt` (every period, pended by `control`): the MRAS adaptation
-//!    (`drive::adaptation::AdaptationTask`) on the handed-over samples; its updates go
-//!    back to `control`, in force a fixed latency later (`mras::UPDATE_LATENCY_PERIODS`),
+//!    (`drive::adaptation::AdaptationTask::run`) on the handed-over samples; its updates
+//!    go back to `control`, in force a fixed latency later (`mras::UPDATE_LATENCY_PERIODS`),
 //!    so the result does not depend on when in between it ran. Both directions are
-//!    lock-free queues: neither side ever masks the other.
+//!    lock-free queues (`drive::handoff`, with their drop rules): neither side ever masks
+//!    the other.
 //! 1. `supervisor` (1 kHz, spawned by `control`): `drive::supervisor::Supervisor::step`
 //!    on the snapshot and the adaptation's report, the calibration flash, the watchdog,
 //!    and the RTT stream. It is the only runtime context that logs; defmt-rtt neither
@@ -48,6 +49,7 @@ mod app {
     use drive::adaptation::{AdaptReport, AdaptationTask};
     use drive::commissioning::Cause;
     use drive::control::ControlPeriod;
+    use drive::handoff::{HandoffQueue, HANDOFF_DEPTH};
     use drive::motion::MotionRef;
     use drive::supervisor::Supervisor;
     use drive::telemetry::{self, Command, Install, TelemetrySlot};
@@ -77,10 +79,10 @@ mod app {
         period: ControlPeriod<CoreTrig>,
         /// Accepted samples to `adapt`, and its updates back.
         handoff_tx: Producer<'static, AdaptSample, HANDOFF_DEPTH>,
-        updates_rx: Consumer<'static, InjectionUpdate, UPDATE_DEPTH>,
+        updates_rx: Consumer<'static, InjectionUpdate, UPDATES>,
         adaptation: AdaptationTask,
         handoff_rx: Consumer<'static, AdaptSample, HANDOFF_DEPTH>,
-        updates_tx: Producer<'static, InjectionUpdate, UPDATE_DEPTH>,
+        updates_tx: Producer<'static, InjectionUpdate, UPDATES>,
         /// The previous control interrupt's cycle count (DWT CYCCNT).
         last_cycles: u32,
         supervisor: Supervisor,
@@ -89,14 +91,17 @@ mod app {
         adc_start: adc::Start,
     }
 
-    /// Queue sizes (one slot is kept free): samples `adapt` may lag behind by, and the
-    /// updates in flight (one per stride, and a whole install at once).
-    const HANDOFF_DEPTH: usize = 16;
-    const UPDATE_DEPTH: usize = 2 * mras::MAX_PATHS;
+    /// The update queue's depth: `drive::handoff`'s, or room for one update in the
+    /// deliberately broken `starve-updates` build (firmware/app/Cargo.toml).
+    const UPDATES: usize = if cfg!(feature = "starve-updates") {
+        2
+    } else {
+        drive::handoff::UPDATE_DEPTH
+    };
 
     #[init(local = [
-        handoff: Queue<AdaptSample, HANDOFF_DEPTH> = Queue::new(),
-        updates: Queue<InjectionUpdate, UPDATE_DEPTH> = Queue::new(),
+        handoff: HandoffQueue = Queue::new(),
+        updates: Queue<InjectionUpdate, UPDATES> = Queue::new(),
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
         let mut cp = cx.core;
@@ -149,7 +154,8 @@ mod app {
             board::WATCHDOG_TIMEOUT_US,
         ));
 
-        telemetry::log_paths(&telemetry::path_names(&cfg));
+        // The banner starts a boot in the stream; the path names are its first line of
+        // ours (telemetry::INIT_SEQ), the supervisor's lines follow numbered from 1.
         defmt::info!(
             "drive-fw: {=u32} Hz PWM, SYSCLK {=u32} Hz, N = {=u16}, p = {=u16}",
             board::PWM_HZ,
@@ -157,6 +163,7 @@ mod app {
             board::SENSOR_PERIODS,
             board::POLE_PAIRS
         );
+        telemetry::log_paths(telemetry::INIT_SEQ, &telemetry::path_names(&cfg));
         // The conversions start in `idle`, after init: it runs masked, and the logging
         // above takes longer than a 40 kHz period.
         let (adc1, adc2, adc12) = hw.adc;
@@ -207,19 +214,10 @@ mod app {
         sample.overcurrent = l.pwm.break_active();
         sample.cycles = *l.last_cycles;
         let command = cx.shared.command.lock(|c| *c);
-        // The adaptation's updates due by this period.
-        while let Some(u) = l.updates_rx.peek() {
-            if !l.period.apply(u) {
-                break;
-            }
-            l.updates_rx.dequeue();
-        }
+        l.period.apply_due(l.updates_rx);
         let out = l.period.step(&sample, &command);
         l.pwm.apply(&out);
-        if let Some(&h) = l.period.handoff() {
-            if l.handoff_tx.enqueue(h).is_err() {
-                l.period.note_handoff_dropped();
-            }
+        if l.period.hand_over(l.handoff_tx) {
             rtic::pend(Interrupt::USART3);
         }
         if out.supervisor_due {
@@ -237,21 +235,11 @@ mod app {
            shared = [mailbox, report])]
     fn adapt(mut cx: adapt::Context) {
         let l = cx.local;
-        if let Some(i) = cx.shared.mailbox.lock(Option::take) {
-            // The queue holds a whole install beside the updates in flight.
-            l.adaptation.install(&i, |u| {
-                l.updates_tx.enqueue(u).ok();
-            });
-            cx.shared.report.lock(|r| *r = *l.adaptation.report());
-        }
-        while let Some(s) = l.handoff_rx.dequeue() {
-            if let Some(u) = l.adaptation.step(&s) {
-                l.updates_tx.enqueue(u).ok();
-            }
-            if s.has(AdaptSample::REPORT) {
-                cx.shared.report.lock(|r| *r = *l.adaptation.report());
-            }
-        }
+        let install = cx.shared.mailbox.lock(Option::take);
+        let mut report = cx.shared.report;
+        l.adaptation.run(l.handoff_rx, l.updates_tx, install, |r| {
+            report.lock(|x| *x = *r)
+        });
     }
 
     /// Commissioning, calibration flash, watchdog and the stream (1 kHz).
@@ -269,14 +257,8 @@ mod app {
             cx.shared.mailbox.lock(|m| *m = out.install);
         }
         l.watchdog.feed();
-        if let Some(b) = &out.paths {
-            telemetry::log_paths(&telemetry::bank_names(b.as_slice()));
-        }
-        for e in &out.events {
-            telemetry::log_event(e);
-        }
-        if let Some(r) = &out.record {
-            telemetry::log_record(r);
+        for (seq, line) in out.lines() {
+            telemetry::log_line(seq, &line);
         }
     }
 }

@@ -1,18 +1,29 @@
 //! The MRAS adaptation's side of the drive: a task below the control period.
 //!
 //! The control period ([`crate::control::ControlPeriod::step`]) hands every accepted
-//! sample over ([`crate::control::ControlPeriod::handoff`]); [`AdaptationTask::step`] turns them into
-//! the decoupling vector's updates, which go back through
-//! [`crate::control::ControlPeriod::apply`], in force a fixed latency after their sample
-//! ([`mras::UPDATE_LATENCY_PERIODS`]). The firmware queues both ways between its control
-//! interrupt and its adaptation task; hil-sim runs the task right after each period, as
-//! the firmware's scheduler does, so both compute the same bits.
+//! sample over ([`crate::control::ControlPeriod::hand_over`]); [`AdaptationTask::run`]
+//! turns them into the decoupling vector's updates, which go back through
+//! [`crate::control::ControlPeriod::apply_due`], in force a fixed latency after their
+//! sample ([`mras::UPDATE_LATENCY_PERIODS`]). The queues and the task's loop are
+//! [`crate::handoff`]'s, the firmware's and hil-sim's alike, so both compute the same bits.
 //!
 //! The convergence measures and coefficients the supervisor needs are computed here,
 //! once per snapshot ([`mras::AdaptSample::REPORT`]), not in the control interrupt.
+//!
+//! An update the queue cannot take is never lost silently: it is counted
+//! ([`AdaptReport::updates_dropped`]) and owed. While anything is owed nothing else is
+//! queued; once there is room the owed bank goes first, then each owed path's newest
+//! term. A bank change that did not fit owes every path of the new bank at the adapter's
+//! coefficient (the terms owed before index the old bank; a path's proportional part
+//! follows with its next update), so the control period never applies a term to another
+//! bank than the adapter's, and never runs on the old bank once there is room.
 
+use crate::handoff::Sender;
 use crate::telemetry::{Install, InstallAck, Snapshot, Telemetry};
-use mras::{AdaptSample, Adapter, Bank, Change, Coefficients, ConfigError, InjectionUpdate};
+use mras::{
+    AdaptSample, Adapter, Bank, Change, Coefficients, ConfigError, Cplx, InjectionUpdate,
+    MAX_PATHS, UPDATE_LATENCY_PERIODS,
+};
 
 /// What the adaptation reports to the supervisor (merged into its [`Telemetry`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -24,6 +35,9 @@ pub struct AdaptReport {
     pub coefficients: Coefficients,
     /// The answer to the last [`Install`].
     pub install: Option<InstallAck>,
+    /// Updates the queue back to the control period could not take when they were made,
+    /// since start (see the module's doc): the control period lagged the adapter.
+    pub updates_dropped: u32,
 }
 
 impl AdaptReport {
@@ -34,6 +48,7 @@ impl AdaptReport {
         residual_max_rad: f32::INFINITY,
         coefficients: Coefficients::EMPTY,
         install: None,
+        updates_dropped: 0,
     };
 }
 
@@ -48,8 +63,34 @@ impl Default for AdaptReport {
 pub struct AdaptationTask {
     adapter: Adapter,
     report: AdaptReport,
-    /// The period of the last sample adapted on: installs are in force from the next.
+    /// The period of the last sample adapted on.
     last_index: u32,
+    owed: Owed,
+    updates_dropped: u32,
+}
+
+/// Updates owed to the control period (see the module's doc).
+#[derive(Clone, Copy, Debug)]
+struct Owed {
+    /// A new bank, sent first.
+    bank: Option<InjectionUpdate>,
+    /// Bit i: path i's term `terms[i]` (due period, value) is owed.
+    paths: u32,
+    terms: [(u32, Cplx); MAX_PATHS],
+    /// Where the next attempt starts: round robin, so that a path updated often cannot
+    /// keep the others waiting.
+    next: usize,
+}
+
+const _: () = assert!(MAX_PATHS <= 32, "one bit of Owed::paths per path");
+
+impl Owed {
+    const NONE: Self = Self {
+        bank: None,
+        paths: 0,
+        terms: [(0, Cplx::ZERO); MAX_PATHS],
+        next: 0,
+    };
 }
 
 impl AdaptationTask {
@@ -59,44 +100,47 @@ impl AdaptationTask {
             report: AdaptReport::EMPTY,
             adapter,
             last_index: 0,
+            owed: Owed::NONE,
+            updates_dropped: 0,
         };
         a.measure();
         Ok(a)
     }
 
-    /// One handed-over sample; returns the decoupling vector's update, if one is due.
-    pub fn step(&mut self, s: &AdaptSample) -> Option<InjectionUpdate> {
+    /// One handed-over sample; its update, if one is due, goes to `updates`.
+    pub fn step(&mut self, s: &AdaptSample, updates: &mut impl Sender<InjectionUpdate>) {
         self.last_index = s.index;
         let (_, update) = self.adapter.step(s);
+        if let Some(u) = update {
+            self.send(u, updates);
+        }
         if s.has(AdaptSample::REPORT) {
             self.measure();
         }
-        update
     }
 
     /// Coefficients loaded from flash: validated by the core; if accepted, the bank and
-    /// every path's term go to the control period through `send`, in force at once.
-    pub fn install(&mut self, i: &Install, mut send: impl FnMut(InjectionUpdate)) {
+    /// every path's term go to the control period through `updates`, in force with the
+    /// update of the last sample adapted on (after every update already queued, whose
+    /// order is their due order; on time if the task is).
+    pub fn install(&mut self, i: &Install, updates: &mut impl Sender<InjectionUpdate>) {
         let before = Bank::new(self.adapter.config().paths());
         let accepted = self.adapter.set_coefficients(&i.coefficients).is_ok();
         if accepted {
+            let apply_at = self.last_index.wrapping_add(UPDATE_LATENCY_PERIODS);
             // A record's bank from the data differs from the first stage in use: the
             // bank first (the front follows the adapter's every change), then every term.
             let bank = Bank::new(self.adapter.config().paths());
             if bank != before {
-                send(InjectionUpdate {
-                    apply_at: self.last_index,
-                    change: Change::Bank(bank.into()),
-                });
+                let change = Change::Bank(bank.into());
+                self.send(InjectionUpdate { apply_at, change }, updates);
             }
             for (path, (_, value)) in i.coefficients.iter().enumerate() {
-                send(InjectionUpdate {
-                    apply_at: self.last_index,
-                    change: Change::Term {
-                        path: path as u8,
-                        value,
-                    },
-                });
+                let change = Change::Term {
+                    path: path as u8,
+                    value,
+                };
+                self.send(InjectionUpdate { apply_at, change }, updates);
             }
         }
         self.report.install = Some(InstallAck {
@@ -106,6 +150,72 @@ impl AdaptationTask {
         self.measure();
     }
 
+    /// Queue `u` behind whatever is owed, or owe it.
+    fn send(&mut self, u: InjectionUpdate, updates: &mut impl Sender<InjectionUpdate>) {
+        let refused = match self.send_owed(updates) {
+            true => updates.send(u).err(),
+            false => Some(u),
+        };
+        if let Some(u) = refused {
+            self.updates_dropped = self.updates_dropped.saturating_add(1);
+            self.owe(u);
+        }
+    }
+
+    fn owe(&mut self, u: InjectionUpdate) {
+        let owed = &mut self.owed;
+        match u.change {
+            Change::Term { path, value } => {
+                if let Some(t) = owed.terms.get_mut(path as usize) {
+                    *t = (u.apply_at, value);
+                    owed.paths |= 1 << path;
+                }
+            }
+            Change::Bank(_) => {
+                owed.bank = Some(u);
+                owed.paths = 0;
+                let c = self.adapter.coefficients();
+                for (i, (t, (_, v))) in owed.terms.iter_mut().zip(c.iter()).enumerate() {
+                    *t = (u.apply_at, v);
+                    owed.paths |= 1 << i;
+                }
+            }
+        }
+    }
+
+    /// Send what is owed, the bank first; true when nothing is owed any more.
+    pub(crate) fn send_owed(&mut self, updates: &mut impl Sender<InjectionUpdate>) -> bool {
+        let owed = &mut self.owed;
+        if let Some(b) = owed.bank {
+            if updates.send(b).is_err() {
+                return false;
+            }
+            owed.bank = None;
+        }
+        for k in 0..MAX_PATHS {
+            if owed.paths == 0 {
+                break;
+            }
+            let i = (owed.next + k) % MAX_PATHS;
+            let Some(&(apply_at, value)) = owed.terms.get(i) else {
+                break;
+            };
+            if owed.paths & (1 << i) == 0 {
+                continue;
+            }
+            let change = Change::Term {
+                path: i as u8,
+                value,
+            };
+            if updates.send(InjectionUpdate { apply_at, change }).is_err() {
+                owed.next = i;
+                return false;
+            }
+            owed.paths &= !(1 << i);
+        }
+        owed.paths == 0
+    }
+
     /// The report as of the last snapshot sample (or install).
     pub fn report(&self) -> &AdaptReport {
         &self.report
@@ -113,6 +223,12 @@ impl AdaptationTask {
 
     pub fn adapter(&self) -> &Adapter {
         &self.adapter
+    }
+
+    /// [`AdaptReport::updates_dropped`] as of now (the report has it as of its last
+    /// snapshot sample).
+    pub fn updates_dropped(&self) -> u32 {
+        self.updates_dropped
     }
 
     fn measure(&mut self) {
@@ -127,6 +243,7 @@ impl AdaptationTask {
                 .fold(0.0f32, |a, b| a.max(*b)),
             coefficients: self.adapter.coefficients(),
             install: self.report.install,
+            updates_dropped: self.updates_dropped,
         };
     }
 }
@@ -142,6 +259,7 @@ impl Snapshot {
             residual_max_rad: r.residual_max_rad,
             coefficients: r.coefficients,
             install: r.install,
+            updates_dropped: r.updates_dropped,
         }
     }
 }

@@ -6,8 +6,9 @@
 //! period. The firmware's control interrupt is "read registers, [`ControlPeriod::step`],
 //! write registers"; hil-sim calls the same function on its simulated ADC counts. The
 //! MRAS adaptation is not in it: each accepted sample is handed over
-//! ([`ControlPeriod::handoff`]) to [`crate::adaptation::AdaptationTask`], which runs below the
-//! control period, and its updates come back through [`ControlPeriod::apply`].
+//! ([`ControlPeriod::hand_over`]) to [`crate::adaptation::AdaptationTask`], which runs below
+//! the control period, and its updates come back through [`ControlPeriod::apply_due`]
+//! ([`crate::handoff`]).
 //!
 //! One latched safe state: a fault in any period (sensor, ADC range, over-current)
 //! switches the bridge off from that period on, and it stays off, whatever the command,
@@ -145,6 +146,7 @@ pub struct ControlPeriod<T: Trig> {
     /// Since the previous snapshot.
     cycles: CycleStats,
     handoffs_dropped: u32,
+    updates_late: u32,
     /// Some period since the previous snapshot had no locked estimate.
     unlocked: bool,
     /// The scaled sensor vector fed to the core, and the fault of the period.
@@ -272,6 +274,7 @@ impl<T: Trig> ControlPeriod<T> {
             until_supervisor: cfg.supervisor_divider,
             cycles: CycleStats::EMPTY,
             handoffs_dropped: 0,
+            updates_late: 0,
             unlocked: false,
             last_xy: (0.0, 0.0),
             last_fault: None,
@@ -300,10 +303,17 @@ impl<T: Trig> ControlPeriod<T> {
     }
 
     /// Put an update of the adaptation in force if it is due by the coming period
-    /// (`false`: not yet; offer it again next period).
+    /// (`false`: not yet; offer it again next period). One due before the coming period
+    /// (its task missed the deadline) is applied at once and counted
+    /// ([`Snapshot::updates_late`]).
     #[inline(always)]
     pub fn apply(&mut self, u: &InjectionUpdate) -> bool {
-        self.tracker.apply(u)
+        // The front's own test, strict: due before the coming period index + 1.
+        let coming = self.tracker.index().wrapping_add(1);
+        let late = (u.apply_at.wrapping_sub(coming) as i32) < 0;
+        let applied = self.tracker.apply(u);
+        self.updates_late = self.updates_late.saturating_add((applied && late) as u32);
+        applied
     }
 
     /// One period.
@@ -563,6 +573,7 @@ impl<T: Trig> ControlPeriod<T> {
             release: self.release,
             core_faults: self.tracker.faults().bits(),
             unlocked: self.unlocked,
+            theta_rad: motor_frame_angle(est.theta_rad, self.direction),
             omega_rad_s: self.direction * est.omega_rad_s,
             amplitude: est.amplitude,
             sweep: self.sweep.result(),
@@ -571,6 +582,7 @@ impl<T: Trig> ControlPeriod<T> {
             currents_implausible: self.currents_implausible,
             cycles: self.cycles,
             handoffs_dropped: self.handoffs_dropped,
+            updates_late: self.updates_late,
         };
         self.cycles = CycleStats::EMPTY;
         self.unlocked = false;
@@ -590,6 +602,16 @@ impl<T: Trig> ControlPeriod<T> {
 
     pub fn tracker(&self) -> &Front<T> {
         &self.tracker
+    }
+
+    /// [`Snapshot::handoffs_dropped`] as of now.
+    pub fn handoffs_dropped(&self) -> u32 {
+        self.handoffs_dropped
+    }
+
+    /// [`Snapshot::updates_late`] as of now.
+    pub fn updates_late(&self) -> u32 {
+        self.updates_late
     }
 
     pub fn config(&self) -> &DriveConfig {
@@ -636,6 +658,23 @@ impl<T: Trig> ControlPeriod<T> {
     /// The current sensors' measured zero (counts).
     pub fn current_zero_counts(&self) -> [f32; 2] {
         self.current_zero
+    }
+}
+
+/// A mechanical angle in [0, 2π) of the sensor's frame in the motor's (`direction` -1:
+/// the sensor turns the other way), in [0, 2π).
+#[inline]
+fn motor_frame_angle(theta_rad: f32, direction: f32) -> f32 {
+    use core::f32::consts::TAU;
+    if direction >= 0.0 || theta_rad <= 0.0 {
+        return theta_rad;
+    }
+    // 2π - θ rounds to 2π for θ below half an ulp of 2π: that is 0.
+    let t = TAU - theta_rad;
+    if t >= TAU {
+        0.0
+    } else {
+        t
     }
 }
 

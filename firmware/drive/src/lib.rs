@@ -5,6 +5,8 @@
 //!   firmware's control interrupt body;
 //! - [`supervisor::Supervisor`]: the commissioning state machine, the calibration in
 //!   flash and the stream, the firmware's supervisor task body;
+//! - [`adaptation::AdaptationTask`] and [`handoff`]: the MRAS adaptation's task and the
+//!   bounded queues between it and the control period, with their drop rules;
 //! - [`telemetry`]: what they exchange, and the stream's schema.
 #![no_std]
 #![deny(unsafe_code)]
@@ -16,6 +18,7 @@ pub mod commissioning;
 pub mod control;
 pub mod cordic;
 pub mod foc;
+pub mod handoff;
 pub mod motion;
 pub mod refine;
 pub mod ripple;

@@ -9,12 +9,16 @@
 //! together with the alignment in force. Flash operations block the caller for their
 //! duration (a page erase is tens of milliseconds): the control period keeps running
 //! meanwhile, at a higher priority, on the command in force.
+//!
+//! A step's events are bounded ([`Events`]): one that does not fit is dropped and
+//! counted ([`Supervisor::events_dropped`], streamed in every record), except a fault,
+//! which is never dropped. The stream's lines are numbered ([`Output::lines`]).
 
 use crate::commissioning::{
     Cause, Commissioning, Inputs, LoadStatus, Params, RefineStatus, Request, State, StoreStatus,
 };
 use crate::refine::{separate, CoefficientMean, RefineError, Refined};
-use crate::telemetry::{Command, Event, Install, Record, Telemetry};
+use crate::telemetry::{Command, Event, Install, Line, Record, Telemetry, INIT_SEQ};
 use calib_record::{Alignment, Calibration, FlashSlots, StoreError};
 use heapless::Vec;
 use mras::{Bank, Coefficients};
@@ -31,8 +35,75 @@ enum Awaiting {
 /// A record every this many supervisor steps (100 Hz at a 1 kHz supervisor).
 pub const RECORD_DIVIDER: u32 = 10;
 
-/// Most events one step can produce.
+/// Events one step holds besides a boot fault: twice the most a step of the
+/// commissioning produces (an event of the state's request or of a store, and the state
+/// change).
 pub const MAX_EVENTS: usize = 4;
+
+/// A step's events, bounded. The fault of a boot ([`Supervisor::boot_fault`]) has its
+/// own slot; the others hold up to `E`. A step's own fault (at most one: it enters the
+/// safe state once) that finds them full takes the place of the newest event that is
+/// not a fault; any other event that does not fit is dropped. Each dropped event is
+/// counted ([`Events::dropped`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Events<const E: usize = MAX_EVENTS> {
+    boot: Option<Event>,
+    list: Vec<Event, E>,
+    dropped: u32,
+}
+
+impl<const E: usize> Default for Events<E> {
+    fn default() -> Self {
+        Self {
+            boot: None,
+            list: Vec::new(),
+            dropped: 0,
+        }
+    }
+}
+
+impl<const E: usize> Events<E> {
+    /// Add `e` by the rule above.
+    pub fn push(&mut self, e: Event) {
+        let Err(e) = self.list.push(e) else {
+            return;
+        };
+        self.dropped = self.dropped.saturating_add(1);
+        if e.is_fault() {
+            // The list holds no other fault of this step: E >= 1 non-faults, the newest
+            // last (replaced in place: a removal would pull in a memmove).
+            if let Some(slot) = self.list.iter_mut().rev().find(|x| !x.is_fault()) {
+                *slot = e;
+            }
+        }
+    }
+
+    /// In stream order: the boot fault, then the step's.
+    pub fn iter(&self) -> impl Iterator<Item = &Event> + '_ {
+        self.boot.iter().chain(self.list.iter())
+    }
+
+    pub fn len(&self) -> usize {
+        self.boot.is_some() as usize + self.list.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Events this step could not hold.
+    pub fn dropped(&self) -> u32 {
+        self.dropped
+    }
+}
+
+impl<'a, const E: usize> IntoIterator for &'a Events<E> {
+    type Item = &'a Event;
+    type IntoIter = core::iter::Chain<core::option::Iter<'a, Event>, core::slice::Iter<'a, Event>>;
+    fn into_iter(self) -> Self::IntoIter {
+        self.boot.iter().chain(self.list.iter())
+    }
+}
 
 /// A flash error's name for the stream.
 pub trait NamedError {
@@ -41,20 +112,44 @@ pub trait NamedError {
 
 /// What one step produces.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Output {
+pub struct Output<const E: usize = MAX_EVENTS> {
     pub command: Command,
     /// Coefficients for the control period to install (once per load).
     pub install: Option<Install>,
     /// A stream record, every [`RECORD_DIVIDER`] steps.
     pub record: Option<Record>,
-    pub events: Vec<Event, MAX_EVENTS>,
+    pub events: Events<E>,
     /// The core's bank changed (a bank from the data grew, or a record's was installed):
     /// stream a new `mras-paths` line before the record, as init streams the first.
     pub paths: Option<Bank>,
+    /// The `seq` of this step's first line.
+    pub first_seq: u32,
 }
 
+impl<const E: usize> Output<E> {
+    /// The lines to stream, in order, each with its `seq`: the new bank's names, the
+    /// events, the record.
+    pub fn lines(&self) -> impl Iterator<Item = (u32, Line)> + '_ {
+        let paths = self.paths.map(Line::Paths);
+        let events = self.events.iter().map(|e| Line::Event(*e));
+        let lines = paths
+            .into_iter()
+            .chain(events)
+            .chain(self.record.map(Line::Record));
+        let first = self.first_seq;
+        lines
+            .enumerate()
+            .map(move |(k, l)| (first.wrapping_add(k as u32), l))
+    }
+
+    fn line_count(&self) -> u32 {
+        (self.paths.is_some() as usize + self.events.len() + self.record.is_some() as usize) as u32
+    }
+}
+
+/// The supervisor; `E`: the events one step holds besides a boot fault ([`Events`]).
 #[derive(Clone, Debug)]
-pub struct Supervisor {
+pub struct Supervisor<const E: usize = MAX_EVENTS> {
     sm: Commissioning,
     dt_s: f32,
     control_rate_hz: u32,
@@ -72,11 +167,18 @@ pub struct Supervisor {
     awaiting: Option<Awaiting>,
     release: u8,
     store_requested: bool,
+    /// The state last streamed.
     last_state: State,
+    /// Restarted since the last step: its state (the sequence's first) is streamed.
+    restarted: bool,
     steps: u32,
-    pending_events: Vec<Event, MAX_EVENTS>,
+    /// The boot fault, for the next step's events.
+    boot_event: Option<Event>,
     /// The bank of the coefficients last seen (None before the first report).
     bank: Option<Bank>,
+    events_dropped: u32,
+    /// The `seq` of the next line.
+    next_seq: u32,
 }
 
 impl Supervisor {
@@ -84,6 +186,19 @@ impl Supervisor {
     /// the motor and the sensor's scaling); `control_rate_hz` and `divider`: the control
     /// rate and the control periods per supervisor step.
     pub fn new(params: Params, cfg_hash: u32, control_rate_hz: u32, divider: u32) -> Self {
+        Self::with_event_room(params, cfg_hash, control_rate_hz, divider)
+    }
+}
+
+impl<const E: usize> Supervisor<E> {
+    /// [`Supervisor::new`] whose steps hold `E` events besides a boot fault.
+    pub fn with_event_room(
+        params: Params,
+        cfg_hash: u32,
+        control_rate_hz: u32,
+        divider: u32,
+    ) -> Self {
+        const { assert!(E >= 1, "a step's fault needs an event to take the place of") };
         let divider = divider.max(1);
         Self {
             sm: Commissioning::new(params),
@@ -101,9 +216,12 @@ impl Supervisor {
             release: 0,
             store_requested: false,
             last_state: State::CheckSensor,
+            restarted: false,
             steps: 0,
-            pending_events: Vec::new(),
+            boot_event: None,
             bank: None,
+            events_dropped: 0,
+            next_seq: INIT_SEQ + 1,
         }
     }
 
@@ -137,15 +255,21 @@ impl Supervisor {
     }
 
     /// The reason the previous run ended (watchdog, HardFault, panic), found at boot:
-    /// start in the safe state and report it.
+    /// start in the safe state and report it in the next step's events (one reason: a
+    /// second call before that step replaces the first).
     pub fn boot_fault(&mut self, cause: Cause) {
         self.sm.force_safe(cause);
         self.last_state = State::Safe;
-        let _ = self.pending_events.push(Event::Fault {
+        self.boot_event = Some(Event::Fault {
             t_ms: 0,
             cause,
             state: State::CheckSensor,
         });
+    }
+
+    /// Events the steps could not hold since start ([`Events`]); never a fault.
+    pub fn events_dropped(&self) -> u32 {
+        self.events_dropped
     }
 
     /// The operator asks to store the calibration in force (in Run): drift tracked
@@ -157,6 +281,7 @@ impl Supervisor {
     /// Start over from the sensor check; releases the control period's latch.
     pub fn restart(&mut self) {
         self.sm.restart();
+        self.restarted = true;
         self.release = self.release.wrapping_add(1);
         self.load = LoadStatus::Pending;
         self.store = StoreStatus::Pending;
@@ -172,13 +297,22 @@ impl Supervisor {
     }
 
     /// One step on the latest snapshot.
-    pub fn step<F>(&mut self, tm: &Telemetry, flash: &mut F) -> Output
+    pub fn step<F>(&mut self, tm: &Telemetry, flash: &mut F) -> Output<E>
     where
         F: FlashSlots,
         F::Error: NamedError,
     {
         let t_ms = self.t_ms(tm);
-        let mut events = core::mem::take(&mut self.pending_events);
+        let mut events = Events::<E> {
+            boot: self.boot_event.take(),
+            ..Events::default()
+        };
+        if core::mem::take(&mut self.restarted) {
+            // Streamed now, so that a fault in this very step is a change from it.
+            let state = self.sm.state();
+            events.push(Event::State { t_ms, state });
+            self.last_state = state;
+        }
         let mut install = None;
 
         // The control period's answer to an install.
@@ -192,7 +326,7 @@ impl Supervisor {
             ) if ack.generation == generation => {
                 self.awaiting = None;
                 self.load = if ack.accepted {
-                    let _ = events.push(Event::Loaded { t_ms, sequence });
+                    events.push(Event::Loaded { t_ms, sequence });
                     LoadStatus::Loaded
                 } else {
                     LoadStatus::Refused
@@ -233,7 +367,7 @@ impl Supervisor {
                     }
                     Err(e) => {
                         self.load = LoadStatus::Unavailable;
-                        let _ = events.push(Event::NotLoaded {
+                        events.push(Event::NotLoaded {
                             t_ms,
                             reason: e.name(),
                         });
@@ -245,7 +379,7 @@ impl Supervisor {
             {
                 match self.refined_coefficients() {
                     Ok(coefficients) => {
-                        let _ = events.push(self.refined_event(t_ms, &coefficients));
+                        events.push(self.refined_event(t_ms, &coefficients));
                         self.generation = self.generation.wrapping_add(1);
                         self.awaiting = Some(Awaiting::Refined {
                             generation: self.generation,
@@ -298,13 +432,13 @@ impl Supervisor {
         if before == State::Verify && state == State::Store {
             if let Some(offset_e_rad) = tm.snapshot.corrected_offset_e_rad {
                 self.alignment.offset_e_rad = offset_e_rad;
-                let _ = events.push(Event::OffsetCorrected { t_ms, offset_e_rad });
+                events.push(Event::OffsetCorrected { t_ms, offset_e_rad });
             }
         }
         if before == State::Sweep && state == State::SpinUp {
             if let Some(r) = tm.snapshot.sweep {
                 self.alignment = r.alignment;
-                let _ = events.push(Event::Aligned {
+                events.push(Event::Aligned {
                     t_ms,
                     offset_e_rad: r.alignment.offset_e_rad,
                     reversed: r.alignment.reversed,
@@ -313,7 +447,7 @@ impl Supervisor {
             }
         }
         if state != self.last_state {
-            let _ = events.push(match self.sm.cause() {
+            events.push(match self.sm.cause() {
                 Some(cause) if state == State::Safe => Event::Fault {
                     t_ms,
                     cause,
@@ -335,10 +469,12 @@ impl Supervisor {
             learn_ripple: o.learn_ripple,
             reacquire: o.reacquire,
         };
+        self.events_dropped = self.events_dropped.saturating_add(events.dropped());
         let record = (self.steps % RECORD_DIVIDER == 0).then(|| Record {
             t_ms,
             state,
             faults: tm.snapshot.core_faults,
+            theta_rad: tm.snapshot.theta_rad,
             omega_rad_s: tm.snapshot.omega_rad_s,
             amplitude: tm.snapshot.amplitude,
             converged: tm.converged,
@@ -347,16 +483,23 @@ impl Supervisor {
             cycles_max: tm.snapshot.cycles.max,
             cycles_mean: tm.snapshot.cycles.mean(),
             cycles_min: tm.snapshot.cycles.min_or_zero(),
+            handoffs_dropped: tm.snapshot.handoffs_dropped,
+            updates_dropped: tm.updates_dropped,
+            updates_late: tm.snapshot.updates_late,
+            events_dropped: self.events_dropped,
             coef: Record::coef_of(&tm.coefficients),
         });
         self.steps = self.steps.wrapping_add(1);
-        Output {
+        let out = Output {
             command,
             install,
             record,
             events,
             paths: self.bank_change(&tm.coefficients),
-        }
+            first_seq: self.next_seq,
+        };
+        self.next_seq = self.next_seq.wrapping_add(out.line_count());
+        out
     }
 
     /// The mean of the one refinement, or the two speeds' separation.
@@ -403,13 +546,7 @@ impl Supervisor {
     }
 
     /// Write the snapshot's coefficients with the alignment in force; true on success.
-    fn write<F>(
-        &self,
-        tm: &Telemetry,
-        flash: &mut F,
-        t_ms: u32,
-        events: &mut Vec<Event, MAX_EVENTS>,
-    ) -> bool
+    fn write<F>(&self, tm: &Telemetry, flash: &mut F, t_ms: u32, events: &mut Events<E>) -> bool
     where
         F: FlashSlots,
         F::Error: NamedError,
@@ -430,7 +567,7 @@ impl Supervisor {
             },
         };
         let ok = matches!(event, Event::Stored { .. });
-        let _ = events.push(event);
+        events.push(event);
         ok
     }
 }

@@ -4,9 +4,17 @@
 //! - [`Telemetry`]: control period → supervisor, a snapshot taken at the supervisor's
 //!   divider ticks only.
 //! - [`Record`] and [`Event`]: supervisor → RTT stream (and hil-sim's stream file). The
-//!   defmt format strings live in this module ([`log_record`], [`log_event`], feature
-//!   `defmt`), next to the field names the host decodes them by ([`RECORD_KEYS`]), so
-//!   that the firmware and the host cannot drift apart.
+//!   defmt format strings live in this module ([`log_line`], feature `defmt`), next to
+//!   the field names the host decodes them by ([`RECORD_KEYS`], [`Event::fields`],
+//!   [`SEQ_KEY`]), so that the firmware and the host cannot drift apart.
+//!
+//! Every line of ours starts with `seq`, its number since boot: init writes the banner
+//! (`drive-fw: ...`, not ours), then the `mras-paths` line with [`INIT_SEQ`] (0); the
+//! supervisor numbers its lines from 1 on in the order it writes them ([`Line`]). The
+//! host counts a gap in `seq` as frames RTT dropped (defmt-rtt drops a frame that does
+//! not fit whole), whatever line was lost; a new boot is the banner, or `seq` not
+//! increasing where the banner was lost. (u32 lines at the supervisor's rate never
+//! wrap in practice: 1.4 years at 100 lines a second.)
 
 use crate::commissioning::{Adaptation, Cause, Setpoint, State};
 use calib_record::Alignment;
@@ -33,7 +41,7 @@ pub struct Command {
     /// Measure the current sensors' zero while the bridge is off.
     pub calibrate_currents: bool,
     /// Measure the mean shift of the corrected angle against the raw one
-    /// ([`Telemetry::corrected_offset_e_rad`]).
+    /// ([`Snapshot::corrected_offset_e_rad`]).
     pub measure_shift: bool,
     /// A value other than the last one seen releases a latched fault.
     pub release: u8,
@@ -152,6 +160,9 @@ pub struct Snapshot {
     /// Some period since the previous snapshot had no locked estimate: its sample was
     /// refused, or the core was (re-)acquiring its lock.
     pub unlocked: bool,
+    /// θ̂ at this period's sample, mechanical, in the motor's frame (the sensor's
+    /// direction of the alignment in force applied), in [0, 2π).
+    pub theta_rad: f32,
     /// ω̂ in the motor's frame (the sensor's direction applied), mechanical.
     pub omega_rad_s: f32,
     pub amplitude: f32,
@@ -170,6 +181,10 @@ pub struct Snapshot {
     /// Samples the adaptation task never got since start (its queue was full: the task
     /// starved). Zero on a healthy drive; the coefficients then lag, nothing else.
     pub handoffs_dropped: u32,
+    /// The adaptation's updates applied after the period they were due in, since start
+    /// (the task missed its deadline, [`mras::UPDATE_LATENCY_PERIODS`]). Zero on a
+    /// healthy drive.
+    pub updates_late: u32,
 }
 
 /// The supervisor's view at a divider tick: the control period's [`Snapshot`] with the
@@ -183,6 +198,8 @@ pub struct Telemetry {
     pub residual_max_rad: f32,
     pub coefficients: Coefficients,
     pub install: Option<InstallAck>,
+    /// `crate::adaptation::AdaptReport::updates_dropped`.
+    pub updates_dropped: u32,
 }
 
 /// Where the control period leaves its snapshots for the supervisor (an RTIC shared
@@ -209,13 +226,27 @@ impl TelemetrySlot {
 }
 
 /// One line of the coefficient stream (every [`crate::supervisor::RECORD_DIVIDER`]-th
-/// supervisor step).
+/// supervisor step), from the snapshot of the control period numbered
+/// `t_ms · control rate / 1000` (its `Snapshot::ticks`).
+///
+/// Time: `t_ms` counts the control periods run, exact at the supervisor's divider ticks.
+/// The first period's sample is at `t_ms` = 0 on that clock, so this record's sample, the
+/// instant of `theta_rad` and `omega_rad_s`, is one control period before `t_ms`
+/// (`t_ms/1000 - 1/f_pwm` seconds after the first sample; a period the firmware missed
+/// does not count).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Record {
     pub t_ms: u32,
     pub state: State,
     /// The core's latched fault bits.
     pub faults: u8,
+    /// θ̂ at the sample, mechanical, in [0, 2π), in the motor's frame: that of
+    /// `omega_rad_s`, the sensor's angle with the direction of the alignment in force
+    /// applied (forward until the sweep measured it), its zero the sensor's (the
+    /// alignment's offset is electrical, not applied). A reference encoder reads it as
+    /// `θ + c` mod 2π/N for a constant c of the mounting, N the sensor's periods.
+    pub theta_rad: f32,
+    /// ω̂ at the sample, mechanical, in the motor's frame (rad/s).
     pub omega_rad_s: f32,
     pub amplitude: f32,
     pub converged: bool,
@@ -224,6 +255,15 @@ pub struct Record {
     pub cycles_max: u32,
     pub cycles_mean: u32,
     pub cycles_min: u32,
+    /// Losses since boot (every one zero on a healthy drive): samples the adaptation
+    /// task never got ([`Snapshot::handoffs_dropped`]), its updates the queue could not
+    /// take when made (`AdaptReport::updates_dropped`) or applied after their period
+    /// ([`Snapshot::updates_late`]), and events a supervisor step could not hold
+    /// (`Supervisor::events_dropped`).
+    pub handoffs_dropped: u32,
+    pub updates_dropped: u32,
+    pub updates_late: u32,
+    pub events_dropped: u32,
     /// Re and im of each path, in configuration order; unused paths are 0.
     pub coef: [f32; 2 * MAX_PATHS],
 }
@@ -240,12 +280,13 @@ impl Record {
     }
 }
 
-/// Field names of a `mras` record line, in stream order; the host decodes by them.
-/// `coef` carries `2 * MAX_PATHS` values.
-pub const RECORD_KEYS: [&str; 12] = [
+/// Field names of a `mras` record line after [`SEQ_KEY`], in stream order; the host
+/// decodes by them. `coef` carries `2 * MAX_PATHS` values.
+pub const RECORD_KEYS: [&str; 17] = [
     "t_ms",
     "state",
     "faults",
+    "theta_rad",
     "omega_rad_s",
     "amplitude",
     "converged",
@@ -254,8 +295,26 @@ pub const RECORD_KEYS: [&str; 12] = [
     "cycles_max",
     "cycles_mean",
     "cycles_min",
+    "handoffs_dropped",
+    "updates_dropped",
+    "updates_late",
+    "events_dropped",
     "coef",
 ];
+
+/// The first field of every line of ours: its number since boot (see the module's doc).
+pub const SEQ_KEY: &str = "seq";
+/// The `seq` of init's `mras-paths` line; the supervisor's lines follow from 1.
+pub const INIT_SEQ: u32 = 0;
+
+/// A line the supervisor task writes, in stream order (`crate::supervisor::Output::lines`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Line {
+    /// A new `mras-paths` line: the core's bank changed.
+    Paths(mras::Bank),
+    Event(Event),
+    Record(Record),
+}
 
 /// Something that happened, streamed when it happens.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -309,13 +368,14 @@ pub enum FieldValue {
 
 impl Record {
     /// The record's fields in stream order, named by [`RECORD_KEYS`] (`coef` once per
-    /// value): the order of [`log_record`]'s parameters.
+    /// value): the order of [`log_line`]'s parameters after `seq`.
     pub fn fields(&self) -> impl Iterator<Item = (&'static str, FieldValue)> + '_ {
         use FieldValue::*;
         let head = [
             U32(self.t_ms),
             Str(self.state.name()),
             U8(self.faults),
+            F32(self.theta_rad),
             F32(self.omega_rad_s),
             F32(self.amplitude),
             Bool(self.converged),
@@ -324,6 +384,10 @@ impl Record {
             U32(self.cycles_max),
             U32(self.cycles_mean),
             U32(self.cycles_min),
+            U32(self.handoffs_dropped),
+            U32(self.updates_dropped),
+            U32(self.updates_late),
+            U32(self.events_dropped),
         ];
         RECORD_KEYS
             .iter()
@@ -337,7 +401,13 @@ impl Record {
 pub const MAX_EVENT_FIELDS: usize = 4;
 
 impl Event {
-    /// The line's marker (its first word), as [`log_event`] prints it.
+    /// Whether this is a fault (the safe state's entry): never dropped from a step's
+    /// events (`crate::supervisor::Events`).
+    pub fn is_fault(&self) -> bool {
+        matches!(self, Event::Fault { .. })
+    }
+
+    /// The line's marker (its first word), as [`log_line`] prints it.
     pub fn kind(&self) -> &'static str {
         match self {
             Event::State { .. } => "mras-state",
@@ -352,7 +422,7 @@ impl Event {
         }
     }
 
-    /// The fields in the order of [`log_event`]'s parameters.
+    /// The fields in the order of [`log_line`]'s parameters after `seq`.
     pub fn fields(&self) -> heapless::Vec<(&'static str, FieldValue), MAX_EVENT_FIELDS> {
         use FieldValue::*;
         let mut v = heapless::Vec::new();
@@ -436,16 +506,27 @@ pub fn fault_name(f: Fault) -> &'static str {
     }
 }
 
-/// The stream's record line. One format string, here only.
+/// A line of the supervisor task, numbered `seq`. The stream's format strings, here only.
 #[cfg(feature = "defmt")]
-pub fn log_record(r: &Record) {
+pub fn log_line(seq: u32, l: &Line) {
+    match l {
+        Line::Paths(b) => log_paths(seq, &bank_names(b.as_slice())),
+        Line::Event(e) => log_event(seq, e),
+        Line::Record(r) => log_record(seq, r),
+    }
+}
+
+#[cfg(feature = "defmt")]
+fn log_record(seq: u32, r: &Record) {
     const _: () = assert!(2 * MAX_PATHS == 32, "one placeholder per coef value");
     let c = &r.coef;
     defmt::info!(
-        "mras t_ms={=u32} state={=str} faults={=u8} omega_rad_s={=f32} amplitude={=f32} converged={=bool} revs={=u32} residual_max_rad={=f32} cycles_max={=u32} cycles_mean={=u32} cycles_min={=u32} coef={=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32}",
+        "mras seq={=u32} t_ms={=u32} state={=str} faults={=u8} theta_rad={=f32} omega_rad_s={=f32} amplitude={=f32} converged={=bool} revs={=u32} residual_max_rad={=f32} cycles_max={=u32} cycles_mean={=u32} cycles_min={=u32} handoffs_dropped={=u32} updates_dropped={=u32} updates_late={=u32} events_dropped={=u32} coef={=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32},{=f32}",
+        seq,
         r.t_ms,
         r.state.name(),
         r.faults,
+        r.theta_rad,
         r.omega_rad_s,
         r.amplitude,
         r.converged,
@@ -454,6 +535,10 @@ pub fn log_record(r: &Record) {
         r.cycles_max,
         r.cycles_mean,
         r.cycles_min,
+        r.handoffs_dropped,
+        r.updates_dropped,
+        r.updates_late,
+        r.events_dropped,
         c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7],
         c[8], c[9], c[10], c[11], c[12], c[13], c[14], c[15],
         c[16], c[17], c[18], c[19], c[20], c[21], c[22], c[23],
@@ -461,43 +546,57 @@ pub fn log_record(r: &Record) {
     );
 }
 
-/// The stream's event lines. One format string per kind, here only.
 #[cfg(feature = "defmt")]
-pub fn log_event(e: &Event) {
+fn log_event(seq: u32, e: &Event) {
     match *e {
-        Event::State { t_ms, state } => {
-            defmt::info!("mras-state state={=str} t_ms={=u32}", state.name(), t_ms)
-        }
+        Event::State { t_ms, state } => defmt::info!(
+            "mras-state seq={=u32} state={=str} t_ms={=u32}",
+            seq,
+            state.name(),
+            t_ms
+        ),
         Event::Fault { t_ms, cause, state } => defmt::error!(
-            "mras-fault cause={=str} state={=str} t_ms={=u32}",
+            "mras-fault seq={=u32} cause={=str} state={=str} t_ms={=u32}",
+            seq,
             cause_name(cause),
             state.name(),
             t_ms
         ),
-        Event::Loaded { t_ms, sequence } => {
-            defmt::info!("mras-loaded sequence={=u32} t_ms={=u32}", sequence, t_ms)
-        }
-        Event::NotLoaded { t_ms, reason } => {
-            defmt::info!("mras-not-loaded reason={=str} t_ms={=u32}", reason, t_ms)
-        }
-        Event::Stored { t_ms } => defmt::info!("mras-stored t_ms={=u32}", t_ms),
-        Event::StoreFailed { t_ms, reason } => {
-            defmt::error!("mras-store-failed reason={=str} t_ms={=u32}", reason, t_ms)
-        }
+        Event::Loaded { t_ms, sequence } => defmt::info!(
+            "mras-loaded seq={=u32} sequence={=u32} t_ms={=u32}",
+            seq,
+            sequence,
+            t_ms
+        ),
+        Event::NotLoaded { t_ms, reason } => defmt::info!(
+            "mras-not-loaded seq={=u32} reason={=str} t_ms={=u32}",
+            seq,
+            reason,
+            t_ms
+        ),
+        Event::Stored { t_ms } => defmt::info!("mras-stored seq={=u32} t_ms={=u32}", seq, t_ms),
+        Event::StoreFailed { t_ms, reason } => defmt::error!(
+            "mras-store-failed seq={=u32} reason={=str} t_ms={=u32}",
+            seq,
+            reason,
+            t_ms
+        ),
         Event::Aligned {
             t_ms,
             offset_e_rad,
             reversed,
             ratio,
         } => defmt::info!(
-            "mras-aligned offset_e_rad={=f32} reversed={=bool} ratio={=f32} t_ms={=u32}",
+            "mras-aligned seq={=u32} offset_e_rad={=f32} reversed={=bool} ratio={=f32} t_ms={=u32}",
+            seq,
             offset_e_rad,
             reversed,
             ratio,
             t_ms
         ),
         Event::OffsetCorrected { t_ms, offset_e_rad } => defmt::info!(
-            "mras-offset-corrected offset_e_rad={=f32} t_ms={=u32}",
+            "mras-offset-corrected seq={=u32} offset_e_rad={=f32} t_ms={=u32}",
+            seq,
             offset_e_rad,
             t_ms
         ),
@@ -507,7 +606,8 @@ pub fn log_event(e: &Event) {
             second_speed_rad_s,
             motion_max,
         } => defmt::info!(
-            "mras-refined speed_rad_s={=f32} second_speed_rad_s={=f32} motion_max={=f32} t_ms={=u32}",
+            "mras-refined seq={=u32} speed_rad_s={=f32} second_speed_rad_s={=f32} motion_max={=f32} t_ms={=u32}",
+            seq,
             speed_rad_s,
             second_speed_rad_s,
             motion_max,
@@ -516,11 +616,11 @@ pub fn log_event(e: &Event) {
     }
 }
 
-/// The path names line, at boot and whenever the bank changes: names the `coef` columns
-/// of the records that follow.
+/// The path names line, at boot ([`INIT_SEQ`]) and whenever the bank changes: names the
+/// `coef` columns of the records that follow.
 #[cfg(feature = "defmt")]
-pub fn log_paths(names: &str) {
-    defmt::info!("mras-paths {=str}", names);
+pub fn log_paths(seq: u32, names: &str) {
+    defmt::info!("mras-paths seq={=u32} paths={=str}", seq, names);
 }
 
 /// A path's name in the stream and in CSV columns: `offset`, `amplitude_quadrature`,
@@ -542,7 +642,8 @@ pub fn path_names(cfg: &mras::Config) -> heapless::String<128> {
 pub fn bank_names(paths: &[mras::PathKind]) -> heapless::String<128> {
     let mut s = heapless::String::new();
     for (i, k) in paths.iter().enumerate() {
-        // 8 names of at most 20 characters fit: the writes cannot fail.
+        // A bank's names fit: `offset`, `amplitude_quadrature` and 14 of at most 4
+        // characters (`h-15`) with their commas are 97: the writes cannot fail.
         if i > 0 {
             let _ = s.push(',');
         }

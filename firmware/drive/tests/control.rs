@@ -1,14 +1,19 @@
 //! The control period on its own: the latched safe state, the current sensors' zero,
-//! scaling faults, the supervisor's divider, installs.
+//! scaling faults, the supervisor's divider, installs; and the hand-over to the
+//! adaptation task (`drive::handoff`): what each side drops and counts, late updates,
+//! and a bank change the queue cannot take.
 
 use calib_record::Alignment;
 use drive::adaptation::AdaptationTask;
 use drive::adc::ChannelScaling;
 use drive::commissioning::{Adaptation, Setpoint};
 use drive::control::{ControlPeriod, CurrentSensing, DriveConfig, MotorConfig, Sample};
+use drive::handoff::{Queue, Receiver, HANDOFF_DEPTH, UPDATE_DEPTH};
 use drive::motion::LoopMode;
 use drive::telemetry::{Command, Fault, Install};
-use mras::{Bank, Change, Coefficients, Config, Cplx, Front, PathKind};
+use mras::{
+    AdaptSample, Bank, Change, Coefficients, Config, Cplx, Front, InjectionUpdate, PathKind,
+};
 
 const T: f32 = 50e-6;
 const AMPLITUDE: f32 = 1600.0;
@@ -61,6 +66,22 @@ fn sample(theta_s_rad: f32) -> Sample {
         overcurrent: false,
         cycles: 0,
     }
+}
+
+/// Step `p` until `updates` (all due at one period) are due: not before, then all, none
+/// late.
+fn due_in_time(p: &mut ControlPeriod<mras::F32Trig>, updates: &[InjectionUpdate]) {
+    let due = updates[0].apply_at;
+    while p.tracker().index() + 1 < due {
+        assert!(!p.apply(&updates[0]));
+        p.step(&sample(0.0), &Command::OFF);
+    }
+    assert!(updates.iter().all(|u| p.apply(u)));
+    assert_eq!(p.snapshot().updates_late, 0);
+}
+
+fn drain<const N: usize>(q: &mut Queue<InjectionUpdate, N>) -> Vec<InjectionUpdate> {
+    std::iter::from_fn(|| q.dequeue()).collect()
 }
 
 fn running() -> Command {
@@ -277,19 +298,20 @@ fn installs_are_acknowledged_with_their_generation() {
     let mut task = AdaptationTask::new(&paths).unwrap();
     let mut good = Coefficients::zeros(paths.paths());
     good.set(PathKind::Offset, Cplx::new(0.05, -0.02));
-    let mut sent = Vec::new();
+    let mut queue = Queue::<InjectionUpdate, UPDATE_DEPTH>::new();
     task.install(
         &Install {
             generation: 7,
             coefficients: good,
         },
-        |u| sent.push(u),
+        &mut queue,
     );
+    let sent = drain(&mut queue);
     let ack = task.report().install.unwrap();
     assert_eq!((ack.generation, ack.accepted), (7, true));
     assert_eq!(task.report().coefficients, good);
-    // Every path's term goes to the control period, due at once (the bank is the one
-    // in use: no new bank).
+    // Every path's term goes to the control period (the bank is the one in use: no new
+    // bank), due with the update of the last sample adapted on (none yet: period 0).
     assert_eq!(sent.len(), good.len());
     assert_eq!(
         sent[0].change,
@@ -299,17 +321,20 @@ fn installs_are_acknowledged_with_their_generation() {
         }
     );
     let mut p = period();
-    assert!(sent.iter().all(|u| p.apply(u)));
+    assert!(sent
+        .iter()
+        .all(|u| u.apply_at == mras::UPDATE_LATENCY_PERIODS));
+    due_in_time(&mut p, &sent);
     // Another path list: refused, the coefficients stay, nothing is sent.
     let other = Coefficients::zeros(&[PathKind::Offset]);
-    sent.clear();
     task.install(
         &Install {
             generation: 8,
             coefficients: other,
         },
-        |u| sent.push(u),
+        &mut queue,
     );
+    let sent = drain(&mut queue);
     let ack = task.report().install.unwrap();
     assert_eq!((ack.generation, ack.accepted), (8, false));
     assert_eq!(task.adapter().coefficients(), good);
@@ -337,14 +362,15 @@ fn an_installed_bank_from_the_data_goes_to_the_control_period_first() {
     ];
     let mut record = Coefficients::zeros(&bank);
     record.set(PathKind::Harmonic(10), Cplx::new(0.01, 0.002));
-    let mut sent = Vec::new();
+    let mut queue = Queue::<InjectionUpdate, UPDATE_DEPTH>::new();
     task.install(
         &Install {
             generation: 1,
             coefficients: record,
         },
-        |u| sent.push(u),
+        &mut queue,
     );
+    let sent = drain(&mut queue);
     assert!(task.report().install.unwrap().accepted);
     assert_eq!(sent.len(), 1 + bank.len());
     assert_eq!(sent[0].change, Change::Bank(Bank::new(&bank).into()));
@@ -356,7 +382,7 @@ fn an_installed_bank_from_the_data_goes_to_the_control_period_first() {
         }
     );
     let mut p = ControlPeriod::new(config(), Front::new(core).unwrap()).unwrap();
-    assert!(sent.iter().all(|u| p.apply(u)));
+    due_in_time(&mut p, &sent);
     assert_eq!(task.report().coefficients, record);
 }
 
@@ -399,4 +425,191 @@ fn configurations_are_checked_by_field() {
     let mut c = config();
     c.supervisor_divider = 0;
     assert!(ControlPeriod::new(c, Front::new(core).unwrap()).is_err());
+}
+
+/// A receiving end that counts what it hands out (the updates the control period took).
+struct Counted<'a, R> {
+    inner: &'a mut R,
+    taken: Vec<InjectionUpdate>,
+}
+
+impl<R: Receiver<InjectionUpdate>> Receiver<InjectionUpdate> for Counted<'_, R> {
+    fn peek(&self) -> Option<&InjectionUpdate> {
+        self.inner.peek()
+    }
+    fn receive(&mut self) -> Option<InjectionUpdate> {
+        let u = self.inner.receive();
+        self.taken.extend(u);
+        u
+    }
+}
+
+/// A hand-over queue the adaptation task does not drain: the samples beyond its room
+/// are dropped and counted, the oldest kept.
+#[test]
+fn a_full_handoff_queue_drops_the_sample_and_counts_it() {
+    let mut p = period();
+    let mut handoff = Queue::<AdaptSample, 4>::new();
+    let mut handed = 0;
+    for k in 0..10 {
+        p.step(&sample(0.05 * k as f32), &Command::OFF);
+        handed += p.hand_over(&mut handoff) as u32;
+    }
+    assert_eq!(handed, 10, "every sample accepted");
+    assert_eq!(p.snapshot().handoffs_dropped, 7);
+    let kept: Vec<u32> = std::iter::from_fn(|| handoff.dequeue())
+        .map(|s| s.index)
+        .collect();
+    assert_eq!(kept, [1, 2, 3]);
+}
+
+/// The adaptation task run only every `every` periods, over the firmware's queues: late
+/// by up to the latency (4 periods) nothing is late; later, the updates of the samples
+/// it reached after their deadline are applied at once and counted late (a third of
+/// them at 6 periods, where samples 4 and 5 periods old miss it); beyond the hand-over
+/// queue's room (15 samples), samples are dropped and counted.
+#[test]
+fn a_late_adaptation_task_shows_as_late_updates_and_dropped_samples() {
+    let core = Config {
+        sample_period_s: T,
+        ..Config::default()
+    };
+    for every in [1u32, 4, 6, 20] {
+        let mut p = period();
+        let mut task = AdaptationTask::new(&core).unwrap();
+        let mut handoff = Queue::<AdaptSample, HANDOFF_DEPTH>::new();
+        let mut updates = Queue::<InjectionUpdate, UPDATE_DEPTH>::new();
+        let mut taken = 0usize;
+        let periods = 4000u32;
+        for k in 1..=periods {
+            let mut counted = Counted {
+                inner: &mut updates,
+                taken: Vec::new(),
+            };
+            p.apply_due(&mut counted);
+            taken += counted.taken.len();
+            p.step(&sample(0.05 * k as f32), &running());
+            p.hand_over(&mut handoff);
+            if k % every == 0 {
+                task.run(&mut handoff, &mut updates, None, |_| {});
+            }
+        }
+        let s = p.snapshot();
+        let what = format!("every {every}: {taken} updates, {s:?}");
+        assert!(taken > 1000, "{what}");
+        assert_eq!(task.updates_dropped(), 0, "{what}");
+        match every {
+            1 | 4 => assert_eq!((s.updates_late, s.handoffs_dropped), (0, 0), "{what}"),
+            6 => {
+                assert_eq!(s.handoffs_dropped, 0, "{what}");
+                let third = taken as f64 / 3.0;
+                assert!(
+                    (s.updates_late as f64 - third).abs() < 0.02 * third,
+                    "{what}"
+                );
+            }
+            _ => assert_eq!(s.handoffs_dropped, periods / every * (every - 15), "{what}"),
+        }
+    }
+}
+
+/// A bank change (a record's bank from the data) while the update queue is full: it is
+/// counted and owed, and nothing overtakes it. Once there is room the bank goes first,
+/// then every path's term: the control period ends on the adapter's bank and
+/// coefficients, bit for bit as a front that loaded them directly. (Silently dropped,
+/// as the firmware's queue used to, the front stays on the first stage's bank.)
+#[test]
+fn a_bank_change_the_queue_cannot_take_goes_first_once_there_is_room() {
+    let mut core = Config {
+        sample_period_s: T,
+        ..Config::default()
+    };
+    core.set_paths(&mras::survey::FIRST_STAGE).unwrap();
+    core.paths_from_data = true;
+    let bank = [
+        PathKind::Offset,
+        PathKind::AmplitudeQuadrature,
+        PathKind::Harmonic(10),
+    ];
+    let mut record = Coefficients::zeros(&bank);
+    record.set(PathKind::Offset, Cplx::new(0.03, -0.01));
+    record.set(PathKind::AmplitudeQuadrature, Cplx::new(-0.02, 0.004));
+    record.set(PathKind::Harmonic(10), Cplx::new(0.01, 0.002));
+    let install = Install {
+        generation: 1,
+        coefficients: record,
+    };
+    let mut p = ControlPeriod::new(config(), Front::new(core).unwrap()).unwrap();
+    let mut task = AdaptationTask::new(&core).unwrap();
+    let mut handoff = Queue::<AdaptSample, HANDOFF_DEPTH>::new();
+    // Room for one update, and the task run every 10 periods: the adapter's own
+    // updates (one per stride, 8 samples with this bank) come late, and at times two at
+    // once, which the queue cannot take.
+    let mut updates = Queue::<InjectionUpdate, 2>::new();
+    let mut taken = Vec::new();
+    let (mut installed_at, mut owing) = (None, false);
+    for k in 1..=600u32 {
+        let mut counted = Counted {
+            inner: &mut updates,
+            taken: Vec::new(),
+        };
+        p.apply_due(&mut counted);
+        taken.extend(counted.taken.iter().map(|u| (k, *u)));
+        p.step(&sample(0.05 * k as f32), &Command::OFF);
+        p.hand_over(&mut handoff);
+        if k % 10 == 0 {
+            // Install when the task owes a term of the first stage's bank: it takes the
+            // queue's one slot first, the bank finds it full.
+            let now = (installed_at.is_none() && owing).then_some(install);
+            if now.is_some() {
+                installed_at = Some(k);
+            }
+            let before = task.updates_dropped();
+            task.run(&mut handoff, &mut updates, now, |_| {});
+            owing = task.updates_dropped() > before;
+        }
+    }
+    let k0 = installed_at.expect("the queue was full with a term owed");
+    assert!(task.report().install.unwrap().accepted);
+    // The bank and the three terms could not be queued (besides the term owed before).
+    assert!(task.updates_dropped() > 4, "{}", task.updates_dropped());
+    let after: Vec<InjectionUpdate> = taken
+        .iter()
+        .filter(|(k, _)| *k > k0)
+        .map(|(_, u)| *u)
+        .collect();
+    // The one queued before the install, then the bank: nothing overtook it.
+    assert!(matches!(after[0].change, Change::Term { .. }), "{after:?}");
+    assert_eq!(after[1].change, Change::Bank(Bank::new(&bank).into()));
+    // After the bank, only the new bank's terms, at the record's values (frozen: the
+    // adapter's terms are its coefficients).
+    for u in &after[2..] {
+        let Change::Term { path, value } = u.change else {
+            panic!("a second bank: {after:?}");
+        };
+        assert_eq!(Some(value), record.get(bank[path as usize]), "{u:?}");
+    }
+    let paths: std::collections::BTreeSet<u8> = after[2..]
+        .iter()
+        .filter_map(|u| match u.change {
+            Change::Term { path, .. } => Some(path),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(paths.len(), bank.len(), "every path's term went");
+    // What the control period applied, replayed on a fresh front, is the record loaded
+    // directly; the owed updates went after their period, and were counted late.
+    let mut replayed = Front::new(core).unwrap();
+    let mut loaded = Front::new(core).unwrap();
+    loaded.load_injection(&record);
+    for (_, u) in &taken {
+        assert!(replayed.apply(&InjectionUpdate { apply_at: 0, ..*u }));
+    }
+    for k in 0..50 {
+        let th = 0.05 * k as f32;
+        let a = replayed.step(libm::cosf(th), libm::sinf(th), 0.0).unwrap();
+        let b = loaded.step(libm::cosf(th), libm::sinf(th), 0.0).unwrap();
+        assert_eq!(a.decoupled, b.decoupled, "sample {k}");
+    }
+    assert!(p.snapshot().updates_late > 0);
 }

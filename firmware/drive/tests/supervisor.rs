@@ -5,7 +5,7 @@ use calib_record::{
     config_hash, Alignment, Calibration, FlashSlots, InputScaling, RamFlash, RamFlashError, Slot,
 };
 use drive::commissioning::{Cause, Params, Setpoint, State};
-use drive::supervisor::{NamedError, Supervisor, RECORD_DIVIDER};
+use drive::supervisor::{NamedError, Supervisor, MAX_EVENTS, RECORD_DIVIDER};
 use drive::telemetry::{
     Command, CycleStats, Event, Fault, InstallAck, Snapshot, SweepResult, Telemetry,
 };
@@ -76,6 +76,7 @@ fn telemetry(ticks: u32) -> Telemetry {
             release: 0,
             core_faults: 0,
             unlocked: false,
+            theta_rad: 1.0,
             omega_rad_s: Params::default().speed_rad_s,
             amplitude: 1.0,
             sweep: None,
@@ -84,24 +85,26 @@ fn telemetry(ticks: u32) -> Telemetry {
             currents_implausible: false,
             cycles: CycleStats::EMPTY,
             handoffs_dropped: 0,
+            updates_late: 0,
         },
         converged: false,
         revs: 0,
         residual_max_rad: 1e-4,
         coefficients: coefficients(),
         install: None,
+        updates_dropped: 0,
     }
 }
 
 /// Step with `f` shaping each snapshot from the last command, collecting events, until
 /// `until` holds or `max` steps.
-fn run(
-    s: &mut Supervisor,
+fn run<const E: usize>(
+    s: &mut Supervisor<E>,
     flash: &mut Flash,
     ticks: &mut u32,
     max: usize,
-    mut f: impl FnMut(&Supervisor, &mut Telemetry),
-    until: impl Fn(&Supervisor) -> bool,
+    mut f: impl FnMut(&Supervisor<E>, &mut Telemetry),
+    until: impl Fn(&Supervisor<E>) -> bool,
 ) -> (Vec<Event>, Command) {
     let mut events = Vec::new();
     let mut cmd = Command::OFF;
@@ -130,8 +133,8 @@ fn sweep_result() -> SweepResult {
 }
 
 /// A control period that sweeps and converges at once, until `until`.
-fn commission(
-    s: &mut Supervisor,
+fn commission<const E: usize>(
+    s: &mut Supervisor<E>,
     flash: &mut Flash,
     ticks: &mut u32,
     until: State,
@@ -378,8 +381,9 @@ fn boot_faults_are_reported_and_records_come_every_divider_steps() {
     for k in 0..100 {
         let out = s.step(&telemetry(20 * (k + 1)), &mut flash);
         if k == 0 {
+            assert_eq!(out.events.len(), 1);
             assert!(matches!(
-                out.events[0],
+                out.events.iter().next().unwrap(),
                 Event::Fault {
                     cause: Cause::Watchdog,
                     ..
@@ -499,4 +503,103 @@ fn a_two_speed_commissioning_installs_and_stores_the_sensor_error_alone() {
             );
         }
     }
+}
+
+/// Steps that produce more events than fit, on a supervisor that holds one event a step
+/// besides a boot fault, against one with the default room on the same telemetry: the
+/// end of the sweep (its measurement and the state change) keeps the first and counts
+/// the second; a fault in the step of a failed store in Run takes the store event's
+/// place (counted); a boot fault and a step's fault right after a restart are both
+/// kept (the restart's state change gives way). Every event dropped
+/// is counted and none is a fault, the records carry the count, and the default room
+/// drops nothing.
+#[test]
+fn a_fault_is_never_dropped_and_events_that_do_not_fit_are_counted() {
+    fn drive<const E: usize>() -> (Vec<Event>, Supervisor<E>, u32) {
+        let mut s = Supervisor::<E>::with_event_room(Params::default(), hash(), 20_000, 20);
+        let mut flash = Flash::default();
+        let mut ticks = 0;
+        let (mut events, _) = commission(&mut s, &mut flash, &mut ticks, State::Run);
+        // A store in Run that fails, and a sensor fault in the same step.
+        flash.fail_program = true;
+        s.request_store();
+        ticks += 20;
+        let mut tm = telemetry(ticks);
+        tm.snapshot.fault = Some(Fault::Sensor(mras::Fault::SensorLost));
+        let out = s.step(&tm, &mut flash);
+        assert_eq!(s.state(), State::Safe);
+        events.extend(out.events.iter().copied());
+        // Steps until a record: it carries the count.
+        let record = loop {
+            ticks += 20;
+            if let Some(r) = s.step(&telemetry(ticks), &mut flash).record {
+                break r;
+            }
+        };
+        assert_eq!(record.events_dropped, s.events_dropped());
+        (events, s, ticks)
+    }
+    let (all, full, _) = drive::<MAX_EVENTS>();
+    assert_eq!(full.events_dropped(), 0);
+    let (kept, one, ticks) = drive::<1>();
+    // What one event a step kept is what the default room kept, less what was counted.
+    assert_eq!(
+        (all.len() - kept.len()) as u32,
+        one.events_dropped(),
+        "{all:?}\n{kept:?}"
+    );
+    assert!(one.events_dropped() >= 2);
+    // What was kept is what the default room kept, in order, less what was dropped.
+    let mut rest = kept.iter().peekable();
+    let dropped: Vec<&Event> = all
+        .iter()
+        .filter(|e| match rest.peek() == Some(e) {
+            true => rest.next().is_none(),
+            false => true,
+        })
+        .collect();
+    assert!(rest.next().is_none(), "{kept:?} is not a part of {all:?}");
+    assert_eq!(dropped.len() as u32, one.events_dropped());
+    assert!(dropped.iter().all(|e| !e.is_fault()), "{dropped:?}");
+    assert!(all
+        .iter()
+        .filter(|e| e.is_fault())
+        .eq(kept.iter().filter(|e| e.is_fault())));
+    // The sweep's measurement stayed, its state change went.
+    assert!(kept.iter().any(|e| matches!(e, Event::Aligned { .. })));
+    assert!(!kept.iter().any(|e| matches!(
+        e,
+        Event::State {
+            state: State::SpinUp,
+            ..
+        }
+    )));
+    // The fault took the failed store's place.
+    assert!(all.iter().any(|e| matches!(e, Event::StoreFailed { .. })));
+    assert!(!kept.iter().any(|e| matches!(e, Event::StoreFailed { .. })));
+    assert!(matches!(
+        kept.last(),
+        Some(Event::Fault {
+            cause: Cause::Sensor(mras::Fault::SensorLost),
+            state: State::Run,
+            ..
+        })
+    ));
+
+    // A boot fault and the step's own fault: both kept with room for one event.
+    let mut one = one;
+    let released = one.step(&telemetry(ticks + 20), &mut Flash::default());
+    one.boot_fault(Cause::Watchdog);
+    one.restart();
+    let mut tm = telemetry(ticks + 40);
+    tm.snapshot.fault = Some(Fault::Sensor(mras::Fault::SensorLost));
+    // A fault seen after the restart's release reached the control period.
+    tm.snapshot.release = released.command.release.wrapping_add(1);
+    let before = one.events_dropped();
+    let out = one.step(&tm, &mut Flash::default());
+    let faults: Vec<&Event> = out.events.iter().collect();
+    assert_eq!(faults.len(), 2, "{faults:?}");
+    assert!(faults.iter().all(|e| e.is_fault()));
+    // The restart's state change gave way to the fault.
+    assert_eq!(one.events_dropped(), before + 1);
 }
