@@ -92,8 +92,8 @@ mod app {
     }
 
     /// The update queue's depth: `drive::handoff`'s, or room for one update in the
-    /// deliberately broken `starve-updates` build (firmware/app/Cargo.toml).
-    const UPDATES: usize = if cfg!(feature = "starve-updates") {
+    /// deliberately broken `mutant-starve-updates` build (firmware/app/Cargo.toml).
+    const UPDATES: usize = if cfg!(feature = "mutant-starve-updates") {
         2
     } else {
         drive::handoff::UPDATE_DEPTH
@@ -225,6 +225,11 @@ mod app {
             cx.shared.telemetry.lock(|t| t.publish(snapshot));
             // Still running (a flash operation): this tick is skipped, the snapshot waits.
             supervisor::spawn().ok();
+        }
+        if cfg!(feature = "mutant-slow-control") {
+            // The deliberately broken build: busy until 1.5 control periods after entry.
+            let busy = 3 * (board::SYSCLK_HZ / board::PWM_HZ) / 2;
+            while DWT::cycle_count().wrapping_sub(t0) < busy {}
         }
         *l.last_cycles = DWT::cycle_count().wrapping_sub(t0);
     }

@@ -398,7 +398,7 @@ impl<T: Trig> ControlPeriod<T> {
             return self.disarm(supervisor_due);
         }
 
-        let est = self.tracker.last_estimate();
+        let est = self.estimate_in_use();
         let t = self.cfg.control_period_s;
         let (theta_e, id_ref, iq_ref, we) = match cmd.setpoint {
             Setpoint::Align { current_a } => (0.0, self.limit_current(current_a), 0.0, 0.0),
@@ -445,8 +445,11 @@ impl<T: Trig> ControlPeriod<T> {
                         )
                     }
                 };
-                let theta_e =
-                    electrical_angle(&cmd.alignment, self.electrical_per_sensor, est.theta_e_rad);
+                let theta_e = crate::mutant::commutation_angle(electrical_angle(
+                    &cmd.alignment,
+                    self.electrical_per_sensor,
+                    est.theta_e_rad,
+                ));
                 (
                     theta_e,
                     0.0,
@@ -566,7 +569,7 @@ impl<T: Trig> ControlPeriod<T> {
     /// The snapshot the supervisor works on; restarts the per-snapshot statistics. The
     /// adaptation's figures are the adaptation's to add ([`Snapshot::merged`]).
     pub fn snapshot(&mut self) -> Snapshot {
-        let est = self.tracker.last_estimate();
+        let est = self.estimate_in_use();
         let t = Snapshot {
             ticks: self.ticks,
             fault: self.latched,
@@ -587,6 +590,17 @@ impl<T: Trig> ControlPeriod<T> {
         self.cycles = CycleStats::EMPTY;
         self.unlocked = false;
         t
+    }
+
+    /// The estimate the drive commutes with and streams: the core's, except in the
+    /// deliberately broken `mutant-correction-sign` build ([`crate::mutant`]).
+    #[inline(always)]
+    fn estimate_in_use(&self) -> Estimate {
+        crate::mutant::estimate_in_use(
+            self.tracker.last_estimate(),
+            self.last_xy,
+            self.sensor_periods,
+        )
     }
 
     /// The offset in force moved onto the corrected angle by the measured shift:

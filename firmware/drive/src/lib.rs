@@ -20,6 +20,7 @@ pub mod cordic;
 pub mod foc;
 pub mod handoff;
 pub mod motion;
+mod mutant;
 pub mod refine;
 pub mod ripple;
 pub mod supervisor;
