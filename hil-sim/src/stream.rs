@@ -17,7 +17,7 @@ use drive::commissioning::State;
 use drive::telemetry::{FieldValue, Record, RECORD_KEYS};
 use mras::MAX_PATHS;
 use serde_json::Value as Json;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// A decoded value.
 #[derive(Clone, Debug, PartialEq)]
@@ -410,9 +410,9 @@ pub fn encode_streamed(
     Ok(out)
 }
 
-/// The release firmware ELF of this checkout.
+/// The release firmware ELF of the checkout the command runs in.
 pub fn release_elf() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/thumbv7em-none-eabihf/release/drive-fw")
+    crate::checkout::release_elf()
 }
 
 /// A value in defmt's wire format for its parameter type (little-endian, str as a u32

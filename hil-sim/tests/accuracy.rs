@@ -264,15 +264,14 @@ fn results_page_csv_and_plots_are_written() {
     let dir = tempfile::tempdir().unwrap();
     let page = dir.path().join("results.md");
     let plots = dir.path().join("results");
+    let figures = dir.path().join("figures");
     let info = RunInfo {
         seed: SEED,
         sensors: results.len(),
         reduced: true,
-        wall_s: 1.0,
-        threads: 2,
     };
     let _ = (plan, s);
-    report::write_outputs(&[main_suite(), n1_suite()], &info, &page, &plots).unwrap();
+    report::write_outputs(&[main_suite(), n1_suite()], &info, &page, &plots, &figures).unwrap();
     let text = std::fs::read_to_string(&page).unwrap();
     for want in [
         "**Generated** by `cargo xtask bench-accuracy`",
