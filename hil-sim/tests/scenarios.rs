@@ -478,3 +478,31 @@ fn ripple_scenarios_reach_the_oracle_over_noise_seeds() {
         assert!(m3.median <= 1.5, "{name}: m = 3..16 {m3:?}");
     }
 }
+
+/// A shipped scenario is found by name from any directory (compiled in), and its
+/// outputs go under the checkout the command runs in, found from the current
+/// directory: never under the source tree the binary was built from.
+#[test]
+fn outputs_go_under_the_checkout_the_command_runs_in() {
+    let dir = tempfile::tempdir().unwrap();
+    let ws = dir.path();
+    std::fs::write(ws.join("Cargo.toml"), "[workspace]\nmembers = []\n").unwrap();
+    let below = ws.join("some").join("dir");
+    std::fs::create_dir_all(&below).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_hil-sim"))
+        .args(["scenario", "paper-fig10", "--ci", "--no-plots"])
+        .current_dir(&below)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let run = ws.join("target/hil-sim/paper-fig10");
+    for f in ["summary.txt", "ours/summary.json", "paper/timeseries.csv"] {
+        assert!(run.join(f).is_file(), "no {f} under {}", run.display());
+    }
+    assert!(!below.join("target").exists());
+}
