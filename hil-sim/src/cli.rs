@@ -16,7 +16,7 @@ pub struct ScenarioArgs {
     /// Run the reduced-length CI variant.
     #[arg(long)]
     pub ci: bool,
-    /// Output directory (default: hil-sim/out/<scenario>).
+    /// Output directory (default: target/hil-sim/<scenario> of the checkout).
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Skip the PNG/SVG plots.
@@ -49,11 +49,9 @@ impl ScenarioArgs {
 }
 
 fn out_dir(a: &ScenarioArgs, name: &str) -> PathBuf {
-    a.out.clone().unwrap_or_else(|| {
-        PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-            .join("out")
-            .join(name)
-    })
+    a.out
+        .clone()
+        .unwrap_or_else(|| crate::checkout::target_dir().join("hil-sim").join(name))
 }
 
 /// The power-ups' RTT streams in the firmware's own format (its ELF's defmt table), for

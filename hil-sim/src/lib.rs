@@ -3,11 +3,13 @@
 
 pub mod accuracy;
 pub mod baselines;
+pub mod checkout;
 pub mod cli;
 pub mod commission;
 pub mod core_config;
 pub mod exact;
 pub(crate) mod figure;
+pub mod figures;
 pub mod front_end;
 pub mod input_error;
 pub(crate) mod pending;

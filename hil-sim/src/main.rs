@@ -2,7 +2,7 @@
 //! simulated SPMSM drive; the core alone against kinematic rotors and recorded data.
 
 use clap::{Parser, Subcommand};
-use hil_sim::{accuracy, cli as cmd, commission, replay, rtt_log, study, vector};
+use hil_sim::{accuracy, cli as cmd, commission, figures, replay, rtt_log, study, vector};
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -38,6 +38,9 @@ enum Command {
     BenchAccuracy(accuracy::report::Args),
     /// Write an input vector for the emulated Cortex-M4F and the host's trace over it.
     QemuVector(vector::Args),
+    /// Run the docs' figure generators and write their sections (docs/figures/*.md;
+    /// `cargo xtask docs` splices them into the pages).
+    Figures(figures::Args),
 }
 
 fn main() -> ExitCode {
@@ -56,6 +59,7 @@ fn main() -> ExitCode {
         Some(Command::RttLog(a)) => rtt_log::run(&a),
         Some(Command::BenchAccuracy(a)) => accuracy::report::run(&a),
         Some(Command::QemuVector(a)) => vector::run(&a),
+        Some(Command::Figures(a)) => figures::run(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

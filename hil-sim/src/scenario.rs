@@ -15,25 +15,32 @@ use mras::{AdaptationLaw, Coefficients, Tracker};
 use mras_sim::{Adc, SensorHarmonic, SensorModel, SpatialError};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::TAU;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-/// Where the scenario files live.
-pub fn scenario_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios")
+/// The shipped scenarios (`hil-sim/scenarios/*.toml`), compiled in: a scenario is found
+/// by name wherever the command runs, not under a source path fixed at build time.
+const SHIPPED: [(&str, &str); 8] = [
+    (
+        "commissioning",
+        include_str!("../scenarios/commissioning.toml"),
+    ),
+    ("paper-fig10", include_str!("../scenarios/paper-fig10.toml")),
+    ("paper-fig11", include_str!("../scenarios/paper-fig11.toml")),
+    ("paper-fig8", include_str!("../scenarios/paper-fig8.toml")),
+    ("paper-fig9", include_str!("../scenarios/paper-fig9.toml")),
+    ("ripple-1rev", include_str!("../scenarios/ripple-1rev.toml")),
+    ("ripple-5rev", include_str!("../scenarios/ripple-5rev.toml")),
+    ("table1", include_str!("../scenarios/table1.toml")),
+];
+
+/// The text of shipped scenario `name`.
+pub fn shipped(name: &str) -> Option<&'static str> {
+    SHIPPED.iter().find(|(n, _)| *n == name).map(|(_, t)| *t)
 }
 
-/// Names of the scenarios shipped in [`scenario_dir`].
+/// Names of the shipped scenarios, sorted.
 pub fn list() -> Vec<String> {
-    let mut names: Vec<String> = std::fs::read_dir(scenario_dir())
-        .map(|d| {
-            d.filter_map(|e| e.ok())
-                .filter_map(|e| {
-                    let p = e.path();
-                    (p.extension()? == "toml").then(|| p.file_stem()?.to_str().map(String::from))?
-                })
-                .collect()
-        })
-        .unwrap_or_default();
+    let mut names: Vec<String> = SHIPPED.iter().map(|(n, _)| n.to_string()).collect();
     names.sort();
     names
 }
@@ -445,6 +452,12 @@ pub enum ScenarioError {
         /// The shipped scenarios, comma-separated: what the user probably meant.
         available: String,
     },
+    #[error("no scenario named `{name}` (available: {available}; or a path to a .toml file)")]
+    Unknown {
+        name: String,
+        /// The shipped scenarios, comma-separated.
+        available: String,
+    },
     #[error(transparent)]
     Parse(#[from] InputError),
     #[error("{origin}: {error:#}")]
@@ -462,13 +475,16 @@ pub struct Scenario {
 }
 
 impl Scenario {
-    /// Load `name` from [`scenario_dir`], or a path to a `.toml` file.
+    /// Load shipped scenario `name` ([`list`]), or a path to a `.toml` file.
     pub fn load(name_or_path: &str) -> Result<Self, ScenarioError> {
-        let path = if name_or_path.ends_with(".toml") {
-            PathBuf::from(name_or_path)
-        } else {
-            scenario_dir().join(format!("{name_or_path}.toml"))
-        };
+        if !name_or_path.ends_with(".toml") {
+            let text = shipped(name_or_path).ok_or_else(|| ScenarioError::Unknown {
+                name: name_or_path.into(),
+                available: list().join(", "),
+            })?;
+            return Self::parse(text, &format!("hil-sim/scenarios/{name_or_path}.toml"));
+        }
+        let path = PathBuf::from(name_or_path);
         let text = match std::fs::read_to_string(&path) {
             Ok(t) => t,
             Err(error) => {

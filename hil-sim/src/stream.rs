@@ -23,7 +23,7 @@ use drive::commissioning::State;
 use drive::telemetry::{FieldValue, Line as StreamLine, Record, INIT_SEQ, RECORD_KEYS, SEQ_KEY};
 use mras::MAX_PATHS;
 use serde_json::Value as Json;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// A decoded value.
 #[derive(Clone, Debug, PartialEq)]
@@ -635,9 +635,9 @@ pub fn encode_streamed(formats: &Formats, path_names: &str, items: &[Streamed]) 
     Ok(out)
 }
 
-/// The release firmware ELF of this checkout.
+/// The release firmware ELF of the checkout the command runs in.
 pub fn release_elf() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/thumbv7em-none-eabihf/release/drive-fw")
+    crate::checkout::release_elf()
 }
 
 /// A value in defmt's wire format for its parameter type (little-endian, str as a u32

@@ -1,5 +1,8 @@
 //! The reduced accuracy benchmark (CI): the first 24 sensors of the published
-//! population, the same plan, asserting the orderings docs/results.md reports.
+//! population, the same plan, asserting the orderings docs/results.md reports. Its
+//! figures are published there (*The reduced variant CI runs*, from
+//! docs/figures/accuracy-reduced.json, which `cargo xtask docs --check` regenerates);
+//! each bound below is within 2x of the figure it bounds, quoted where it is derived.
 
 use hil_sim::accuracy::report::{self, RunInfo, Suite, REDUCED_SENSORS};
 use hil_sim::accuracy::stats::{Condition, Summary, TrackerStats};
@@ -121,12 +124,13 @@ fn default_mras_reaches_the_noise_floor_and_tracks_drift() {
     }
     assert!(s.worst_phase.ratio_to_oracle(Method::Ours) <= 1.5);
     let steady = &s.phases[SPECTRUM_PHASE];
-    // Drift: offline calibrations go stale, the MRAS follows.
+    // Drift: offline calibrations go stale (published: a LUT's median 3.9-5.5x its
+    // +20 rev/s one), the MRAS follows (a LUT's drift median 9.0-9.3x ours).
     let drift = phase(s, plan, PhaseKind::Drift);
     for m in [Method::Lut128, Method::Lut256, Method::Lut360] {
         assert!(med(drift, m) > 2.0 * med(steady, m), "{}", m.label());
         assert!(
-            med(drift, Method::Ours) < med(drift, m) / 3.0,
+            med(drift, Method::Ours) < med(drift, m) / 4.5,
             "{}",
             m.label()
         );
@@ -164,9 +168,12 @@ fn the_papers_four_paths_leave_m5_to_7_that_the_default_removes() {
         }
     }
     // ...and what they leave sits at the error harmonics m = 5..7 they do not cover.
+    // Published: m = 1..4 at 0.0055 of m = 5..7 (root sums of squares); at m = 1..4
+    // up to 3.3x the oracle; ours at m = 5..7 at least 228x below the four paths', at
+    // m = 1..7 up to 1.7x the oracle; the four paths' worst phase 66x ours.
     let spec = spectrum(s, four);
     let oracle = spectrum(s, Method::Oracle);
-    assert!(rss(spec, 1..=4) < 0.05 * rss(spec, 5..=7), "{spec:?}");
+    assert!(rss(spec, 1..=4) < 0.011 * rss(spec, 5..=7), "{spec:?}");
     for m in 0..4 {
         assert!(spec[m] < 5.0 * oracle[m], "m = {}: {spec:?}", m + 1);
     }
@@ -176,10 +183,10 @@ fn the_papers_four_paths_leave_m5_to_7_that_the_default_removes() {
         assert!(ours[m] < 3.0 * oracle[m], "m = {}: {ours:?}", m + 1);
     }
     for m in 4..7 {
-        assert!(ours[m] < spec[m] / 20.0, "m = {}: {ours:?}", m + 1);
+        assert!(ours[m] < spec[m] / 115.0, "m = {}: {ours:?}", m + 1);
     }
     let w = &s.worst_phase;
-    assert!(med(w, four) > 10.0 * med(w, Method::Ours));
+    assert!(med(w, four) > 33.0 * med(w, Method::Ours));
     let t = tracker(s, four);
     assert_eq!((t.lost_lock, t.any_fault), (0, 0));
 }
@@ -187,11 +194,13 @@ fn the_papers_four_paths_leave_m5_to_7_that_the_default_removes() {
 #[test]
 fn paper_literal_law_on_the_same_bank_is_slower_but_reaches_the_floor() {
     let (plan, _, s) = suite();
+    // Published: medians of 3.86 and 18.16 revolutions to `converged`; at +20 rev/s
+    // the paper's law 8.6x ours; under drift 4.2x ours.
     let (ours, paper) = (tracker(s, Method::Ours), tracker(s, Method::Paper));
     assert_eq!((paper.lost_lock, paper.any_fault), (0, 0));
     assert!(
         ours.converged_revs.median <= 5.0
-            && ours.converged_revs.median < paper.converged_revs.median / 2.0,
+            && ours.converged_revs.median < paper.converged_revs.median / 2.4,
         "ours {:?} paper {:?}",
         ours.converged_revs,
         paper.converged_revs
@@ -199,7 +208,7 @@ fn paper_literal_law_on_the_same_bank_is_slower_but_reaches_the_floor() {
     // Right after commissioning the paper's law is still converging...
     let first = &s.phases[SPECTRUM_PHASE];
     assert!(
-        med(first, Method::Paper) > 3.0 * med(first, Method::Ours),
+        med(first, Method::Paper) > 4.3 * med(first, Method::Ours),
         "paper {} ours {}",
         med(first, Method::Paper),
         med(first, Method::Ours)
@@ -219,7 +228,7 @@ fn paper_literal_law_on_the_same_bank_is_slower_but_reaches_the_floor() {
     }
     // It follows the drift less closely than ours.
     let drift = phase(s, plan, PhaseKind::Drift);
-    assert!(med(drift, Method::Ours) < med(drift, Method::Paper) / 2.0);
+    assert!(med(drift, Method::Ours) < med(drift, Method::Paper) / 2.2);
 }
 
 #[test]
@@ -264,15 +273,14 @@ fn results_page_csv_and_plots_are_written() {
     let dir = tempfile::tempdir().unwrap();
     let page = dir.path().join("results.md");
     let plots = dir.path().join("results");
+    let figures = dir.path().join("figures");
     let info = RunInfo {
         seed: SEED,
         sensors: results.len(),
         reduced: true,
-        wall_s: 1.0,
-        threads: 2,
     };
     let _ = (plan, s);
-    report::write_outputs(&[main_suite(), n1_suite()], &info, &page, &plots).unwrap();
+    report::write_outputs(&[main_suite(), n1_suite()], &info, &page, &plots, &figures).unwrap();
     let text = std::fs::read_to_string(&page).unwrap();
     for want in [
         "**Generated** by `cargo xtask bench-accuracy`",
@@ -374,18 +382,22 @@ fn a_bank_from_the_data_reaches_the_noise_floor_on_n1_sensors() {
     let s = n1_suite();
     for (c, p) in s.summary.phases.iter().zip(s.plan.evaluation()) {
         let (data, oracle) = (med(c, Method::OursFromData), med(c, Method::Oracle));
-        // Drift is tracked at the law's rate per sensor-electrical radian: half as fast
-        // in time at N = 1 as at N = 2, so the tracking lag is twice as large (1.6x the
-        // oracle over the published population; docs/results.md).
+        // The target, 1.5x the oracle, and 2x under drift (published: up to 1.26x).
         let bound = if p.kind == PhaseKind::Drift { 2.0 } else { 1.5 };
         assert!(
             data <= bound * oracle,
             "{}: {data} vs oracle {oracle}",
             c.name
         );
-        for m in [Method::Ours, Method::Lut256, Method::Paper] {
+        // Published: the default bank 40-58x the bank from the data, the paper's law
+        // 39-57x, the 256-bin LUT 2.9-8.9x.
+        for (m, factor) in [
+            (Method::Ours, 21.0),
+            (Method::Paper, 20.0),
+            (Method::Lut256, 2.0),
+        ] {
             assert!(
-                data < med(c, m) / 2.0,
+                data < med(c, m) / factor,
                 "{}: {data} vs {} {}",
                 c.name,
                 m.label(),

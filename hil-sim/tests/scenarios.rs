@@ -1,4 +1,8 @@
-//! The paper scenarios, reduced-length (`ci_duration_s`), with their figures asserted.
+//! The paper scenarios, reduced-length (`ci_duration_s`), with their figures asserted
+//! within 2x of what the docs publish for the same runs: docs/figures/scenarios-ci.md,
+//! commissioning.md and ripple-ci.md (`cargo xtask docs scenarios commissioning
+//! ripple-ci`), quoted below where a bound is derived from them. A lower bound is at
+//! most half the published figure, an upper bound at most twice.
 
 use hil_sim::input_error::InputError;
 use hil_sim::scenario::{self, RunOutcome, Scenario, ScenarioError, Variant};
@@ -20,38 +24,48 @@ fn coefficients(o: &RunOutcome) -> Vec<scenario::NamedCoefficient> {
 /// with either law: the MRAS is insensitive to Ĵ and to non-spatial disturbances (§V.A-B).
 #[test]
 fn fig8_and_fig11_coefficients_agree() {
-    // Stated tolerance: 0.01 in scaled units (1 % of the nominal amplitude).
+    // Published: the largest difference 0.00556 with either law; the smallest of the
+    // first four coefficients 0.0200 (either law), the largest of h6..h8 0.000106
+    // (paper) and 1.85e-5 (ours).
     const TOL: f32 = 0.01;
-    for v in [Variant::Ours, Variant::Paper] {
+    for (v, idle_max) in [(Variant::Ours, 3.7e-5), (Variant::Paper, 2.1e-4)] {
         let a = coefficients(&run("paper-fig8", v));
         let b = coefficients(&run("paper-fig11", v));
         for (i, ((name, re8, im8), (_, re11, im11))) in a.iter().zip(&b).enumerate() {
             let d = (re8 - re11).hypot(im8 - im11);
             println!(
-                "{v:?} {name}: fig8 {re8:+.4}{im8:+.4}j fig11 {re11:+.4}{im11:+.4}j |Δ| {d:.4}"
+                "{v:?} {name}: fig8 {re8:+.4}{im8:+.4}j fig11 {re11:+.4}{im11:+.4}j |Δ| {d:.5}"
             );
             assert!(d < TOL, "{v:?} {name}: |Δ| = {d}");
             // The extreme sensor (h = 2..5) loads the first four paths of the default
             // bank; it has no error at m = 5..7, so h6..h8 stay near zero.
+            let m = re8.hypot(*im8);
             if i < 4 {
-                assert!(re8.hypot(*im8) > 0.005, "{name} did not adapt");
+                assert!(m > 0.01, "{v:?} {name} did not adapt: {m}");
             } else {
-                assert!(re8.hypot(*im8) < 0.005, "{name} adapted to nothing");
+                assert!(m < idle_max, "{v:?} {name} adapted to nothing: {m}");
             }
         }
     }
 }
 
-/// Fig. 9 and Fig. 10: the position loop's tracking error falls at least 20x once the
-/// MRAS runs (the paper measured 4.5x on its bench for Fig. 10).
+/// Fig. 9 and Fig. 10: the position loop's tracking error falls once the MRAS runs, at
+/// least half the published 359x and 96.7x (the paper measured 4.5x on its bench for
+/// Fig. 10).
 #[test]
-fn fig9_and_fig10_tracking_error_falls_20x() {
-    for name in ["paper-fig9", "paper-fig10"] {
+fn fig9_and_fig10_tracking_error_falls_as_published() {
+    for (name, min_ratio) in [("paper-fig9", 180.0), ("paper-fig10", 48.0)] {
         let o = run(name, Variant::Ours);
         let before = o.summary.before.as_ref().unwrap().tracking_pk_pk_mrad;
         let after = o.summary.after.tracking_pk_pk_mrad;
-        println!("{name}: tracking error {before:.2} → {after:.3} mrad pk-pk");
-        assert!(before / after >= 20.0, "{name}: {before} → {after}");
+        println!(
+            "{name}: tracking error {before:.2} → {after:.3} mrad pk-pk ({:.1}x)",
+            before / after
+        );
+        assert!(
+            before / after >= min_ratio,
+            "{name}: {before} → {after}, bound {min_ratio}x"
+        );
         assert!(
             o.summary.converged_after_s.is_some(),
             "{name}: never converged"
@@ -59,7 +73,8 @@ fn fig9_and_fig10_tracking_error_falls_20x() {
     }
 }
 
-/// Fig. 10's sensor is built to show the paper's ~34 mrad pk-pk before correction.
+/// Fig. 10's sensor is built to show the paper's ~34 mrad pk-pk before correction
+/// (published: 34.7).
 #[test]
 fn fig10_sensor_matches_the_paper_before_correction() {
     let o = run("paper-fig10", Variant::Ours);
@@ -77,22 +92,26 @@ fn table1_harmonics_match() {
     }
 }
 
+/// Every file of hil-sim/scenarios/ is compiled in (`SHIPPED`), and each parses.
 #[test]
 fn every_shipped_scenario_parses() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    let mut files: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| {
+            let p = e.unwrap().path();
+            (p.extension()? == "toml").then(|| p.file_stem()?.to_str().map(String::from))?
+        })
+        .collect();
+    files.sort();
     let names = scenario::list();
-    for n in [
-        "paper-fig8",
-        "paper-fig9",
-        "paper-fig10",
-        "paper-fig11",
-        "table1",
-        "ripple-1rev",
-        "ripple-5rev",
-    ] {
-        assert!(names.iter().any(|x| x == n), "{n} missing from {names:?}");
-    }
+    assert_eq!(
+        names, files,
+        "hil-sim/scenarios/ against SHIPPED in scenario.rs"
+    );
     for n in names {
-        Scenario::load(&n).unwrap();
+        let sc = Scenario::load(&n).unwrap();
+        assert_eq!(sc.file.name, n, "the file's name = its file name");
     }
 }
 
@@ -134,10 +153,14 @@ fn fig9_truth_is_the_closed_form_and_ours_reaches_it() {
             "{name}"
         );
     }
+    // Published: 4.35e-5 at the largest.
     let ours = coefficients(&run("paper-fig9", Variant::Ours));
     for ((name, re, im), (_, tr, ti)) in ours.iter().zip(&truth) {
         let d = (re - tr).hypot(im - ti);
-        assert!(d < 2e-3, "{name}: ours {re}{im:+}j vs truth {tr}{ti:+}j");
+        assert!(
+            d < 8.7e-5,
+            "{name}: ours {re}{im:+}j vs truth {tr}{ti:+}j: {d}"
+        );
     }
 }
 
@@ -183,38 +206,44 @@ fn commissioning_scenario_commissions_stores_and_reloads() {
     // The scenario mounts its sensor reversed at 73°: the drive found it.
     assert!(first.alignment.reversed);
     assert_eq!(second.alignment, first.alignment);
+    // Published at CI length: the electrical angle 1.0 mrad off the rotor's, torque per
+    // amp 0.9999, the spatial error 3 386x and 3 324x below raw, Adapt 4.2 revolutions,
+    // the reloaded coefficients 0.000114 from the stored ones.
     for b in [&first, &second] {
-        assert!(b.run_angle_error_e_rad.unwrap().abs() < 0.02, "{b:?}");
-        assert!(b.run_torque_per_amp.unwrap() > 0.99);
+        let e = b.run_angle_error_e_rad.unwrap();
+        assert!(e.abs() < 2.0e-3, "electrical angle {e} rad off");
+        let k = b.run_torque_per_amp.unwrap();
+        assert!(k > 0.9998, "torque per amp {k}");
         // Nothing dropped, late or lost, and the stream has the records to say so.
         assert!(b.records().count() > 100);
         assert!(b.losses().is_none(), "{:?}", b.losses());
     }
     let run = first.run.as_ref().unwrap();
     assert!(
-        run.raw_pk_pk_mrad / run.estimate_pk_pk_mrad > 100.0,
+        run.raw_pk_pk_mrad / run.estimate_pk_pk_mrad > 1690.0,
         "{run:?}"
     );
-    assert!(first.adapt_revs.unwrap() < 10.0, "{:?}", first.adapt_revs);
+    assert!(first.adapt_revs.unwrap() < 8.4, "{:?}", first.adapt_revs);
 
     let states: Vec<_> = second.transitions.iter().map(|(_, s)| *s).collect();
     assert_eq!(states, [CheckSensor, LoadCalibration, Run]);
     assert!(second.loaded_from_flash);
     let run = second.run.as_ref().unwrap();
     assert!(
-        run.raw_pk_pk_mrad / run.estimate_pk_pk_mrad > 100.0,
+        run.raw_pk_pk_mrad / run.estimate_pk_pk_mrad > 1660.0,
         "{run:?}"
     );
     // The reloaded coefficients are the stored ones (slow tracking moves them little).
     for ((n, a, b), (_, c, d)) in first.coefficients.iter().zip(&second.coefficients) {
-        assert!((a - c).hypot(b - d) < 2e-3, "{n}");
+        let moved = (a - c).hypot(b - d);
+        assert!(moved < 2.2e-4, "{n}: {moved}");
     }
 }
 
 /// A disconnected sensor at power-up: the safe state with its cause, PWM never enabled.
 #[test]
 fn commissioning_with_a_dead_sensor_ends_safe() {
-    let text = std::fs::read_to_string(scenario::scenario_dir().join("commissioning.toml"))
+    let text = scenario::shipped("commissioning")
         .unwrap()
         .replace("bx1 = 1.2", "bx1 = 0.05\nby1 = 0.05")
         .replace("ax = 0.10", "ax = 0.0")
@@ -272,15 +301,55 @@ fn ripple_power_ups(sc: &Scenario, name: &str) -> Vec<(String, TruthSpectrum)> {
 /// a few times the oracle at m = 1, 2, where the motion ripple is, and it does not learn
 /// the rotor's motion. (θ̂ still follows the motion with the observer's lag: the files
 /// leave `learn_torque_ripple` off, `a_learned_torque_ripple_puts_theta_hat_on_the_rotor`.)
+/// What docs/figures/ripple-ci.md publishes for a ripple file, the largest over its
+/// two power-ups: the motion pk-pk at 1x and 2x (mrad; the smallest), arg Zd at m = 1, 2
+/// (mrad, and over the noise floor), at m = 3..16 (mrad, and over the oracle), and with
+/// `learn_torque_ripple`, θ̂ at m = 1, 2 (mrad) and arg Zd at m = 1, 2 over the oracle.
+struct RipplePublished {
+    motion_mrad: [f64; 2],
+    m12_mrad: f64,
+    m12_floor: f64,
+    m3_mrad: f64,
+    m3_oracle: f64,
+    learned_theta_mrad: f64,
+    learned_m12_oracle: f64,
+}
+
+fn published(name: &str) -> RipplePublished {
+    match name {
+        "ripple-1rev" => RipplePublished {
+            motion_mrad: [8.74, 12.9],
+            m12_mrad: 0.00294,
+            m12_floor: 0.999,
+            m3_mrad: 0.00511,
+            m3_oracle: 1.19,
+            learned_theta_mrad: 0.00734,
+            learned_m12_oracle: 1.46,
+        },
+        "ripple-5rev" => RipplePublished {
+            motion_mrad: [8.84, 9.65],
+            m12_mrad: 0.00666,
+            m12_floor: 1.53,
+            m3_mrad: 0.0104,
+            m3_oracle: 1.38,
+            learned_theta_mrad: 0.00711,
+            learned_m12_oracle: 1.58,
+        },
+        _ => panic!("no published figures for {name}"),
+    }
+}
+
 fn ripple_scenario_reports_motion_and_spectra(name: &str) -> [f64; 2] {
     let sc = Scenario::load(name).unwrap();
+    let p = published(name);
     let mut m1_mrad = [0.0; 2];
     for (k, (what, t)) in ripple_power_ups(&sc, name).into_iter().enumerate() {
-        // The rig moves as the scenario says, 5-20 mrad pk-pk at 1x and at 2x.
+        // The rig moves as the scenario says, within 2x of the published motion.
         for (h, pk_pk) in [(1, t.motion_1x_pk_pk_mrad), (2, t.motion_2x_pk_pk_mrad)] {
+            let want = p.motion_mrad[h - 1];
             assert!(
-                (5.0..=20.0).contains(&pk_pk),
-                "{what}: motion at {h}x {pk_pk} mrad pk-pk"
+                (0.5 * want..=2.0 * want).contains(&pk_pk),
+                "{what}: motion at {h}x {pk_pk} mrad pk-pk, published {want}"
             );
         }
         assert_eq!(t.harmonics.len(), 16, "{what}");
@@ -300,28 +369,35 @@ fn ripple_scenario_reports_motion_and_spectra(name: &str) -> [f64; 2] {
         // The sensor error at m = 1, 2 is corrected to the noise floor (one speed leaves
         // the motion at the commissioning speed, `the_second_speed_separates_the_motion`),
         // and the motion is not learned. The floor is the oracle's level over all 16
-        // harmonics: its own m = 1, 2 are two noise draws (0.4-5 µrad at CI length, so
-        // their ratio swung 1.6-3.6x between runs that differed by µrad). Measured at CI
-        // length, seed 1: 0.85-1.53x that floor (the spread over seeds:
-        // `ripple_scenarios_reach_the_oracle_over_noise_seeds`).
+        // harmonics: its own m = 1, 2 are two noise draws, whose ratio scatters between
+        // seeds (`ripple_scenarios_reach_the_oracle_over_noise_seeds`); this run is seed
+        // 1, as published.
         let m12 = t.decoupled_over_floor_m1_m2();
         assert!(
-            m12 < 3.0,
-            "{what}: arg Zd at m = 1, 2 {m12}x the noise floor"
+            m12 < 2.0 * p.m12_floor,
+            "{what}: arg Zd at m = 1, 2 {m12}x the noise floor, published {}",
+            p.m12_floor
         );
         for m in [1, 2] {
             let r = t.row(m).unwrap();
-            assert!(r.decoupled_mrad < 0.03, "{what}: {r:?}");
+            assert!(r.decoupled_mrad < 2.0 * p.m12_mrad, "{what}: {r:?}");
             assert!(r.decoupled_mrad < 0.01 * r.motion_mrad, "{what}: {r:?}");
         }
         m1_mrad[k] = t.row(1).unwrap().decoupled_mrad;
         // The bank has a path for every harmonic, and the sensor error is removed at
-        // each (measured at CI length, seed 1: 1.15-1.38x the oracle).
+        // each.
         assert_eq!(t.decoupled_over_oracle_m3_up_not_in_bank, None, "{what}");
         let m3 = t.decoupled_over_oracle_m3_up_in_bank.unwrap();
-        assert!(m3 < 3.0, "{what}: arg Zd at m = 3..16 {m3}x the oracle");
+        assert!(
+            m3 < 2.0 * p.m3_oracle,
+            "{what}: arg Zd at m = 3..16 {m3}x the oracle, published {}",
+            p.m3_oracle
+        );
         for r in t.harmonics.iter().filter(|r| r.m >= 3) {
-            assert!(r.in_path_bank && r.decoupled_mrad < 0.03, "{what}: {r:?}");
+            assert!(
+                r.in_path_bank && r.decoupled_mrad < 2.0 * p.m3_mrad,
+                "{what}: {r:?}"
+            );
         }
     }
     m1_mrad
@@ -338,8 +414,8 @@ fn ripple_5rev_motion_is_not_learned_as_sensor_error() {
 }
 
 /// The control: ripple-5rev commissioned at 20 rev/s alone (refined all the same) keeps
-/// the rotor's motion there, 2.5 mrad at m = 1, in its correction; the second speed is
-/// what removes it.
+/// the rotor's motion there in its correction (published: 2.52 mrad at m = 1); the
+/// second speed is what removes it.
 #[test]
 fn the_second_speed_separates_the_motion() {
     let two = ripple_scenario_reports_motion_and_spectra("ripple-5rev");
@@ -351,7 +427,7 @@ fn the_second_speed_separates_the_motion() {
     let one = t.row(1).unwrap();
     print!("one speed:\n{}", t.text("  "));
     assert!(
-        one.decoupled_mrad > 1.0 && one.decoupled_mrad > 50.0 * two[0],
+        one.decoupled_mrad > 1.26 && one.decoupled_mrad > 50.0 * two[0],
         "m = 1: {} mrad at one speed, {:?} at two",
         one.decoupled_mrad,
         two
@@ -360,35 +436,42 @@ fn the_second_speed_separates_the_motion() {
 
 /// Learning the torque ripple in Run (`learn_torque_ripple`): the observer is fed the
 /// ripple the rotor's motion comes from, and θ̂ follows the rotor at m = 1, 2 instead of
-/// lagging it by 2.7-3.6 mrad (measured at CI length: 0.002-0.007 mrad); the speed loop,
-/// now seeing the ripple, rejects more of it. The sensor correction is not touched.
+/// lagging it by millimradians; the speed loop, now seeing the ripple, rejects more of
+/// it (published: 3.09-3.11 mrad pk-pk at 1x, against 8.74-8.85 without). The sensor
+/// correction is not touched.
 #[test]
 fn a_learned_torque_ripple_puts_theta_hat_on_the_rotor() {
     for name in ["ripple-1rev", "ripple-5rev"] {
+        let p = published(name);
         let mut sc = Scenario::load(name).unwrap();
         sc.file.commissioning.as_mut().unwrap().learn_torque_ripple = Some(true);
         for (what, t) in ripple_power_ups(&sc, name) {
             for m in [1, 2] {
                 let r = t.row(m).unwrap();
-                assert!(r.estimate_mrad < 0.2, "{what}: θ̂ {r:?}");
+                assert!(
+                    r.estimate_mrad < 2.0 * p.learned_theta_mrad,
+                    "{what}: θ̂ {r:?}"
+                );
             }
-            // The motion the speed loop leaves (8.9 mrad pk-pk at 1x without).
             assert!(
                 t.motion_1x_pk_pk_mrad < 5.0,
                 "{what}: {}",
                 t.motion_1x_pk_pk_mrad
             );
             let m12 = t.decoupled_over_oracle_m1_m2;
-            assert!(m12 < 4.0, "{what}: arg Zd at m = 1, 2 {m12}x the oracle");
+            assert!(
+                m12 < 2.0 * p.learned_m12_oracle,
+                "{what}: arg Zd at m = 1, 2 {m12}x the oracle"
+            );
         }
     }
 }
 
 /// One run's arg Zd over the oracle is a draw of the noise (the oracle's harmonics are
 /// noise, a few µrad): the figure is the median over power-ups at several noise seeds.
-/// At CI length, 9 seeds: arg Zd at m = 1, 2 over the noise floor there measured a
-/// median of 1.20-1.21x, at m = 3..16 over the oracle 1.21-1.35x (full length:
-/// docs/hil-sim.md).
+/// At CI length, 9 seeds, published: arg Zd at m = 1, 2 over the noise floor a median
+/// of 1.20-1.21x, at m = 3..16 over the oracle 1.21-1.35x; the bound is the target,
+/// 1.5x.
 #[test]
 fn ripple_scenarios_reach_the_oracle_over_noise_seeds() {
     for name in ["ripple-1rev", "ripple-5rev"] {
@@ -399,4 +482,32 @@ fn ripple_scenarios_reach_the_oracle_over_noise_seeds() {
         assert!(floor.median <= 1.5, "{name}: m = 1, 2 {floor:?}");
         assert!(m3.median <= 1.5, "{name}: m = 3..16 {m3:?}");
     }
+}
+
+/// A shipped scenario is found by name from any directory (compiled in), and its
+/// outputs go under the checkout the command runs in, found from the current
+/// directory: never under the source tree the binary was built from.
+#[test]
+fn outputs_go_under_the_checkout_the_command_runs_in() {
+    let dir = tempfile::tempdir().unwrap();
+    let ws = dir.path();
+    std::fs::write(ws.join("Cargo.toml"), "[workspace]\nmembers = []\n").unwrap();
+    let below = ws.join("some").join("dir");
+    std::fs::create_dir_all(&below).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_hil-sim"))
+        .args(["scenario", "paper-fig10", "--ci", "--no-plots"])
+        .current_dir(&below)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let run = ws.join("target/hil-sim/paper-fig10");
+    for f in ["summary.txt", "ours/summary.json", "paper/timeseries.csv"] {
+        assert!(run.join(f).is_file(), "no {f} under {}", run.display());
+    }
+    assert!(!below.join("target").exists());
 }

@@ -3,6 +3,7 @@
 //! Every command does its own set-up (the thumbv7em target, rustfmt and clippy) so that
 //! it runs on a fresh machine.
 
+mod docs;
 mod isr;
 mod qemu;
 mod regs;
@@ -23,7 +24,8 @@ const QEMU_IMAGE: &str = "mras-qemu";
 const EMULATOR: &str = "drive-emu";
 /// Budgets of the size report: growth is a decision, not an accident. The part has
 /// 256 KiB in the bank the code runs from (memory.x); 96 KiB leaves room for the
-/// application beside a core that chooses its bank from the data (78 KB today).
+/// application beside a core that chooses its bank from the data (the size today:
+/// docs/figures/size.md, `cargo xtask size`).
 const FLASH_BUDGET_BYTES: u64 = 96 * 1024;
 const RAM_BUDGET_BYTES: u64 = 16 * 1024;
 
@@ -31,10 +33,12 @@ const HELP: &str = "\
 cargo xtask <command>
 
   ci            everything CI checks: fmt, clippy (host and target), host tests,
-                cross-build of the portable crates and the firmware, size report
+                cross-build of the portable crates and the firmware, size report,
+                the emulator tests, and `docs --check` (which runs `perf`)
   test-host     host tests only
   build-cross   release cross-build of the portable crates and the firmware, size report
-  size          size report of the firmware (flash and static RAM against budgets)
+  size          size report of the firmware (flash and static RAM against budgets);
+                regenerates docs/figures/size.md and the pages that show it
   isr-check     the release firmware's control interrupt and adaptation task reach no
                 f64 soft-float routine, no panic path, no PC write the scan cannot
                 follow and nothing that is not code (disassembly scan; perf scans
@@ -42,24 +46,37 @@ cargo xtask <command>
   flash         build, flash and attach to the RTT stream (probe-rs, board attached)
   qemu          the core on an emulated Cortex-M4F: bit-exact against the host
   cycles        instructions and estimated cycles per core step (QEMU's instruction
-                trace; installs Debian qemu-system-arm if missing)
-  docs-tables   regenerate the tables of docs/theory.md (prints markdown)
+                trace; installs Debian qemu-system-arm if missing); regenerates
+                docs/figures/cycles.md and the pages that show it
+  docs [GEN..]  every generated figure of the docs: runs the generators (all, or
+                those named: size perf emu-report cycles bench-accuracy scenarios
+                commissioning laws core ripple-ci ripple; ~15 min for all) into
+                docs/figures/, then splices them into README.md and docs/*.md
+  docs --render splice the pages from the committed figure files only (after a
+                template or prose edit; seconds)
+  docs --check  what CI checks: the pages against docs/figures/ (a figure edited by
+                hand fails, naming the page and the section), then the generators CI
+                can afford rerun into target/docs-check/ and compared with the
+                committed figure files
+  docs --check-pages  the first half of --check alone (seconds)
   bench-accuracy  the accuracy benchmark against offline calibrations (500 sensors,
-                release): regenerates docs/results.md and docs/results/; further
-                arguments go to `hil-sim bench-accuracy` (--sensors, --seed, --reduced)
+                release): regenerates docs/results.md, docs/results/ and the
+                benchmark's figure files; further arguments go to `hil-sim
+                bench-accuracy` (--sensors, --seed, --reduced)
   emu           the main job: the release firmware ELF on the emulated STM32G474
                 (hil-sim/emu, Unicorn) commissioning the simulated drive, then
                 powering up again with the stored calibration; CSV and plots in
                 target/emu (installs Debian cmake and libclang-dev if missing)
-  emu-report    every firmware-in-the-loop scenario; regenerates the scenario section
-                of docs/performance.md
+  emu-report    every firmware-in-the-loop scenario; regenerates
+                docs/figures/emu-report.md and the pages that show it
   perf          the control interrupt by stage at 20 and 40 kHz, and at 20 kHz with
                 an N = 1 sensor and the bank from the data: cross-builds the three
                 (target/perf/drive-fw-20k, -40k, -n1), commissions each to Run on
                 the emulator (the last with an N = 1 sensor), measures 0.5 s of Run
                 (instructions and estimated Cortex-M4 cycles per stage); regenerates
-                the perf section of docs/performance.md; fails if a build fails
-                isr-check (each is scanned before it runs) or misses a control period
+                docs/figures/perf.md and the pages that show it; fails if a build
+                fails isr-check (each is scanned before it runs) or misses a control
+                period
   regs          regenerate the emulator's STM32G474 register table (hil-sim/emu/src/
                 regs_g474.rs) from the stm32g4 PAC's sources
   regs --check  fail if the committed register table differs from what the PAC generates
@@ -70,20 +87,20 @@ fn main() -> ExitCode {
     let result = match args.first().map(String::as_str) {
         Some("ci") => ci(),
         Some("test-host") => test_host(),
-        Some("build-cross") => setup().and_then(|_| build_cross()),
-        Some("size") => setup().and_then(|_| build_cross()),
+        Some("build-cross") => setup().and_then(|_| build_cross()).map(drop),
+        Some("size") => docs::generate(&["size"]),
         Some("isr-check") => setup()
             .and_then(|_| build_cross())
             .and_then(|_| isr::check(&isr::release_elf())),
         Some("flash") => setup().and_then(|_| flash()),
-        Some("docs-tables") => docs_tables(),
-        Some("bench-accuracy") => bench_accuracy(&args[1..]),
+        Some("docs") => docs::main(&args[1..]),
+        Some("bench-accuracy") => bench_accuracy(&args[1..]).and_then(|_| docs::render_pages()),
         Some("qemu") => setup().and_then(|_| qemu::bit_exact()),
-        Some("cycles") => setup().and_then(|_| qemu::cycles()),
+        Some("cycles") => docs::generate(&["cycles"]),
         Some("regs") => regs::main(&args[1..]),
         Some("emu") => emu(&["power-up"]),
-        Some("emu-report") => emu(&["scenarios", "--report", "docs/performance.md"]),
-        Some("perf") => perf(Some("docs/performance.md")),
+        Some("emu-report") => docs::generate(&["emu-report"]),
+        Some("perf") => docs::generate(&["perf"]),
         Some("-h" | "--help" | "help") | None => {
             print!("{HELP}");
             Ok(())
@@ -100,11 +117,27 @@ fn main() -> ExitCode {
     }
 }
 
+/// The workspace root of the checkout the command runs in, found at run time: `cargo
+/// xtask` is `cargo run -p xtask`, which sets `CARGO_MANIFEST_DIR` to this checkout's
+/// xtask/ for the run; started otherwise, `cargo locate-project` from the current
+/// directory. Never the source path the binary was built from.
 pub(crate) fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .expect("xtask lives one level below the workspace root")
-        .to_path_buf()
+    static ROOT: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    ROOT.get_or_init(|| {
+        let from_cargo = std::env::var_os("CARGO_MANIFEST_DIR")
+            .and_then(|d| Path::new(&d).parent().map(Path::to_path_buf));
+        from_cargo
+            .or_else(|| {
+                let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+                let manifest = output_of(
+                    &cargo,
+                    &["locate-project", "--workspace", "--message-format", "plain"],
+                )?;
+                Path::new(manifest.trim()).parent().map(Path::to_path_buf)
+            })
+            .unwrap_or_else(|| PathBuf::from("."))
+    })
+    .clone()
 }
 
 pub(crate) fn cargo() -> Command {
@@ -184,15 +217,17 @@ pub(crate) fn cross_build(krate: &str) -> Command {
     c
 }
 
-fn build_cross() -> Result<()> {
+/// The cross builds and the firmware's size report (its docs section).
+fn build_cross() -> Result<String> {
     for krate in CORE_CRATES.iter().chain([&FIRMWARE]) {
         run(cross_build(krate))?;
     }
     size_report()
 }
 
-/// Flash (ROM) and static RAM of the firmware ELF, from its allocated sections.
-fn size_report() -> Result<()> {
+/// Flash (ROM) and static RAM of the firmware ELF, from its allocated sections: printed,
+/// and as the section of docs/figures/size.md.
+fn size_report() -> Result<String> {
     use object::{Object, ObjectSection, SectionFlags, SectionKind};
     const SHF_ALLOC: u64 = 0x2;
     let elf = root()
@@ -237,7 +272,23 @@ fn size_report() -> Result<()> {
     if flash > FLASH_BUDGET_BYTES || ram > RAM_BUDGET_BYTES {
         bail!("firmware over its size budget");
     }
-    Ok(())
+    let row = |what: &str, used: u64, budget: u64| {
+        format!(
+            "| {what} | {used} | {budget} ({} KiB) | {:.0} % |\n",
+            budget / 1024,
+            100.0 * used as f64 / budget as f64
+        )
+    };
+    Ok(format!(
+        "The release `{FIRMWARE}` ELF (20 kHz, default features), from its allocated sections:\n\n\
+         | | bytes | budget | of the budget |\n|---|---:|---:|---:|\n{}{}",
+        row(
+            "flash (code, read-only data, the image of .data)",
+            flash,
+            FLASH_BUDGET_BYTES
+        ),
+        row("static RAM (.data, .bss, .uninit)", ram, RAM_BUDGET_BYTES)
+    ))
 }
 
 fn flash() -> Result<()> {
@@ -299,7 +350,7 @@ const PERF_BUILDS: [(&str, &[&str], &str, &str); 3] = [
 /// by `isr-check`, then each commissioned to Run on the emulator and measured by stage;
 /// `report` regenerates that document's section. The default build is rebuilt last, so
 /// the release ELF other commands use stays the 20 kHz one.
-fn perf(report: Option<&str>) -> Result<()> {
+fn perf(report: Option<&Path>) -> Result<()> {
     setup()?;
     emu_setup()?;
     let dir = root().join("target").join("perf");
@@ -327,7 +378,7 @@ fn perf(report: Option<&str>) -> Result<()> {
         c.arg(board).arg(b);
     }
     if let Some(r) = report {
-        c.args(["--report", r]);
+        c.arg("--report").arg(r);
     }
     run(c)
 }
@@ -369,16 +420,11 @@ fn ci() -> Result<()> {
     let mut c = cargo();
     c.args(["test", "--release", "--locked", "-p", EMULATOR]);
     run(c)?;
-    // Both PWM rates commission to Run without a missed control period (~1 min).
-    perf(None)?;
+    // Every generated figure of the docs: the pages against the committed figure
+    // files, then the generators CI can afford rerun and compared, `perf` among them
+    // (every build commissions to Run without a missed control period).
+    docs::check(&[])?;
     eprintln!("\nxtask ci: all checks passed");
-    Ok(())
-}
-
-fn docs_tables() -> Result<()> {
-    for sub in ["compare-laws", "gain-sweep"] {
-        run(hil_sim(&[sub]))?;
-    }
     Ok(())
 }
 

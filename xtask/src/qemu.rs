@@ -151,7 +151,24 @@ pub fn bit_exact() -> Result<()> {
         .with_context(|| target_trace.display().to_string())?;
     let host =
         std::fs::read_to_string(&host_trace).with_context(|| host_trace.display().to_string())?;
+    let steps = same_trace(&host, &target)?;
+    eprintln!(
+        "xtask qemu: {steps} steps bit-exact between the host and the emulated Cortex-M4F (θ̂, ω̂, ε, |Z|, every coefficient)"
+    );
+    Ok(())
+}
+
+/// The number of steps of two equal traces; an error at the first step they differ, or
+/// when either is empty (two empty traces prove nothing).
+fn same_trace(host: &str, target: &str) -> Result<usize> {
     let (h, t): (Vec<&str>, Vec<&str>) = (host.lines().collect(), target.lines().collect());
+    if h.is_empty() || t.is_empty() {
+        bail!(
+            "not bit-exact: the host trace has {} steps, the emulated image's {}",
+            h.len(),
+            t.len()
+        );
+    }
     if let Some(i) = (0..h.len().max(t.len())).find(|&i| h.get(i) != t.get(i)) {
         bail!(
             "not bit-exact at step {i}:\n  host   {}\n  target {}",
@@ -159,14 +176,13 @@ pub fn bit_exact() -> Result<()> {
             t.get(i).unwrap_or(&"<missing>")
         );
     }
-    eprintln!(
-        "xtask qemu: {} steps bit-exact between the host and the emulated Cortex-M4F (θ̂, ω̂, ε, |Z|, every coefficient)",
-        h.len()
-    );
-    Ok(())
+    Ok(h.len())
 }
 
-pub fn cycles() -> Result<()> {
+/// The core's cycle tables (markdown, also printed): docs/figures/cycles.md.
+pub fn cycles() -> Result<String> {
+    use std::fmt::Write as _;
+    let mut out = String::new();
     ensure("qemu-system-arm", "qemu-system-arm")?;
     let (v, _) = vector()?;
     let img = image(&v, "cycles")?;
@@ -249,11 +265,20 @@ pub fn cycles() -> Result<()> {
             STEPS_PER_CONFIG * CONFIGS.len()
         );
     }
-    println!("The core on the emulated Cortex-M4F (thumbv7em-none-eabihf, release): `Front::step`");
-    println!("runs in the control interrupt, `Adapter::step` in the adaptation task below it;");
-    println!("{STEPS_PER_CONFIG} steps per configuration after spin-up, adaptation running:\n");
-    println!("| configuration | instructions/step (mean, max) | est. cycles/step (mean, max) | µs at 170 MHz | share of a 20 kHz period |");
-    println!("|---|---:|---:|---:|---:|");
+    let _ = writeln!(
+        out,
+        "The core on the emulated Cortex-M4F (thumbv7em-none-eabihf, release): `Front::step`"
+    );
+    let _ = writeln!(
+        out,
+        "runs in the control interrupt, `Adapter::step` in the adaptation task below it;"
+    );
+    let _ = writeln!(
+        out,
+        "{STEPS_PER_CONFIG} steps per configuration after spin-up, adaptation running:\n"
+    );
+    let _ = writeln!(out, "| configuration | instructions/step (mean, max) | est. cycles/step (mean, max) | µs at 170 MHz | share of a 20 kHz period |");
+    let _ = writeln!(out, "|---|---:|---:|---:|---:|");
     for (k, name) in CONFIGS.iter().enumerate() {
         let s = &steps[k * STEPS_PER_CONFIG..(k + 1) * STEPS_PER_CONFIG];
         let mean = |f: fn(&(u64, u64)) -> u64| s.iter().map(f).sum::<u64>() as f64 / s.len() as f64;
@@ -262,19 +287,21 @@ pub fn cycles() -> Result<()> {
             s.iter().map(|x| x.0).max().unwrap_or(0),
             s.iter().map(|x| x.1).max().unwrap_or(0),
         );
-        println!(
+        let _ = writeln!(
+            out,
             "| {name} | {im:.0}, {ix} | {cm:.0}, {cx} | {:.2} | {:.1} % |",
             cm / 170.0,
             100.0 * cm / (170e6 / 20e3)
         );
     }
-    println!(
+    let _ = writeln!(
+        out,
         "\nWhere the cycles go, {} (each executed instruction charged to the \
          innermost core stage it was inlined from, after its debug line info):\n",
         CONFIGS[profiled]
     );
-    println!("| stage | cycles/step | share |");
-    println!("|---|---:|---:|");
+    let _ = writeln!(out, "| stage | cycles/step | share |");
+    let _ = writeln!(out, "|---|---:|---:|");
     let stages = stages(&img, &insns, &by_pc)?;
     // Per-address profile for whoever optimises next (a disassembly beside it).
     let mut pcs: Vec<_> = by_pc.iter().collect();
@@ -287,17 +314,19 @@ pub fn cycles() -> Result<()> {
     std::fs::write(&profile_path, profile).with_context(|| profile_path.display().to_string())?;
     let total: u64 = stages.iter().map(|x| x.1).sum();
     for (name, c) in &stages {
-        println!(
+        let _ = writeln!(
+            out,
             "| {name} | {:.0} | {:.0} % |",
             *c as f64 / STEPS_PER_CONFIG as f64,
             100.0 * *c as f64 / total.max(1) as f64
         );
     }
-    println!(
+    eprintln!(
         "\nCycles per instruction address: {}",
         profile_path.display()
     );
-    Ok(())
+    print!("{out}");
+    Ok(out)
 }
 
 /// Core stages, matched against the inlined call chain of an instruction from the
@@ -387,3 +416,21 @@ fn stages(
 
 /// Must match `MEASURED_STEPS` in firmware/qemu-test/src/main.rs.
 const STEPS_PER_CONFIG: usize = 64;
+
+#[cfg(test)]
+mod tests {
+    use super::same_trace;
+
+    #[test]
+    fn empty_or_different_traces_are_not_bit_exact() {
+        assert_eq!(same_trace("a\nb\n", "a\nb\n").unwrap(), 2);
+        for (h, t) in [("", ""), ("a\n", ""), ("", "a\n")] {
+            let e = same_trace(h, t).unwrap_err().to_string();
+            assert!(e.contains("steps"), "{e}");
+        }
+        let e = same_trace("a\nb\n", "a\nc\n").unwrap_err().to_string();
+        assert!(e.contains("step 1"), "{e}");
+        let e = same_trace("a\nb\n", "a\n").unwrap_err().to_string();
+        assert!(e.contains("<missing>"), "{e}");
+    }
+}

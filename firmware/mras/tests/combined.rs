@@ -1,5 +1,7 @@
-//! The combined extreme sensor with 12-bit-class noise: spatial error at least 100x
-//! below the uncorrected sensor's, and no loss of lock on the paper's sine trajectory.
+//! The combined extreme sensor with 12-bit-class noise: the spatial error's reduction at
+//! ±5 and ±50 rev/s, and on the paper's sine trajectory, each within 2x of the figure
+//! docs/theory.md publishes (docs/figures/core-accuracy.md, written by
+//! `hil-sim figures core`, which measures the same runs with the same seeds).
 
 mod common;
 use common::*;
@@ -41,8 +43,12 @@ fn spatial_errors(speed_rev_s: f64, seed: u64) -> (f64, f64) {
     (raw.pk_pk_rad(), est.pk_pk_rad())
 }
 
+/// Half the published reductions (3 642x, 3 792x, 4 390x, 4 362x at +5, -5, +50,
+/// -50 rev/s), rounded down.
+const MIN_REDUCTION: [f64; 4] = [1800.0, 1850.0, 2150.0, 2150.0];
+
 #[test]
-fn extreme_sensor_error_falls_100x_at_5_and_50_rev_s_both_directions() {
+fn extreme_sensor_error_falls_within_2x_of_the_published_reduction() {
     for (i, speed) in [5.0, -5.0, 50.0, -50.0].into_iter().enumerate() {
         let (raw, corrected) = spatial_errors(speed, 10 + i as u64);
         let ratio = raw / corrected;
@@ -51,7 +57,11 @@ fn extreme_sensor_error_falls_100x_at_5_and_50_rev_s_both_directions() {
             raw * 1e3,
             corrected * 1e3
         );
-        assert!(ratio >= 100.0, "{speed} rev/s: only {ratio:.1}x");
+        assert!(
+            ratio >= MIN_REDUCTION[i],
+            "{speed} rev/s: only {ratio:.1}x (bound {})",
+            MIN_REDUCTION[i]
+        );
     }
 }
 
@@ -59,7 +69,9 @@ fn extreme_sensor_error_falls_100x_at_5_and_50_rev_s_both_directions() {
 fn paper_sine_trajectory_keeps_lock_and_converges() {
     // Paper Fig. 8: EVs 100/10/1 Hz, 1 Hz 100 rad/s sine trajectory, for 10 s.
     let kin = paper_sine(Some(ADC_12BIT));
-    for cfg in [Config::default(), paper_config()] {
+    // Half the published reductions of the first second's error in the last (808x
+    // ours, 1 725x the paper's law).
+    for (cfg, min_ratio) in [(Config::default(), 400.0), (paper_config(), 860.0)] {
         let mut t = Tracker::new(cfg).unwrap();
         let steps = (10.0 / T_S) as u64;
         let mut max_abs_err: f64 = 0.0;
@@ -86,6 +98,10 @@ fn paper_sine_trajectory_keeps_lock_and_converges() {
             first.pk_pk_rad() * 1e3,
             last.pk_pk_rad() * 1e3
         );
-        assert!(ratio > 10.0, "{:?}: only {ratio:.1}x", cfg.law);
+        assert!(
+            ratio >= min_ratio,
+            "{:?}: only {ratio:.1}x (bound {min_ratio})",
+            cfg.law
+        );
     }
 }

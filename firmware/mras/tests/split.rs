@@ -83,11 +83,33 @@ proptest! {
     }
 }
 
+/// The spatial error (pk-pk, 360 bins, rad mechanical) of the estimates of the last
+/// `n` periods of a constant-speed run of [`samples`] at `speed_rev_s`.
+fn spatial_error_of_last(
+    estimates: impl Iterator<Item = Result<mras::Estimate, mras::Fault>>,
+    speed_rev_s: f64,
+    total: usize,
+    n: usize,
+) -> f64 {
+    let mut e = mras_sim::SpatialError::<360>::new();
+    for (k, r) in estimates.enumerate().skip(total - n) {
+        let est = r.expect("no fault at the end of the run");
+        let th = std::f64::consts::TAU * speed_rev_s * k as f64 * T_S;
+        e.add(
+            th.rem_euclid(std::f64::consts::TAU),
+            mras_sim::wrap_pi(est.theta_unwrapped_rad() - th),
+        );
+    }
+    e.pk_pk_rad()
+}
+
 /// A task later than the latency is no longer bit-exact, but the updates still land (late)
-/// and the adaptation still converges: the deadline matters for reproducibility only.
+/// and the adaptation still converges, to within 2x of the inline tracker's residual
+/// (docs/performance.md): the deadline matters for reproducibility, not accuracy.
 #[test]
 fn a_task_past_its_deadline_still_converges() {
-    let xs = samples(20.0, 60_000);
+    const N: usize = 60_000;
+    let xs = samples(20.0, N);
     let late = split_run(Config::default(), &xs, 3 * UPDATE_LATENCY_PERIODS as usize);
     let inline = inline_run(Config::default(), &xs);
     assert_ne!(
@@ -95,7 +117,22 @@ fn a_task_past_its_deadline_still_converges() {
         inline,
         "a late task should differ (else this test checks nothing)"
     );
-    assert!(late.last().unwrap().1 > 5);
+    // The last 20 revolutions (1 s at 20 rev/s), well after convergence.
+    let last = 20_000;
+    let e_late = spatial_error_of_last(late.iter().map(|x| x.0), 20.0, N, last);
+    let e_inline = spatial_error_of_last(inline.iter().copied(), 20.0, N, last);
+    let raw = mras_sim::SensorModel::extreme().raw_error_pk_pk_rad();
+    println!(
+        "raw {:.2} mrad, inline {:.5} mrad, task 3x past its deadline {:.5} mrad pk-pk",
+        raw * 1e3,
+        e_inline * 1e3,
+        e_late * 1e3
+    );
+    assert!(e_inline < raw / 1000.0, "inline: {e_inline} of {raw}");
+    assert!(
+        e_late <= 2.0 * e_inline,
+        "late task {e_late} rad against inline {e_inline} rad"
+    );
 }
 
 /// A bank from the data reaches the front through the update queue like a path's term:

@@ -527,12 +527,12 @@ fn raw_error_pkpk(emu: &Emu, from_s: f64) -> f64 {
 /// docs/performance.md's per-scenario table and details.
 pub fn report(outcomes: &[Outcome], elf_note: &str) -> String {
     let mut s = String::new();
-    let _ = writeln!(s, "| scenario | boots | missed periods | control periods | ISR instructions mean / max | ISR est. cycles mean / max | longest masked stretch (instructions) | longest request→entry (instructions) | emulated / wall |");
+    let _ = writeln!(s, "| scenario | boots | missed periods | control periods | ISR instructions mean / max | ISR est. cycles mean / max | longest masked stretch (instructions) | longest request→entry (instructions) | emulated |");
     let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
     for o in outcomes {
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {:.0} / {} | {:.0} / {} | {} | {} | {:.2} s / {:.1} s |",
+            "| {} | {} | {} | {} | {:.0} / {} | {:.0} / {} | {} | {} | {:.2} s |",
             o.name,
             o.boots,
             o.missed_periods,
@@ -543,8 +543,7 @@ pub fn report(outcomes: &[Outcome], elf_note: &str) -> String {
             o.isr_cycles_max,
             o.masked_max_instrs,
             o.latency_max_instrs,
-            o.emulated_s,
-            o.wall_s
+            o.emulated_s
         );
     }
     let _ = writeln!(s);

@@ -24,12 +24,12 @@
 
 mod charts;
 mod oracle;
-mod page;
+pub mod page;
 mod plan;
 mod population;
 pub mod report;
 pub mod stats;
-mod tables;
+pub(crate) mod tables;
 
 use crate::baselines::{constant_speed_reference, Corrector, Ellipse, Lut, MinMax, Raw};
 use crate::plant::{Cogging, LoadStep, MotorParams, Plant};

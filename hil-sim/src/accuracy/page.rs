@@ -2,6 +2,12 @@
 //! this file, its `{{name}}` placeholders filled from the run's [`Summary`]. The prose
 //! lives in the template; this file names the run's figures, `tables.rs` builds the
 //! tables, and the plan and the run name their own (`Plan::figures`, `RunInfo::figures`).
+//! A sentence that compares figures is a figure here too (`versus`, `within`), so the
+//! template states no verdict a new run could contradict.
+//!
+//! The figures are also written as JSON (`docs/figures/accuracy.json`, and the reduced
+//! variant's `accuracy-reduced.json`, prefixed `reduced.`): `cargo xtask docs --check`
+//! renders the page from them with the same [`docgen::render`] and compares.
 
 use super::report::{RunInfo, Suite};
 use super::tables::{mrad, ratio, tables, versus};
@@ -10,10 +16,14 @@ use anyhow::{anyhow, Result};
 use std::collections::BTreeMap;
 
 pub const TEMPLATE: &str = include_str!("results.template.md");
+/// The README's paragraph on the benchmark (`docs/figures/accuracy-summary.md`).
+pub const SUMMARY_TEMPLATE: &str = include_str!("summary.template.md");
+/// The prefix of the reduced variant's figures on the page.
+pub const REDUCED_PREFIX: &str = "reduced.";
 
 /// Every figure the template may name: the first suite's by name, the others' with the
 /// prefix `n<N>.` (`n1.ours_data.load.x`).
-fn values(suites: &[&Suite], info: &RunInfo) -> BTreeMap<String, String> {
+pub fn values(suites: &[&Suite], info: &RunInfo) -> BTreeMap<String, String> {
     let mut v = BTreeMap::new();
     for (i, suite) in suites.iter().enumerate() {
         let prefix = match i {
@@ -60,6 +70,7 @@ fn suite_values(suite: &Suite, info: &RunInfo) -> BTreeMap<String, String> {
         let (worst, name) = per_phase.fold((0.0, ""), |a, b| if b.0 > a.0 { b } else { a });
         put(format!("{k}.phase_max.x"), ratio(worst));
         put(format!("{k}.phase_max"), name.to_string());
+        put(format!("{k}.within"), within(s, m, 1.5));
         let yes = |met: bool| if met { "yes" } else { "**no**" }.to_string();
         put(
             format!("{k}.met.median"),
@@ -137,34 +148,52 @@ fn suite_values(suite: &Suite, info: &RunInfo) -> BTreeMap<String, String> {
     v
 }
 
-/// The page: [`TEMPLATE`] filled, plots linked from `plots`.
-pub(crate) fn markdown(suites: &[&Suite], info: &RunInfo, plots: &str) -> Result<String> {
-    let page = render(TEMPLATE, &values(suites, info))?;
+/// "every phase" or "k of n phases (not: a, b)": where the median of `m` is within
+/// `bound` times the oracle's.
+fn within(s: &super::stats::Summary, m: Method, bound: f64) -> String {
+    let over: Vec<&str> = s
+        .phases
+        .iter()
+        // A ratio that is not a number is not within the bound either.
+        .filter(|c| c.ratio_to_oracle(m).is_nan() || c.ratio_to_oracle(m) > bound)
+        .map(|c| c.name.as_str())
+        .collect();
+    match over.len() {
+        0 => "every phase".into(),
+        k => format!(
+            "{} of {} phases (not: {})",
+            s.phases.len() - k,
+            s.phases.len(),
+            over.join(", ")
+        ),
+    }
+}
+
+/// The page: [`TEMPLATE`] filled with `values` (the reduced variant's among them, with
+/// [`REDUCED_PREFIX`]), plots linked from `plots`.
+pub(crate) fn markdown(values: &BTreeMap<String, String>, plots: &str) -> Result<String> {
+    let page = render(TEMPLATE, values)?;
     Ok(page.replace("](results/", &format!("]({plots}/")))
+}
+
+/// `values` and `reduced` (with [`REDUCED_PREFIX`]) in one map: what the page names.
+pub fn page_values(
+    values: &BTreeMap<String, String>,
+    reduced: &BTreeMap<String, String>,
+) -> BTreeMap<String, String> {
+    let mut all = values.clone();
+    all.extend(
+        reduced
+            .iter()
+            .map(|(k, v)| (format!("{REDUCED_PREFIX}{k}"), v.clone())),
+    );
+    all
 }
 
 /// `template` with each `{{name}}` replaced by its value; an unknown name is an error
 /// that gives the template's line.
 pub fn render(template: &str, values: &BTreeMap<String, String>) -> Result<String> {
-    let mut out = String::with_capacity(2 * template.len());
-    let mut rest = template;
-    while let Some(at) = rest.find("{{") {
-        let line = template[..template.len() - rest.len() + at]
-            .matches('\n')
-            .count()
-            + 1;
-        let end = rest[at..]
-            .find("}}")
-            .ok_or_else(|| anyhow!("results template line {line}: `{{{{` without `}}}}`"))?;
-        let name = &rest[at + 2..at + end];
-        let value = values
-            .get(name)
-            .ok_or_else(|| anyhow!("results template line {line}: no figure named `{name}`"))?;
-        out += &rest[..at];
-        out += value;
-        rest = &rest[at + end + 2..];
-    }
-    Ok(out + rest)
+    docgen::render(template, values).map_err(|e| anyhow!("results {e}"))
 }
 
 #[cfg(test)]
@@ -172,14 +201,10 @@ mod tests {
     use super::*;
 
     #[test]
-    fn render_fills_and_names_the_line_of_an_unknown_figure() {
+    fn render_names_the_line_of_an_unknown_figure() {
         let v = BTreeMap::from([("a.b".to_string(), "1.5x".to_string())]);
         assert_eq!(render("x {{a.b}} y", &v).unwrap(), "x 1.5x y");
         let e = render("one\ntwo {{a.c}}", &v).unwrap_err().to_string();
         assert!(e.contains("line 2") && e.contains("`a.c`"), "{e}");
-        assert!(render("{{a.b", &v)
-            .unwrap_err()
-            .to_string()
-            .contains("line 1"));
     }
 }

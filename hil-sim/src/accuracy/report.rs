@@ -1,7 +1,7 @@
 //! The `bench-accuracy` command: run the suite, write the results page (docs/results.md),
 //! its plots and the per-sensor CSV.
 
-use super::page::markdown;
+use super::page::{markdown, page_values, render, values, SUMMARY_TEMPLATE};
 use super::stats::{summarise, Summary};
 use super::tables::main_table;
 use super::{
@@ -10,6 +10,7 @@ use super::{
 };
 use crate::pending::Pending;
 use anyhow::{bail, Context, Result};
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -39,6 +40,10 @@ pub struct Args {
     /// The reduced variant CI runs (24 sensors; written under target/, not docs/).
     #[arg(long)]
     pub reduced: bool,
+    /// Directory for the figure files (`accuracy.json`, `accuracy-reduced.json`,
+    /// `accuracy-summary.md`) [default: `figures/` next to the page, i.e. docs/figures].
+    #[arg(long)]
+    pub figures: Option<PathBuf>,
 }
 
 /// One population's run: its plan, every sensor's result and their summary.
@@ -73,19 +78,13 @@ impl Suite {
     }
 }
 
-fn workspace_root() -> PathBuf {
-    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
-    here.parent().unwrap_or(here).to_path_buf()
-}
-
-/// How a run was made, for the page's header.
+/// How a run was made, for the page's header. Wall-clock time and threads are printed,
+/// not published: they change from run to run.
 #[derive(Clone, Debug)]
 pub struct RunInfo {
     pub seed: u64,
     pub sensors: usize,
     pub reduced: bool,
-    pub wall_s: f64,
-    pub threads: usize,
 }
 
 impl RunInfo {
@@ -116,8 +115,6 @@ impl RunInfo {
             ("run.seed", self.seed.to_string()),
             ("run.duration_s", format!("{:.2}", plan.duration_s())),
             ("run.rate_khz", format!("{:.0}", 1e-3 / SAMPLE_PERIOD_S)),
-            ("run.wall_s", format!("{:.0}", self.wall_s)),
-            ("run.threads", self.threads.to_string()),
             ("run.note", note),
         ]
     }
@@ -133,7 +130,7 @@ pub fn run(a: &Args) -> Result<()> {
         bail!("--sensors {sensors}: must be in 1..={MAX_SENSORS}");
     }
     let page = a.out.clone().unwrap_or_else(|| {
-        let root = workspace_root();
+        let root = crate::checkout::root();
         if a.reduced {
             root.join("target/bench-accuracy-reduced/results.md")
         } else {
@@ -154,6 +151,10 @@ pub fn run(a: &Args) -> Result<()> {
             .with_context(|| format!("cannot create directory {}", dir.display()))?;
     }
 
+    let figures = a
+        .figures
+        .clone()
+        .unwrap_or_else(|| page_dir.join("figures"));
     let threads = rayon::current_num_threads();
     let started = Instant::now();
     let mut suites = Vec::new();
@@ -168,36 +169,81 @@ pub fn run(a: &Args) -> Result<()> {
         seed: a.seed,
         sensors,
         reduced: a.reduced,
-        wall_s: started.elapsed().as_secs_f64(),
-        threads,
     };
-    write_outputs(&suites.iter().collect::<Vec<_>>(), &info, &page, &plots)?;
+    let suites: Vec<&Suite> = suites.iter().collect();
+    write_outputs(&suites, &info, &page, &plots, &figures)?;
     for s in &suites {
         println!("{}:", s.population.name);
         print!("{}", main_table(&s.summary, &s.plan));
     }
     println!(
-        "\n{} sensors of each population in {:.1} s wall on {threads} threads; wrote {} and {}",
+        "\n{} sensors of each population in {:.1} s wall on {threads} threads; wrote {}, {} and {}",
         sensors,
-        info.wall_s,
+        started.elapsed().as_secs_f64(),
         page.display(),
-        plots.display()
+        plots.display(),
+        figures.display()
     );
     Ok(())
 }
 
-/// The page, its plots and the CSVs; the page and CSVs appear whole or not at all. The
-/// first suite is the page's main population (its plots), the others follow it (N = 1).
-pub fn write_outputs(suites: &[&Suite], info: &RunInfo, page: &Path, plots: &Path) -> Result<()> {
+impl Suite {
+    /// The suite of its first `n` sensors: what a run of `n` sensors gives (sensor i is
+    /// the same in any run), without running them again.
+    fn first(&self, n: usize) -> Self {
+        let results = self.results[..n.min(self.results.len())].to_vec();
+        Self {
+            population: self.population,
+            summary: summarise(&results, &self.plan),
+            plan: self.plan.clone(),
+            results,
+        }
+    }
+}
+
+/// The reduced variant's figures: the run's own when it is no larger, else those of its
+/// first [`REDUCED_SENSORS`] sensors, as `--reduced` would give them.
+fn reduced_values(suites: &[&Suite], info: &RunInfo) -> BTreeMap<String, String> {
+    if info.reduced || info.sensors <= REDUCED_SENSORS {
+        return values(suites, info);
+    }
+    let first: Vec<Suite> = suites.iter().map(|s| s.first(REDUCED_SENSORS)).collect();
+    let info = RunInfo {
+        sensors: REDUCED_SENSORS,
+        reduced: true,
+        ..info.clone()
+    };
+    values(&first.iter().collect::<Vec<_>>(), &info)
+}
+
+fn json(values: &BTreeMap<String, String>) -> Result<String> {
+    Ok(serde_json::to_string_pretty(values)? + "\n")
+}
+
+/// The page, its plots, the CSVs and the figure files; the page, CSVs and figure files
+/// appear whole or not at all. The first suite is the page's main population (its plots),
+/// the others follow it (N = 1). A reduced run writes only `accuracy-reduced.json` of the
+/// figure files (CI compares it with the committed one).
+pub fn write_outputs(
+    suites: &[&Suite],
+    info: &RunInfo,
+    page: &Path,
+    plots: &Path,
+    figures: &Path,
+) -> Result<()> {
     let Some(main) = suites.first() else {
         bail!("no suite to write");
     };
     // The page first: a template that cannot be filled writes nothing.
     let page_dir = page.parent().unwrap_or(Path::new(""));
     let rel = plots.strip_prefix(page_dir).unwrap_or(plots);
-    let text = markdown(suites, info, &rel.to_string_lossy())?;
-    std::fs::create_dir_all(plots)
-        .with_context(|| format!("cannot create directory {}", plots.display()))?;
+    let (full, reduced) = (values(suites, info), reduced_values(suites, info));
+    let text = markdown(&page_values(&full, &reduced), &rel.to_string_lossy())?;
+    let summary = render(SUMMARY_TEMPLATE, &full)?;
+    for dir in [plots, figures] {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create directory {}", dir.display()))?;
+    }
     write_plots(&main.results, &main.summary, &main.plan, plots)?;
     for (i, s) in suites.iter().enumerate() {
         let name = match i {
@@ -205,6 +251,11 @@ pub fn write_outputs(suites: &[&Suite], info: &RunInfo, page: &Path, plots: &Pat
             _ => format!("per_sensor_n{}.csv", s.population.sensor_periods),
         };
         write_file(&plots.join(name), &per_sensor_csv(&s.results, &s.plan))?;
+    }
+    write_file(&figures.join("accuracy-reduced.json"), &json(&reduced)?)?;
+    if !info.reduced {
+        write_file(&figures.join("accuracy.json"), &json(&full)?)?;
+        write_file(&figures.join("accuracy-summary.md"), &summary)?;
     }
     write_file(page, &text)
 }
