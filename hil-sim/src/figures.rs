@@ -405,8 +405,8 @@ fn scenarios() -> Result<Sections> {
 fn aligned(b: &Boot) -> String {
     b.streamed
         .iter()
-        .find_map(|(_, s)| match s {
-            crate::rig::Streamed::Event(Event::Aligned {
+        .find_map(|s| match &s.line {
+            drive::telemetry::Line::Event(Event::Aligned {
                 offset_e_rad,
                 reversed,
                 ratio,
