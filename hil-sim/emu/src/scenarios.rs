@@ -712,6 +712,30 @@ pub struct PowerUp {
     /// Per boot, over Run (from [`RUN_SETTLE_S`] after entering it to the end): the
     /// current the bridge drove against the true rotor's q axis, from the plant.
     pub run_current: [Option<CurrentVectorStats>; 2],
+    /// The flash the first boot left (its calibration stored).
+    pub commissioned: crate::cpu::KeptFlash,
+}
+
+/// A power-up on `flash` (a stored calibration) of a board whose sensor has been
+/// remounted `offset_shift_rad` (mechanical) since: the calibration's electrical offset
+/// is then wrong by `offset_shift_rad`·p. Its states, and the current against the rotor's
+/// q axis over Run (plant).
+pub fn remounted_power_up(
+    elf: &[u8],
+    flash: crate::cpu::KeptFlash,
+    offset_shift_rad: f64,
+) -> Result<(Outcome, Option<CurrentVectorStats>)> {
+    let t0 = std::time::Instant::now();
+    let mut board = Board::commissioning(1)?;
+    let mut p = board.plant.sensor.params.clone();
+    p.mount.offset_rad += offset_shift_rad;
+    board.plant.sensor = hil_sim::sensor::SensorSim::new(p, 1)?;
+    let mut emu = Emu::new(elf, board, Some(flash))?;
+    run_until_state(&mut emu, "Run", 2.0)?;
+    emu.run_for(0.3)?;
+    let o = finish("remounted", &emu, t0, Vec::new())?;
+    let c = run_current(&emu, &o, 0);
+    Ok((o, c))
 }
 
 /// Run measures start this long after the stream says Run (the speed ramp to the
@@ -772,7 +796,8 @@ pub fn power_up_run(elf: &[u8]) -> Result<PowerUp> {
     let (first_res, run_res) = residuals(&emu)?;
     let raw = plant_truth::raw_error_pk_pk_rad(run_periods(&emu, &first, 0), &probe(&emu));
     let current_1 = run_current(&emu, &first, 0);
-    let mut again = fresh(elf, Some(emu.flash()))?;
+    let commissioned = emu.flash();
+    let mut again = fresh(elf, Some(commissioned.clone()))?;
     run_until_state(&mut again, "Run", 2.0)?;
     again.run_for(0.3)?;
     let second = finish("power-up", &again, t0, Vec::new())?;
@@ -785,6 +810,7 @@ pub fn power_up_run(elf: &[u8]) -> Result<PowerUp> {
         residual_first_rad: first_res,
         residual_run_rad: run_res,
         run_current: [current_1, current_2],
+        commissioned,
     })
 }
 

@@ -98,7 +98,9 @@ fn erased_flash_commissions_to_run_then_the_next_power_up_loads() {
 /// mean within 10 mrad, pk-pk within 35 mrad; torque per amp at least 0.999 (the cost
 /// of a 45 mrad error). An electrical offset 0.3 rad off gives 300 mrad and 0.955; a
 /// correction of the wrong sign doubles the raw sensor's error (asserted here to be
-/// over 100 mrad mechanical, over 400 mrad electrical pk-pk), far past both.
+/// over 100 mrad mechanical, over 400 mrad electrical pk-pk), far past both. The
+/// offset case is run here too: the calibration loaded on a sensor remounted since
+/// measures -296 mrad and 0.957.
 #[test]
 fn in_run_the_current_is_on_the_rotors_q_axis_at_the_plant() {
     let p = scenarios::power_up_run(&elf()).unwrap_or_else(|e| panic!("{e:#}"));
@@ -115,6 +117,20 @@ fn in_run_the_current_is_on_the_rotors_q_axis_at_the_plant() {
         assert!(c.angle_error_e_pk_pk_rad < 35e-3, "boot {}: {c:?}", b + 1);
         assert!(c.torque_per_amp > 0.999, "boot {}: {c:?}", b + 1);
     }
+    // The same bounds fail a drive whose electrical offset is 0.3 rad wrong: the
+    // stored calibration loaded on a board whose sensor was remounted 0.3/p rad since.
+    let p_pairs = drive_emu::board::Board::commissioning(1)
+        .unwrap()
+        .plant
+        .motor
+        .pole_pairs as f64;
+    let (o, c) = scenarios::remounted_power_up(&elf(), p.commissioned, 0.3 / p_pairs)
+        .unwrap_or_else(|e| panic!("{e:#}"));
+    let c = c.expect("a Run window");
+    eprintln!("remounted: {c:?}");
+    assert_eq!(states(&o, 0), ["LoadCalibration", "Run"]);
+    assert!(c.angle_error_e_rad.abs() > 0.2, "{c:?}");
+    assert!(c.torque_per_amp < 0.98, "{c:?}");
 }
 
 #[test]
