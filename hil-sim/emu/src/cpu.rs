@@ -522,6 +522,7 @@ impl Emu {
         m.deadline = deadline;
         m.stop = false;
         m.idle = false;
+        m.first_block = true;
         let pc = self.reg(RegisterARM::PC);
         let r = self.uc.emu_start((pc | 1) as u64, 0, 0, 0);
         let m = self.m_mut();
@@ -574,10 +575,47 @@ fn bitband(off: u64) -> (u32, u32) {
     (0x4000_0000 + (byte & !3), bit)
 }
 
-/// The block hook: time, the FPU check, idle detection, and whether to leave Unicorn
-/// for an event or an exception.
+/// The block hook: whether to leave Unicorn before this block, and if not its time,
+/// the FPU check and idle detection. Unicorn emits the hook ahead of the block's
+/// exit-request check, so a stop asked for here leaves *before* the block runs: the
+/// block is counted only when it runs, and the first block of a slice always runs (a
+/// slice shorter than a block still makes progress).
 fn on_block(uc: &mut Unicorn<'_, Machine>, addr: u32, size: u32) {
     let m = uc.get_data_mut();
+    let first = std::mem::take(&mut m.first_block);
+    let pending = m.nvic.any_pending();
+    let track = m.stats.armed && m.stats.isr_entered_at.is_none();
+    let mut preempt = false;
+    if pending || track {
+        let primask = uc.reg_read(RegisterARM::PRIMASK).unwrap_or(0) & 1 != 0;
+        let basepri = uc.reg_read(RegisterARM::BASEPRI).unwrap_or(0) as u8;
+        let m = uc.get_data_mut();
+        let exec = m.nvic.execution_priority(primask, basepri);
+        if pending {
+            preempt = m
+                .nvic
+                .most_urgent_pending()
+                .is_some_and(|(_, prio)| prio < exec);
+        }
+        // The control interrupt masked by PRIMASK/BASEPRI (not by running itself), once
+        // the window is open: init runs masked by design. As of this block's start.
+        let masked = m.stats.armed
+            && (primask || (basepri != 0 && (basepri as i16 & 0xF0) <= m.control_priority()));
+        match (masked, m.stats.masked_since) {
+            (true, None) => m.stats.masked_since = Some(m.instrs),
+            (false, Some(t0)) => {
+                let (len, at) = (m.instrs - t0, m.now);
+                m.stats.masked_ended(len, at);
+                m.stats.masked_since = None;
+            }
+            _ => {}
+        }
+    }
+    let m = uc.get_data_mut();
+    if !first && (m.stop || preempt || m.now >= m.deadline) {
+        let _ = uc.emu_stop();
+        return;
+    }
     let (n, vfp) = m.count_instrs(addr, size);
     m.instrs += n;
     m.now += n * m.rcc.ticks_per_instr;
@@ -589,36 +627,8 @@ fn on_block(uc: &mut Unicorn<'_, Machine>, addr: u32, size: u32) {
         return;
     }
     if m.is_idle_branch(addr, size) {
+        // `b .`: nothing runs until the next event (step skips the time).
         m.idle = true;
-    }
-    let mut stop = m.idle || m.stop || m.now >= m.deadline;
-    let pending = m.nvic.any_pending();
-    let track = m.stats.armed && m.stats.isr_entered_at.is_none();
-    if pending || track {
-        let primask = uc.reg_read(RegisterARM::PRIMASK).unwrap_or(0) & 1 != 0;
-        let basepri = uc.reg_read(RegisterARM::BASEPRI).unwrap_or(0) as u8;
-        let m = uc.get_data_mut();
-        let exec = m.nvic.execution_priority(primask, basepri);
-        if pending {
-            if let Some((_, prio)) = m.nvic.most_urgent_pending() {
-                stop |= prio < exec;
-            }
-        }
-        // The control interrupt masked by PRIMASK/BASEPRI (not by running itself), once
-        // the window is open: init runs masked by design.
-        let masked = m.stats.armed
-            && (primask || (basepri != 0 && (basepri as i16 & 0xF0) <= m.control_priority()));
-        match (masked, m.stats.masked_since) {
-            (true, None) => m.stats.masked_since = Some(m.instrs - n),
-            (false, Some(t0)) => {
-                let (len, at) = (m.instrs - n - t0, m.now);
-                m.stats.masked_ended(len, at);
-                m.stats.masked_since = None;
-            }
-            _ => {}
-        }
-    }
-    if stop {
         let _ = uc.emu_stop();
     }
 }

@@ -122,6 +122,8 @@ pub struct Machine {
     /// Leave Unicorn when `now` reaches this.
     pub deadline: u64,
     pub stop: bool,
+    /// The next block is the first of a slice: it runs whatever the deadline says.
+    pub first_block: bool,
     pub idle: bool,
     pub fault: Option<Fault>,
     pub exc_return: Option<u32>,
@@ -206,6 +208,7 @@ impl Machine {
             call_stack: Vec::new(),
             deadline: 0,
             stop: false,
+            first_block: false,
             idle: false,
             fault: None,
             exc_return: None,

@@ -426,6 +426,12 @@ fn run_until(
     let step = 0.05;
     let boots = emu.m().stats.boots.len();
     while emu.m().time_s() < limit_s {
+        if emu.m().powered_off {
+            bail!(
+                "{what}: the board's power was cut at {:.1} ms",
+                emu.m().time_s() * 1e3
+            );
+        }
         emu.run_for(step)?;
         let mut o = Outcome::default();
         read_stream(emu, &mut o)?;
