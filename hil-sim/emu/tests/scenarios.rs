@@ -93,7 +93,7 @@ fn erased_flash_commissions_to_run_then_the_next_power_up_loads() {
 
 /// The drive's angle at the plant, in Run, both boots: the current the bridge drives
 /// against the true rotor's q axis (never what the firmware reports). Measured on this
-/// release ELF: mean +2.2 / +4.4 mrad electrical, pk-pk over the rotor angle 10.7 /
+/// release ELF: mean +2.1 / +4.4 mrad electrical, pk-pk over the rotor angle 11.1 /
 /// 16.6 mrad, torque per amp 0.9999 (commissioned / loaded boot). Bounds at about 2x:
 /// mean within 10 mrad, pk-pk within 35 mrad; torque per amp at least 0.999 (the cost
 /// of a 45 mrad error). An electrical offset 0.3 rad off gives 300 mrad and 0.955; a
