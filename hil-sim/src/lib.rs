@@ -14,6 +14,7 @@ pub mod front_end;
 pub mod input_error;
 pub(crate) mod pending;
 pub mod plant;
+pub mod plant_truth;
 pub mod plots;
 pub mod power_up;
 pub mod replay;

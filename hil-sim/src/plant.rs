@@ -219,6 +219,24 @@ pub struct Plant {
     /// The comparator's break acts on the bridge here (hil-sim's drive). Off when a
     /// modelled timer owns the break path (the emulator: BKIN → TIM1 → MOE).
     pub break_opens_bridge: bool,
+    /// With `break_opens_bridge` off: the break path a modelled timer has armed for the
+    /// coming period, as its latency from the comparator's crossing to the bridge off
+    /// (its input filter), or None when nothing would open the bridge (break disabled,
+    /// not routed, or MOE already off). The bridge opens from the first substep that
+    /// starts that long after the crossing (in this period or the next); no latch here
+    /// (the timer owns it).
+    pub break_path_delay_s: Option<f64>,
+    /// The comparator over its level at the end of the last period (its output now, a
+    /// level: it falls back when the current does).
+    comparator_over: bool,
+    /// In the last period: when the comparator first crossed its level (s from the
+    /// period's start, interpolated between substeps), and when the armed break path
+    /// opened the bridge (s from the period's start).
+    crossing_s: Option<f64>,
+    break_opened_s: Option<f64>,
+    /// The armed break path's opening still to come, from the next period's start (a
+    /// crossing near a period's end).
+    break_due_s: Option<f64>,
     last_torque_nm: f64,
     consts: PlantConsts,
 }
@@ -291,6 +309,11 @@ impl Plant {
             break_level_a: 2.0 * motor.i_max_a,
             tripped: false,
             break_opens_bridge: true,
+            break_path_delay_s: None,
+            comparator_over: false,
+            crossing_s: None,
+            break_opened_s: None,
+            break_due_s: None,
             last_torque_nm: 0.0,
         })
     }
@@ -401,9 +424,36 @@ impl Plant {
         self.k += 1;
     }
 
-    /// The over-current comparator's output (latched once tripped).
+    /// The over-current comparator has tripped since the plant was built (latched, the
+    /// way hil-sim's drive reads it: the timer's break flag).
     pub fn comparator_tripped(&self) -> bool {
         self.tripped
+    }
+
+    /// The comparator's output now: a phase current over its level at the end of the
+    /// last period (not latched).
+    pub fn comparator_over(&self) -> bool {
+        self.comparator_over
+    }
+
+    /// In the last period: when the comparator first crossed its level, in seconds
+    /// from the period's start (interpolated between substeps), if it did.
+    pub fn crossing_s(&self) -> Option<f64> {
+        self.crossing_s
+    }
+
+    /// In the last period: when the armed break path ([`Plant::break_path_delay_s`])
+    /// opened the bridge, in seconds from the period's start, if it did.
+    pub fn break_opened_s(&self) -> Option<f64> {
+        self.break_opened_s
+    }
+
+    /// The largest phase current magnitude of an αβ current (the comparator watches all
+    /// three phases).
+    fn phase_peak_a(ia: f64, ib: f64) -> f64 {
+        ia.abs()
+            .max((0.5 * ia - 0.5 * SQRT3 * ib).abs())
+            .max((0.5 * ia + 0.5 * SQRT3 * ib).abs())
     }
 
     fn integrate_period(&mut self, open: bool) {
@@ -422,6 +472,15 @@ impl Plant {
         let [mut ia, mut ib] = self.i_ab;
         let [va, vb] = self.v_ab_applied;
         let mut torque = 0.0;
+        // The comparator's timing (read by a modelled timer; nothing below depends on it
+        // except the armed break path's opening).
+        let (mut crossing, mut opened, mut over) = (None, None, self.comparator_over);
+        // When the armed break path opens the bridge (s from this period's start).
+        let mut open_at = if self.break_opens_bridge {
+            None
+        } else {
+            self.break_due_s.take()
+        };
         // One exact sin/cos per period, then rotation by the substep's electrical angle at
         // the period's starting speed (the speed change within 50 µs moves the angle by
         // less than 1e-6 rad).
@@ -436,6 +495,14 @@ impl Plant {
             // Back-EMF e_αβ = ωe·λ·(-sin θe, cos θe).
             let we_flux = p * omega * m.flux_wb;
             let (ea, eb) = (-we_flux * se, we_flux * ce);
+            if open_at.is_some_and(|t| n as f64 * h >= t) {
+                open_at = None;
+                if !open {
+                    open = true;
+                    opened = Some(n as f64 * h);
+                }
+            }
+            let before = (ia, ib);
             if open {
                 // Bridge off: open windings (the freewheel transient is not modelled).
                 (ia, ib) = (0.0, 0.0);
@@ -451,6 +518,23 @@ impl Plant {
             {
                 self.tripped = true;
                 open |= self.break_opens_bridge;
+                if !over && crossing.is_none() {
+                    // A rising edge: linear between the substep's ends (at its start
+                    // when the level moved below a current that was already there).
+                    let (peak, peak_before) = (
+                        Self::phase_peak_a(ia, ib),
+                        Self::phase_peak_a(before.0, before.1),
+                    );
+                    let f = ((level - peak_before) / (peak - peak_before)).clamp(0.0, 1.0);
+                    let tc = (n as f64 + if f.is_finite() { f } else { 0.0 }) * h;
+                    crossing = Some(tc);
+                    if let (Some(d), false) = (self.break_path_delay_s, self.break_opens_bridge) {
+                        open_at = open_at.or(Some(tc + d));
+                    }
+                }
+                over = true;
+            } else {
+                over = false;
             }
             // T = 1.5·p·λ·(iβ cos θe - iα sin θe).
             let te = c.kt * (ib * ce - ia * se);
@@ -471,6 +555,8 @@ impl Plant {
         }
         (self.omega_rm, self.theta_rm, self.i_ab) = (omega, theta, [ia, ib]);
         self.last_torque_nm = torque / c.substeps as f64;
+        (self.comparator_over, self.crossing_s, self.break_opened_s) = (over, crossing, opened);
+        self.break_due_s = open_at.map(|t| t - c.substeps as f64 * h);
     }
 }
 
@@ -586,6 +672,58 @@ mod tests {
                 "current {a:?} vs {b:?}"
             );
         }
+    }
+
+    /// The comparator as a modelled timer reads it: a level with the time it crossed,
+    /// and the armed break path opening the bridge that long after the crossing.
+    #[test]
+    fn the_comparator_reports_its_crossing_and_an_armed_break_opens_the_bridge() {
+        let run = |delay_s: Option<f64>| {
+            let mut p = Plant::new(
+                MotorParams::default(),
+                sensor(SensorModel::ideal(2)),
+                T_S,
+                0.0,
+            )
+            .unwrap()
+            .with_substeps(16);
+            p.break_opens_bridge = false;
+            p.break_path_delay_s = delay_s;
+            p.break_level_a = 1.0;
+            let vdc = p.motor.vdc_v;
+            // 6 V on the q axis at rest: the current rises with L/R = 1.7 ms.
+            let (duties, _) = drive::foc::svpwm(0.0, 6.0, vdc as f32);
+            let out = drive::control::Output {
+                duties,
+                enable: true,
+                supervisor_due: false,
+            };
+            let mut seen = Vec::new();
+            for _ in 0..200 {
+                p.advance_applied(&out);
+                seen.push((p.crossing_s(), p.break_opened_s(), p.comparator_over()));
+            }
+            seen
+        };
+        let h = T_S / 16.0;
+        // Not armed: one crossing, then a level that stays up.
+        let free = run(None);
+        let k = free.iter().position(|s| s.0.is_some()).unwrap();
+        let tc = free[k].0.unwrap();
+        assert!(tc > 0.0 && tc < T_S, "{tc}");
+        assert!(free[k + 1..]
+            .iter()
+            .all(|s| s.0.is_none() && s.1.is_none() && s.2));
+        // Armed with a latency of 2.5 substeps: the first substep starting that long
+        // after the same crossing opens the bridge; the level falls with the current.
+        let armed = run(Some(2.5 * h));
+        assert_eq!(armed[k].0, Some(tc));
+        let opened = armed[k].1.or(armed[k + 1].1.map(|o| o + T_S)).unwrap();
+        assert!(
+            opened >= tc + 2.5 * h && opened < tc + 3.5 * h,
+            "{opened} vs {tc}"
+        );
+        assert!(!armed[k + 2].2, "the comparator is a level, not a latch");
     }
 
     #[test]

@@ -9,11 +9,17 @@ use crate::periph::{flash, TICK_HZ};
 use crate::regfile::RegFile;
 use drive::control::{Output, Sample};
 use hil_sim::plant::{CurrentAdc, Plant, Truth};
+use hil_sim::plant_truth::PeriodTruth;
 use hil_sim::scenario::Scenario;
 
 /// The shield's current amplifier: A per count, zero at mid-scale, low-side shunts read
 /// inverted (ST's three-shunt boards).
 pub const CURRENT_A_PER_COUNT: f64 = -0.0161;
+
+/// The NUCLEO-G474RE's HSE: the 24 MHz crystal X3 (UM2505, the STM32G4 Nucleo-64 user
+/// manual; ST's own board support uses HSE_VALUE = 24 MHz). The firmware clocks from
+/// HSI16 and never starts it; a firmware that does gets this frequency.
+pub const NUCLEO_G474RE_HSE_HZ: f64 = 24.0e6;
 
 pub struct Board {
     pub plant: Plant,
@@ -25,10 +31,8 @@ pub struct Board {
     last: (Sample, Truth),
     /// Bank-2 pages write-protected in the option bytes (FLASH_WRP2AR), if any.
     pub wrp2a_pages: Option<(u32, u32)>,
-    /// A log of the truth at each sampling instant, decimated (t_s, θ, ω).
-    pub truth_log: Vec<Truth>,
-    pub log_every: u64,
-    samples: u64,
+    /// The crystal on OSC_IN/OSC_OUT (Hz).
+    pub hse_hz: f64,
 }
 
 impl Board {
@@ -76,9 +80,7 @@ impl Board {
             plant_at: 0,
             last,
             wrp2a_pages: None,
-            truth_log: Vec::new(),
-            log_every: 20,
-            samples: 0,
+            hse_hz: NUCLEO_G474RE_HSE_HZ,
         }
     }
 
@@ -126,6 +128,7 @@ impl Board {
         p.current_adc = old.current_adc;
         p.break_level_a = old.break_level_a;
         p.break_opens_bridge = old.break_opens_bridge;
+        p.break_path_delay_s = old.break_path_delay_s;
         let steps = (old.time_s() / dt_s).round() as u64;
         for _ in 0..steps {
             p.advance_applied(&Self::idle());
@@ -154,10 +157,11 @@ impl Board {
         });
         self.plant_at += n * self.period_ticks;
         self.last = self.plant.sample();
-        self.samples += 1;
-        if self.samples.is_multiple_of(self.log_every) {
-            self.truth_log.push(self.last.1);
-        }
+    }
+
+    /// When the period the plant integrated last began (ticks).
+    pub fn last_period_start(&self) -> u64 {
+        self.plant_at.saturating_sub(self.period_ticks)
     }
 
     pub fn next_coast(&self, _now: u64) -> u64 {
@@ -185,6 +189,16 @@ impl Board {
 
     pub fn truth(&self) -> Truth {
         self.last.1
+    }
+
+    /// The plant at the last sampling instant: the truth, the phase currents and the
+    /// torque of the period that ended there.
+    pub fn period_truth(&self) -> PeriodTruth {
+        PeriodTruth {
+            truth: self.last.1,
+            i_ab: self.plant.currents_ab(),
+            torque_nm: self.plant.torque_nm(),
+        }
     }
 
     /// The analog front end: what ADC `adc` (0 = ADC1) converts on `channel`.

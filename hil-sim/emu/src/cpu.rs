@@ -5,7 +5,7 @@
 
 use crate::board::Board;
 use crate::elf::{self, Image, FLASH_BASE};
-use crate::machine::{Fault, Machine, ADC1_2_IRQ, SRAM, SRAM_BYTES, USART3_IRQ};
+use crate::machine::{Fault, Machine, ADC1_2_IRQ, SRAM, SRAM_BYTES};
 use crate::nvic;
 use crate::periph::rcc::ResetKind;
 use crate::periph::ticks;
@@ -35,6 +35,14 @@ const FRAME_REGS: [RegisterARM; 6] = [
     RegisterARM::LR,
 ];
 
+/// What the flash keeps over a power cycle: its bytes and the double words torn by a
+/// power cut during programming (their data and ECC disagree).
+#[derive(Clone, Debug)]
+pub struct KeptFlash {
+    pub bytes: Vec<u8>,
+    pub torn: Vec<u32>,
+}
+
 /// The emulated board running a firmware image.
 pub struct Emu {
     pub uc: Unicorn<'static, Machine>,
@@ -46,24 +54,29 @@ fn uc_err(e: unicorn_engine::uc_error) -> anyhow::Error {
 }
 
 impl Emu {
-    /// Power the board on with `elf` in flash; `flash` is the flash array of an earlier
-    /// run (the calibration pages kept), or None for a freshly programmed part (the
+    /// Power the board on with `elf` in flash; `flash` is the flash of an earlier run
+    /// (the calibration pages kept), or None for a freshly programmed part (the
     /// calibration pages erased).
-    pub fn new(elf: &[u8], board: Board, flash: Option<Vec<u8>>) -> Result<Self> {
+    pub fn new(elf: &[u8], board: Board, flash: Option<KeptFlash>) -> Result<Self> {
         let Image {
             flash: image,
             rtt_block,
             ..
         } = elf::load(elf)?;
-        let flash = match flash {
+        let (flash, torn) = match flash {
             // Reflash the code, keep bank 2 (where the calibration lives).
-            Some(mut kept) => {
-                kept[..BANK_BYTES as usize].copy_from_slice(&image[..BANK_BYTES as usize]);
-                kept
+            Some(KeptFlash { mut bytes, torn }) => {
+                bytes[..BANK_BYTES as usize].copy_from_slice(&image[..BANK_BYTES as usize]);
+                let bank2 = torn
+                    .into_iter()
+                    .filter(|&t| t >= BANK_BYTES as u32)
+                    .collect();
+                (bytes, bank2)
             }
-            None => image,
+            None => (image, Vec::new()),
         };
         let mut m = Machine::new(flash, board, Rtt::new(rtt_block));
+        m.flash_ctl.torn = torn;
         m.profile = Some(Profile::for_elf(elf)?);
         let mut uc = Unicorn::new_with_data(Arch::ARM, Mode::THUMB, m).map_err(uc_err)?;
         // Not UC_MODE_MCLASS, which makes a Cortex-M33: a Cortex-M4 with our own
@@ -303,28 +316,9 @@ impl Emu {
         let exc_return = if fp { EXC_RETURN_FP } else { EXC_RETURN_BASIC }
             | if thread { EXC_RETURN_THREAD } else { 0 };
         let handler = self.m().vector(n);
-        let m = self.m_mut();
-        m.nvic.take(n);
         // The frame push is in the entry's cost; no branch refill follows it.
         let cost = ENTRY_CYCLES + if fp { LAZY_FP_WORDS } else { 0 };
-        m.prev_block = None;
-        m.prev_stage = None;
-        if n == nvic::irq(ADC1_2_IRQ) {
-            let instrs = m.instrs;
-            if let Some(since) = m.stats.pending_since.take() {
-                m.stats.latency_max = m.stats.latency_max.max(instrs - since);
-            }
-            m.stats.isr_entered_at = Some(instrs);
-            m.stats.isr_cycles_entered_at = Some(m.cycles);
-            m.stats.stage_now = Default::default();
-            m.stats.charge(Stage::EntryExit, 0, cost);
-            m.call_stack.clear();
-            m.stats.armed = true;
-        }
-        if n == nvic::irq(USART3_IRQ) {
-            m.stats.task_entered_at = Some((m.cycles, m.stats.isr_count_total));
-        }
-        m.cycles += cost;
+        self.m_mut().exception_entered(n, cost);
         self.set_reg(RegisterARM::SP, frame)?;
         self.set_reg(RegisterARM::LR, exc_return)?;
         // IPSR = n, T = 1, IT/ICI cleared.
@@ -355,48 +349,8 @@ impl Emu {
         }
         let size = if fp { 0x68 } else { 0x20 };
         let sp = frame + size + if xpsr & (1 << 9) != 0 { 4 } else { 0 };
-        let m = self.m_mut();
-        let done = m.nvic.active.pop();
         let cost = EXIT_CYCLES + if fp { LAZY_FP_WORDS } else { 0 };
-        m.cycles += cost;
-        m.prev_block = None;
-        m.prev_stage = None;
-        if done == Some(nvic::irq(ADC1_2_IRQ)) {
-            if let Some(t0) = m.stats.isr_entered_at.take() {
-                let n = m.instrs - t0;
-                m.stats.isr_count += 1;
-                m.stats.isr_count_total += 1;
-                m.stats.isr_instrs_sum += n;
-                m.stats.isr_instrs_max = m.stats.isr_instrs_max.max(n);
-            }
-            if let Some(c0) = m.stats.isr_cycles_entered_at.take() {
-                let c = m.cycles - c0;
-                m.stats.isr_cycles_sum += c;
-                m.stats.charge(Stage::EntryExit, 0, cost);
-                if c > m.stats.isr_cycles_max {
-                    m.stats.isr_cycles_max = c;
-                    m.stats.isr_cycles_max_at = m.now;
-                    m.stats.isr_max_stages = m.stats.stage_now;
-                }
-                m.stats.close_stages();
-            }
-            m.call_stack.clear();
-        }
-        if done == Some(nvic::irq(USART3_IRQ)) {
-            if let Some((c0, isrs0)) = m.stats.task_entered_at.take() {
-                let c = m.cycles - c0;
-                if c > m.stats.task_cycles_max {
-                    m.stats.task_cycles_max = c;
-                    m.stats.task_max_at = m.now;
-                }
-                let spanned = m.stats.isr_count_total - isrs0;
-                m.stats.task_periods_max = m.stats.task_periods_max.max(spanned);
-            }
-        }
-        // A level-sensitive line still high pends again (B3.4.1).
-        if (m.adc_irq_high || m.stuck_control_irq) && done == Some(nvic::irq(ADC1_2_IRQ)) {
-            m.nvic.pend_irq(ADC1_2_IRQ);
-        }
+        self.m_mut().exception_returned(cost);
         self.set_reg(RegisterARM::SP, sp)?;
         self.set_reg(RegisterARM::XPSR, xpsr & !(1 << 9))?;
         self.set_reg(RegisterARM::PC, pc & !1)?;
@@ -511,10 +465,10 @@ impl Emu {
         Ok(())
     }
 
-    /// Run until `t_end_s` of emulated time.
+    /// Run until `t_end_s` of emulated time (or the power is cut).
     pub fn run_until(&mut self, t_end_s: f64) -> Result<()> {
         let t_end = ticks(t_end_s);
-        while self.m().now < t_end {
+        while self.m().now < t_end && !self.m().powered_off {
             self.step(t_end)?;
         }
         Ok(())
@@ -535,6 +489,22 @@ impl Emu {
             return self.system_reset(kind);
         }
         let deadline = self.m().next_event().min(t_end);
+        // An injected busy-wait at the end of the control interrupt: time passes as
+        // executed instructions of the handler, then it returns.
+        if let Some((exc_return, until)) = self.m().busy_exit {
+            if self.m().now >= until {
+                self.m_mut().busy_exit = None;
+                return self.exit(exc_return);
+            }
+            let m = self.m_mut();
+            let to = until.min(deadline).max(m.now + 1);
+            let n = (to - m.now) / m.rcc.ticks_per_instr.max(1);
+            m.now = to;
+            m.instrs += n;
+            m.cycles += n;
+            m.stats.charge(Stage::Rest, n, n);
+            return Ok(());
+        }
         // A stalled or locked-up core executes nothing: time passes to the next event.
         let (stall, lockup) = (self.m().stall_until, self.m().lockup);
         if lockup || stall > self.m().now {
@@ -552,11 +522,17 @@ impl Emu {
         m.deadline = deadline;
         m.stop = false;
         m.idle = false;
+        m.first_block = true;
         let pc = self.reg(RegisterARM::PC);
         let r = self.uc.emu_start((pc | 1) as u64, 0, 0, 0);
         let m = self.m_mut();
         if let Some(e) = m.exc_return.take() {
             if e >> 28 == 0xF {
+                let control = m.nvic.active.last() == Some(&nvic::irq(ADC1_2_IRQ));
+                if control && m.control_busy_ticks > 0 {
+                    m.busy_exit = Some((e, m.now + m.control_busy_ticks));
+                    return Ok(());
+                }
                 return self.exit(e);
             }
         }
@@ -577,9 +553,13 @@ impl Emu {
         Ok(())
     }
 
-    /// The flash array (to power the board up again with it).
-    pub fn flash(&self) -> Vec<u8> {
-        self.m().flash.clone()
+    /// The flash as it stays over a power cycle (to power the board up again with it).
+    pub fn flash(&self) -> KeptFlash {
+        let m = self.m();
+        KeptFlash {
+            bytes: m.flash.clone(),
+            torn: m.flash_ctl.torn.clone(),
+        }
     }
 
     /// The CPU is in the idle loop and no exception is active.
@@ -595,10 +575,47 @@ fn bitband(off: u64) -> (u32, u32) {
     (0x4000_0000 + (byte & !3), bit)
 }
 
-/// The block hook: time, the FPU check, idle detection, and whether to leave Unicorn
-/// for an event or an exception.
+/// The block hook: whether to leave Unicorn before this block, and if not its time,
+/// the FPU check and idle detection. Unicorn emits the hook ahead of the block's
+/// exit-request check, so a stop asked for here leaves *before* the block runs: the
+/// block is counted only when it runs, and the first block of a slice always runs (a
+/// slice shorter than a block still makes progress).
 fn on_block(uc: &mut Unicorn<'_, Machine>, addr: u32, size: u32) {
     let m = uc.get_data_mut();
+    let first = std::mem::take(&mut m.first_block);
+    let pending = m.nvic.any_pending();
+    let track = m.stats.armed && m.stats.isr_entered_at.is_none();
+    let mut preempt = false;
+    if pending || track {
+        let primask = uc.reg_read(RegisterARM::PRIMASK).unwrap_or(0) & 1 != 0;
+        let basepri = uc.reg_read(RegisterARM::BASEPRI).unwrap_or(0) as u8;
+        let m = uc.get_data_mut();
+        let exec = m.nvic.execution_priority(primask, basepri);
+        if pending {
+            preempt = m
+                .nvic
+                .most_urgent_pending()
+                .is_some_and(|(_, prio)| prio < exec);
+        }
+        // The control interrupt masked by PRIMASK/BASEPRI (not by running itself), once
+        // the window is open: init runs masked by design. As of this block's start.
+        let masked = m.stats.armed
+            && (primask || (basepri != 0 && (basepri as i16 & 0xF0) <= m.control_priority()));
+        match (masked, m.stats.masked_since) {
+            (true, None) => m.stats.masked_since = Some(m.instrs),
+            (false, Some(t0)) => {
+                let (len, at) = (m.instrs - t0, m.now);
+                m.stats.masked_ended(len, at);
+                m.stats.masked_since = None;
+            }
+            _ => {}
+        }
+    }
+    let m = uc.get_data_mut();
+    if !first && (m.stop || preempt || m.now >= m.deadline) {
+        let _ = uc.emu_stop();
+        return;
+    }
     let (n, vfp) = m.count_instrs(addr, size);
     m.instrs += n;
     m.now += n * m.rcc.ticks_per_instr;
@@ -610,39 +627,8 @@ fn on_block(uc: &mut Unicorn<'_, Machine>, addr: u32, size: u32) {
         return;
     }
     if m.is_idle_branch(addr, size) {
+        // `b .`: nothing runs until the next event (step skips the time).
         m.idle = true;
-    }
-    let mut stop = m.idle || m.stop || m.now >= m.deadline;
-    let pending = m.nvic.any_pending();
-    let track = m.stats.armed && m.stats.isr_entered_at.is_none();
-    if pending || track {
-        let primask = uc.reg_read(RegisterARM::PRIMASK).unwrap_or(0) & 1 != 0;
-        let basepri = uc.reg_read(RegisterARM::BASEPRI).unwrap_or(0) as u8;
-        let m = uc.get_data_mut();
-        let exec = m.nvic.execution_priority(primask, basepri);
-        if pending {
-            if let Some((_, prio)) = m.nvic.most_urgent_pending() {
-                stop |= prio < exec;
-            }
-        }
-        // The control interrupt masked by PRIMASK/BASEPRI (not by running itself), once
-        // the window is open: init runs masked by design.
-        let masked = m.stats.armed
-            && (primask || (basepri != 0 && (basepri as i16 & 0xF0) <= m.control_priority()));
-        match (masked, m.stats.masked_since) {
-            (true, None) => m.stats.masked_since = Some(m.instrs - n),
-            (false, Some(t0)) => {
-                let len = m.instrs - n - t0;
-                if len > m.stats.masked_max {
-                    m.stats.masked_max = len;
-                    m.stats.masked_max_at = m.now;
-                }
-                m.stats.masked_since = None;
-            }
-            _ => {}
-        }
-    }
-    if stop {
         let _ = uc.emu_stop();
     }
 }

@@ -19,7 +19,8 @@ use crate::periph::{ticks, TICK_HZ};
 use crate::profile::{BlockCost, Profile, Stage};
 use crate::regfile::RegFile;
 use crate::rtt::Rtt;
-use crate::stats::Stats;
+use crate::stats::{Break, MissCause, Missed, Stats};
+use hil_sim::plant_truth::PeriodTruth;
 use std::collections::{BTreeMap, HashMap};
 use std::hash::{BuildHasherDefault, Hasher};
 use std::sync::Arc;
@@ -74,7 +75,22 @@ pub struct Unmodelled {
     pub gated: BTreeMap<&'static str, u64>,
     /// Registers the PAC does not describe, by address.
     pub unknown: BTreeMap<u32, u64>,
+    /// Private peripheral bus registers no model knows (stored and read back as plain
+    /// memory), by address.
+    pub unknown_ppb: BTreeMap<u32, u64>,
+    /// Flash bank swap (SYSCFG_MEMRMP.FB_MODE) set at some time: not modelled.
+    pub bank_swap: u64,
 }
+
+/// Private peripheral bus registers the firmware may use that need no behaviour here:
+/// SysTick (B3.3: CSR, RVR, CVR, CALIB; the firmware does not start it), the MPU's
+/// (B3.5; no region is enabled) and the FPU's FPCAR (B3.2.23, written by lazy stacking
+/// only). Stored and read back.
+const PPB_PLAIN_KNOWN: &[(u32, u32)] = &[
+    (0xE000_E010, 0xE000_E01C),
+    (0xE000_ED90, 0xE000_EDB8),
+    (0xE000_EF38, 0xE000_EF3C),
+];
 
 pub struct Machine {
     pub regs: RegFile,
@@ -106,6 +122,8 @@ pub struct Machine {
     /// Leave Unicorn when `now` reaches this.
     pub deadline: u64,
     pub stop: bool,
+    /// The next block is the first of a slice: it runs whatever the deadline says.
+    pub first_block: bool,
     pub idle: bool,
     pub fault: Option<Fault>,
     pub exc_return: Option<u32>,
@@ -139,6 +157,21 @@ pub struct Machine {
     /// Fault injection: the control interrupt's line stuck active (it pends again at
     /// every return).
     pub stuck_control_irq: bool,
+    /// Fault injection: each control interrupt busy-waits this many ticks before it
+    /// returns (a firmware whose interrupt overruns), and the return held back now
+    /// (EXC_RETURN, until when).
+    pub control_busy_ticks: u64,
+    pub busy_exit: Option<(u32, u64)>,
+    /// Per boot: the plant at the sampling instant of each control interrupt, in order
+    /// (entry k - 1 for the firmware's control period `ticks` = k).
+    pub period_truth: Vec<Vec<PeriodTruth>>,
+    /// A break the filter validates after the period it was seen in ended: (crossing,
+    /// MOE clear), ticks.
+    pub pending_break: Option<(u64, u64)>,
+    /// Cut the power when the flash starts programming its n-th double word (counted
+    /// over the run), leaving it torn; the board is then off and runs no more.
+    pub power_cut_at_program: Option<u32>,
+    pub powered_off: bool,
 }
 
 /// Is this halfword the first of a 32-bit Thumb-2 instruction (A6.1)?
@@ -158,7 +191,7 @@ impl Machine {
         let mut m = Self {
             regs: RegFile::new(crate::regs_g474::REGS),
             nvic: Nvic::default(),
-            rcc: Rcc::default(),
+            rcc: Rcc::with_hse(board.hse_hz),
             adcs: Adcs::default(),
             tim1: Tim1::default(),
             flash_ctl: FlashCtl::default(),
@@ -175,6 +208,7 @@ impl Machine {
             call_stack: Vec::new(),
             deadline: 0,
             stop: false,
+            first_block: false,
             idle: false,
             fault: None,
             exc_return: None,
@@ -200,6 +234,12 @@ impl Machine {
             unmodelled: Unmodelled::default(),
             adc_irq_high: false,
             stuck_control_irq: false,
+            control_busy_ticks: 0,
+            busy_exit: None,
+            period_truth: Vec::new(),
+            pending_break: None,
+            power_cut_at_program: None,
+            powered_off: false,
         };
         m.reset_peripherals(ResetKind::PowerOn);
         m
@@ -233,9 +273,130 @@ impl Machine {
         self.dwt_ctrl = 0x4000_0000;
         self.ppb_plain.clear();
         self.adc_irq_high = false;
+        self.busy_exit = None;
+        self.pending_break = None;
         self.stats.armed = false;
         self.stats.masked_since = None;
+        self.stats.isr_entered_at = None;
+        self.stats.isr_cycles_entered_at = None;
+        self.stats.task_entered_at = None;
+        self.stats.task_pend = None;
+        self.stats.task_serving = None;
         self.stats.boots.push((self.now, kind));
+        self.period_truth.push(Vec::new());
+    }
+
+    // ---- exceptions: what the measurements need at entry and return ----
+
+    /// Exception `n` was entered (frame pushed, `cost` est. cycles of entry).
+    pub fn exception_entered(&mut self, n: u16, cost: u64) {
+        self.nvic.take(n);
+        self.prev_block = None;
+        self.prev_stage = None;
+        if n == nvic::irq(ADC1_2_IRQ) {
+            let instrs = self.instrs;
+            let st = &mut self.stats;
+            if let Some(since) = st.pending_since.take() {
+                st.latency_max = st.latency_max.max(instrs - since);
+            }
+            st.isr_entered_at = Some(instrs);
+            st.isr_cycles_entered_at = Some(self.cycles);
+            st.stage_now = Default::default();
+            st.charge(Stage::EntryExit, 0, cost);
+            st.armed = true;
+            st.isr_entries += 1;
+            self.call_stack.clear();
+            // The sample this interrupt reads: the plant at the last trigger.
+            let truth = self.board.period_truth();
+            if let Some(log) = self.period_truth.last_mut() {
+                log.push(truth);
+            }
+        }
+        if n == nvic::irq(USART3_IRQ) {
+            self.stats.task_entered_at = Some((self.cycles, self.stats.isr_count_total));
+            self.stats.task_serving = self.stats.task_pend.take();
+        }
+        if n == nvic::NMI {
+            self.stats.nmis += 1;
+        }
+        self.cycles += cost;
+    }
+
+    /// The innermost active exception returned (`cost` est. cycles of the return);
+    /// which one it was.
+    pub fn exception_returned(&mut self, cost: u64) -> Option<u16> {
+        let done = self.nvic.active.pop();
+        self.cycles += cost;
+        self.prev_block = None;
+        self.prev_stage = None;
+        if done == Some(nvic::irq(ADC1_2_IRQ)) {
+            let st = &mut self.stats;
+            if let Some(t0) = st.isr_entered_at.take() {
+                let n = self.instrs - t0;
+                st.isr_count += 1;
+                st.isr_count_total += 1;
+                st.isr_instrs_sum += n;
+                st.isr_instrs_max = st.isr_instrs_max.max(n);
+                if let Some(c0) = st.isr_cycles_entered_at.take() {
+                    let c = self.cycles - c0;
+                    st.isr_cycles_sum += c;
+                    st.charge(Stage::EntryExit, 0, cost);
+                    if c > st.isr_cycles_max {
+                        st.isr_cycles_max = c;
+                        st.isr_cycles_max_at = self.now;
+                        st.isr_max_stages = st.stage_now;
+                    }
+                    if c > st.isr_longest.cycles {
+                        st.isr_longest = crate::stats::Longest {
+                            cycles: c,
+                            instrs: n,
+                            at: self.now,
+                            stages: st.stage_now,
+                        };
+                    }
+                    st.close_stages();
+                }
+            }
+            self.call_stack.clear();
+            // A level-sensitive line still high pends again (B3.4.1).
+            if self.adc_irq_high || self.stuck_control_irq {
+                self.nvic.pend_irq(ADC1_2_IRQ);
+            }
+        }
+        if done == Some(nvic::irq(USART3_IRQ)) {
+            let st = &mut self.stats;
+            if let Some((c0, isrs0)) = st.task_entered_at.take() {
+                let c = self.cycles - c0;
+                if c > st.task_cycles_max {
+                    st.task_cycles_max = c;
+                    st.task_max_at = self.now;
+                }
+                st.task_periods_max = st.task_periods_max.max(st.isr_count_total - isrs0);
+            }
+            if let Some(k) = st.task_serving.take() {
+                let entered = st.isr_entries - k;
+                if entered > st.task_from_pend_max {
+                    st.task_from_pend_max = entered;
+                    st.task_from_pend_max_at = self.now;
+                }
+                if entered >= mras::UPDATE_LATENCY_PERIODS as u64 {
+                    st.task_deadline_misses += 1;
+                }
+            }
+        }
+        done
+    }
+
+    /// The adaptation task was pended (by the control interrupt, with a sample).
+    fn task_pended(&mut self) {
+        if self.stats.task_pend.is_none() {
+            self.stats.task_pend = Some(self.stats.isr_entries);
+        }
+    }
+
+    /// Is the control interrupt active (entered, not returned)?
+    pub fn control_active(&self) -> bool {
+        self.nvic.active.contains(&nvic::irq(ADC1_2_IRQ))
     }
 
     pub fn time_s(&self) -> f64 {
@@ -339,6 +500,9 @@ impl Machine {
         }
         for e in [
             self.adcs.next_event(),
+            self.rcc.next_event(),
+            self.pending_break.map(|b| b.1),
+            self.busy_exit.map(|b| b.1),
             self.flash_ctl.next_event(),
             self.iwdg.expiry(&self.regs),
             Some(self.rtt.next_poll),
@@ -373,6 +537,16 @@ impl Machine {
                 self.flash_ctl.complete(&mut self.regs, self.now);
                 progressed = true;
             }
+            if self.rcc.next_event().is_some_and(|t| t <= self.now) {
+                let latency = self.regs.get(flash::ACR) & 0xF;
+                self.rcc.update(&mut self.regs, self.now, latency);
+                progressed = true;
+            }
+            if let Some((crossing, clear)) = self.pending_break.filter(|b| b.1 <= self.now) {
+                self.pending_break = None;
+                self.filtered_break(crossing, clear);
+                progressed = true;
+            }
             if !progressed {
                 break;
             }
@@ -383,8 +557,32 @@ impl Machine {
             self.reset_request = Some(ResetKind::Watchdog);
         }
         // No trigger for a while (reset, boot, timer stopped): the motor coasts.
+        self.arm_break_path();
         if self.board.coast(self.now) {
             self.check_break();
+        }
+    }
+
+    /// Tell the plant what the timer's break path does to the bridge in the coming
+    /// period: with the comparator routed to an enabled break, MOE on and the pin's
+    /// polarity active low, the bridge opens the filter's latency after a crossing.
+    /// The timer's kernel clock is the tick, as for its counter.
+    fn arm_break_path(&mut self) {
+        let armed = misc::pa6_is_bkin(&self.regs) && Tim1::break_armed_for_low_pin(&self.regs);
+        self.board.plant.break_path_delay_s =
+            armed.then(|| Tim1::break_filter_s(&self.regs, TICK_HZ));
+    }
+
+    /// A crossing the filter validated: MOE cleared, BIF set, at `clear` (ticks).
+    fn filtered_break(&mut self, crossing: u64, clear: u64) {
+        if self
+            .tim1
+            .apply_break(&mut self.regs, clear.min(self.now), true)
+        {
+            self.stats.breaks.push(Break {
+                crossing,
+                moe_cleared: clear,
+            });
         }
     }
 
@@ -393,16 +591,41 @@ impl Machine {
         self.stats.last_trigger = t;
         let (duties, on) = self.tim1.take_applied(&self.regs, t);
         let period = self.tim1.period_ticks();
+        self.arm_break_path();
+        let armed_delay = self.board.plant.break_path_delay_s;
         self.board.advance_to(t, duties, on, period);
+        // A crossing in the period just integrated: the break path (if armed) cleared
+        // MOE its filter's latency later, which may still be to come.
+        if let (Some(tc), Some(d)) = (self.board.plant.crossing_s(), armed_delay) {
+            let crossing = self.board.last_period_start() + crate::periph::ticks(tc);
+            let clear = crossing + crate::periph::ticks(d);
+            if clear <= self.now {
+                self.filtered_break(crossing, clear);
+            } else {
+                self.pending_break = Some((crossing, clear));
+            }
+        }
         self.check_break();
         let sample = self.board.sample();
         let read = |adc: usize, ch: u32| crate::board::Board::channel(&sample, adc, ch);
-        let missed = self.adcs.missed_triggers;
-        self.adcs.trgo2(&mut self.regs, t, &read);
-        if self.adcs.missed_triggers > missed {
+        let found = self.adcs.trgo2(&mut self.regs, t, &read);
+        // As the hardware sees it: a trigger while the control interrupt still runs,
+        // onto an unread or unfinished sequence, or lost on an ADC not armed once the
+        // control interrupt has run.
+        let cause = match found {
+            _ if self.control_active() => Some(MissCause::ControlRunning),
+            adc::Trigger::Started { unread: true, .. } => Some(MissCause::SequenceUnread),
+            adc::Trigger::Started {
+                converting: true, ..
+            } => Some(MissCause::StillConverting),
+            adc::Trigger::NotArmed if self.stats.armed => Some(MissCause::AdcNotArmed),
+            _ => None,
+        };
+        if let Some(cause) = cause {
             let instrs = self.instrs;
-            self.stats.missed.push(crate::stats::Missed {
+            self.stats.missed.push(Missed {
                 t,
+                cause,
                 before_control: !self.stats.armed,
                 pc: self.prev_block.map_or(0, |b| b.end),
                 in_isr_instrs: self.stats.isr_entered_at.map(|t0| instrs - t0),
@@ -411,12 +634,14 @@ impl Machine {
         }
     }
 
-    /// The over-current comparator on PA6 → TIM1 break.
+    /// The over-current comparator's level on PA6 → TIM1 break (and the core's lockup
+    /// when SYSCFG routes it): a break still active clears MOE.
     pub fn check_break(&mut self) {
-        let pin_low = self.board.plant.comparator_tripped() && misc::pa6_is_bkin(&self.regs);
+        let over = self.board.plant.comparator_over();
+        let pin_low = over && misc::pa6_is_bkin(&self.regs);
         let lock = self.lockup && misc::lockup_to_break(&self.regs);
         let active = tim1::Tim1::break_input(&self.regs, pin_low, lock);
-        if self.board.plant.comparator_tripped() && !active && tim1::Tim1::moe(&self.regs) {
+        if over && !active && tim1::Tim1::moe(&self.regs) {
             self.tim1.breaks_unrouted += 1;
         }
         self.tim1.apply_break(&mut self.regs, self.now, active);
@@ -471,6 +696,11 @@ impl Machine {
             }
             misc::CORDIC_RDATA => return self.cordic.read_result(&mut self.regs),
             misc::IWDG_SR => self.iwdg.update(&mut self.regs, self.now),
+            misc::GPIOA_IDR => {
+                // The comparator's open-drain output, pulled up: low on over-current.
+                let over = self.board.plant.comparator_over();
+                self.regs.set_bits(misc::GPIOA_IDR, misc::PA6, !over);
+            }
             _ => {}
         }
         match self.regs.def(addr) {
@@ -513,24 +743,28 @@ impl Machine {
                 || (rcc::PWR..rcc::PWR + 0x400).contains(&a) =>
             {
                 let latency = self.regs.get(flash::ACR) & 0xF;
-                self.rcc.on_write(&mut self.regs, addr, latency);
+                self.rcc.on_write(&mut self.regs, addr, old, now, latency);
             }
             a if a == adc::ADC1 + adc::CR => self.adcs.on_cr_write(&mut self.regs, 0, old, v, now),
             a if a == adc::ADC2 + adc::CR => self.adcs.on_cr_write(&mut self.regs, 1, old, v, now),
             a if (tim1::TIM1..tim1::TIM1 + 0x400).contains(&a) => {
-                let pin_low =
-                    self.board.plant.comparator_tripped() && misc::pa6_is_bkin(&self.regs);
+                let pin_low = self.board.plant.comparator_over() && misc::pa6_is_bkin(&self.regs);
                 let brk = tim1::Tim1::break_input(&self.regs, pin_low, false);
                 self.tim1.on_write(&mut self.regs, addr, old, now, brk);
             }
             a if (flash::FLASH..flash::FLASH + 0x400).contains(&a) => {
-                let code_bank2 = false;
+                // The code is linked for 0x0800_0000: bank 1, unless FB_MODE maps bank
+                // 2 there (the swap itself is not modelled and is reported).
+                let code_bank2 = misc::banks_swapped(&self.regs);
                 let eff = self
                     .flash_ctl
                     .on_write(&mut self.regs, addr, old, now, code_bank2);
                 self.apply_flash(eff);
             }
             misc::CORDIC_WDATA => self.cordic.write_arg(&mut self.regs, v),
+            misc::SYSCFG_MEMRMP if misc::banks_swapped(&self.regs) => {
+                self.unmodelled.bank_swap += 1
+            }
             a if (misc::IWDG..misc::IWDG + 0x400).contains(&a) => {
                 self.iwdg.on_write(&mut self.regs, addr, old, now)
             }
@@ -577,8 +811,22 @@ impl Machine {
                 let o = offset as usize;
                 self.flash[o..o + 4].copy_from_slice(&lo.to_le_bytes());
                 self.flash[o + 4..o + 8].copy_from_slice(&hi.to_le_bytes());
+                if self.power_cut_at_program == Some(self.flash_ctl.programs) {
+                    self.power_cut();
+                    self.powered_off = true;
+                    self.stop = true;
+                }
             }
         }
+    }
+
+    /// Power cut: a double word being programmed is left torn, its first word written
+    /// and its second still erased (what the next read finds besides the ECC error).
+    /// Returns its offset in the flash image.
+    pub fn power_cut(&mut self) -> Option<u32> {
+        let dw = self.flash_ctl.power_cut()? as usize;
+        self.flash[dw + 4..dw + 8].fill(0xFF);
+        Some(dw as u32)
     }
 
     /// A read of the bank-2 array (the calibration pages).
@@ -669,7 +917,10 @@ impl Machine {
             0xE000_EDFC => self.demcr,
             0xE000_EF34 => self.fpccr,
             a if (0xE004_2000..0xE004_2400).contains(&a) => self.read_word(a),
-            a => *self.ppb_plain.get(&a).unwrap_or(&0),
+            a => {
+                self.ppb_plain_access(a);
+                *self.ppb_plain.get(&a).unwrap_or(&0)
+            }
         }
     }
 
@@ -716,14 +967,22 @@ impl Machine {
                 self.nvic.enabled[((a - 0xE000_E180) / 4) as usize] &= !v
             }
             a @ 0xE000_E200..=0xE000_E21F => {
-                self.nvic
-                    .set_pending_word(((a - 0xE000_E200) / 4) as usize, v, 0)
+                let w = ((a - 0xE000_E200) / 4) as usize;
+                self.nvic.set_pending_word(w, v, 0);
+                if w == (USART3_IRQ / 32) as usize && v & 1 << (USART3_IRQ % 32) != 0 {
+                    self.task_pended();
+                }
             }
             a @ 0xE000_E280..=0xE000_E29F => {
                 self.nvic
                     .set_pending_word(((a - 0xE000_E280) / 4) as usize, 0, v)
             }
-            0xE000_EF00 => self.nvic.pend_irq((v & 0x1FF) as u16),
+            0xE000_EF00 => {
+                self.nvic.pend_irq((v & 0x1FF) as u16);
+                if v & 0x1FF == USART3_IRQ as u32 {
+                    self.task_pended();
+                }
+            }
             0xE000_ED04 => {
                 if v & (1 << 31) != 0 {
                     self.nvic.nmi_pending = true;
@@ -758,8 +1017,20 @@ impl Machine {
             0xE000_EF34 => self.fpccr = v,
             a if (0xE004_2000..0xE004_2400).contains(&a) => self.mmio_write(a, 4, v),
             a => {
+                self.ppb_plain_access(a);
                 self.ppb_plain.insert(a, v);
             }
+        }
+    }
+
+    /// A private-bus register with no model: known ones are plain storage, the others
+    /// are reported.
+    fn ppb_plain_access(&mut self, a: u32) {
+        if !PPB_PLAIN_KNOWN
+            .iter()
+            .any(|&(lo, hi)| (lo..=hi).contains(&a))
+        {
+            *self.unmodelled.unknown_ppb.entry(a).or_default() += 1;
         }
     }
 

@@ -49,8 +49,9 @@ pub fn written(def: &RegDef, old: u32, v: u32) -> u32 {
 
 /// Where ST's SVD (and so the PAC) gets a register's write semantics wrong, the rule
 /// from RM0440: (address, w1c bits). FLASH_SR's EOP and error flags are "cleared by
-/// writing 1" (§3.7.5); the SVD gives them plain writers.
-const W1C_OVERRIDES: &[(u32, u32)] = &[(0x4002_2010, 0x0000_C3FB)];
+/// writing 1" (§3.7.5), and so are FLASH_ECCR's ECCD and ECCC (§3.7.6); the SVD gives
+/// them plain writers.
+const W1C_OVERRIDES: &[(u32, u32)] = &[(0x4002_2010, 0x0000_C3FB), (0x4002_2018, 0xC000_0000)];
 
 /// Registers the G474 has and the SVD leaves out, from RM0440: the bank-2 write
 /// protection areas FLASH_WRP2AR/WRP2BR (§3.7.14-15), loaded from the option bytes.

@@ -1,13 +1,20 @@
 //! The firmware-in-the-loop scenarios: the release ELF on the emulated board, each
 //! ending in what a bench engineer would check (the streamed states and faults, MOE,
 //! the reset cause) and what the emulator measured (missed control periods, the control
-//! interrupt's executed instructions, the longest interrupt-masked stretch).
+//! interrupt's executed instructions and estimated cycles, the adaptation task against
+//! its deadline, the longest interrupt-masked stretch, and in Run the plant's own
+//! measures of the drive).
 
 use crate::board::Board;
+use crate::budget::{self, Build, Measured};
+use crate::machine::Machine;
 use crate::periph::tim1::Tim1;
 use crate::periph::{ticks, TICK_HZ};
+use crate::stats::Missed;
 use crate::Emu;
 use anyhow::{bail, Context, Result};
+use hil_sim::plant_truth::{self, CurrentVector, CurrentVectorStats, EstimateScore, PeriodTruth};
+use hil_sim::scenario::Probe;
 use hil_sim::stream::{self, Item};
 use std::fmt::Write as _;
 
@@ -18,6 +25,7 @@ pub const ALL: &[&str] = &[
     "overcurrent",
     "watchdog",
     "store-flash-error",
+    "torn-store",
     "rtt-host-stops",
 ];
 
@@ -36,19 +44,35 @@ pub struct Outcome {
     /// Per boot: the states entered with the firmware's t_ms.
     pub states: Vec<Vec<(String, u32)>>,
     pub events: Vec<Event>,
+    /// Missed control periods after the control interrupt first ran (each boot), and
+    /// triggers init overran before it; every one with its cause, time and code.
     pub missed_periods: u64,
+    pub overruns_before_control: u64,
+    pub missed: Vec<Missed>,
     pub control_periods: u64,
     pub isr_instrs_mean: f64,
     pub isr_instrs_max: u64,
     /// The same interrupts' estimated Cortex-M4 cycles (`profile`).
     pub isr_cycles_mean: f64,
     pub isr_cycles_max: u64,
-    /// The PWM (control) period the firmware programmed, in CPU cycles.
+    /// The PWM (control) period the firmware programmed, in CPU cycles, and its rate.
     pub period_cycles: u64,
+    pub pwm_hz: f64,
+    /// The longest control interrupt of the whole run (est. cycles) and when it
+    /// returned (ms of emulated time).
+    pub isr_longest_cycles: u64,
+    pub isr_longest_at_ms: f64,
+    /// The adaptation task: the most control interrupts entered between a sample and
+    /// the return of the run that served it, and the runs past their deadline.
+    pub task_interrupts_max: u64,
+    pub task_deadline_misses: u64,
+    /// The longest interrupt-masked stretch of the whole run.
     pub masked_max_instrs: u64,
     pub latency_max_instrs: u64,
     pub boots: usize,
     pub hard_faults: usize,
+    /// NMIs taken (double ECC errors of flash reads).
+    pub nmis: u64,
     /// Scenario-specific figures, printed as `key = value`.
     pub notes: Vec<(String, String)>,
     /// Rules the firmware broke (the models' counters), empty when none.
@@ -77,6 +101,81 @@ impl Outcome {
             .iter()
             .find(|(k, _)| k == key)
             .map(|(_, v)| v.as_str())
+    }
+
+    /// The budgets of `budget.rs` this run is checked against (no Run window: the
+    /// Run-only budget is `perf`'s).
+    pub fn budget_measures(&self, sensor: SensorBoard) -> Measured {
+        Measured {
+            build: Build {
+                pwm_hz: self.pwm_hz.round() as u32,
+                sensor,
+            },
+            hard_faults: self.hard_faults,
+            rules_broken: self.violations.len(),
+            missed_periods: self.missed_periods as usize,
+            run_isr_cycles_max: None,
+            isr_longest_cycles: self.isr_longest_cycles,
+            period_cycles: self.period_cycles,
+            masked_max_instrs: self.masked_max_instrs,
+            task_interrupts_max: self.task_interrupts_max,
+        }
+    }
+
+    /// Several power-ups as one outcome: states, events and missed periods per boot in
+    /// order, counts added, maxima kept.
+    fn merged(parts: &[Outcome]) -> Outcome {
+        let mut out = parts.last().cloned().unwrap_or_default();
+        let total: u64 = parts.iter().map(|o| o.control_periods).sum();
+        let mean = |f: fn(&Outcome) -> f64| {
+            parts
+                .iter()
+                .map(|o| f(o) * o.control_periods as f64)
+                .sum::<f64>()
+                / total.max(1) as f64
+        };
+        out.isr_instrs_mean = mean(|o| o.isr_instrs_mean);
+        out.isr_cycles_mean = mean(|o| o.isr_cycles_mean);
+        out.states.clear();
+        out.events.clear();
+        out.missed.clear();
+        out.violations.clear();
+        for o in parts {
+            let b0 = out.states.len();
+            out.events.extend(o.events.iter().map(|e| Event {
+                boot: e.boot + b0,
+                ..e.clone()
+            }));
+            out.states.extend(o.states.iter().cloned());
+            out.missed.extend(o.missed.iter().copied());
+            out.violations.extend(o.violations.iter().cloned());
+        }
+        out.control_periods = total;
+        out.missed_periods = parts.iter().map(|o| o.missed_periods).sum();
+        out.overruns_before_control = parts.iter().map(|o| o.overruns_before_control).sum();
+        out.isr_instrs_max = parts.iter().map(|o| o.isr_instrs_max).max().unwrap_or(0);
+        out.isr_cycles_max = parts.iter().map(|o| o.isr_cycles_max).max().unwrap_or(0);
+        if let Some(l) = parts.iter().max_by_key(|o| o.isr_longest_cycles) {
+            (out.isr_longest_cycles, out.isr_longest_at_ms) =
+                (l.isr_longest_cycles, l.isr_longest_at_ms);
+        }
+        out.task_interrupts_max = parts
+            .iter()
+            .map(|o| o.task_interrupts_max)
+            .max()
+            .unwrap_or(0);
+        out.task_deadline_misses = parts.iter().map(|o| o.task_deadline_misses).sum();
+        out.masked_max_instrs = parts.iter().map(|o| o.masked_max_instrs).max().unwrap_or(0);
+        out.latency_max_instrs = parts
+            .iter()
+            .map(|o| o.latency_max_instrs)
+            .max()
+            .unwrap_or(0);
+        out.boots = parts.iter().map(|o| o.boots).sum();
+        out.hard_faults = parts.iter().map(|o| o.hard_faults).sum();
+        out.nmis = parts.iter().map(|o| o.nmis).sum();
+        out.emulated_s = parts.iter().map(|o| o.emulated_s).sum();
+        out
     }
 
     /// The state sequence of each boot, as one line per boot.
@@ -136,7 +235,12 @@ fn read_stream(emu: &Emu, out: &mut Outcome) -> Result<()> {
 
 /// The rules the models count, as sentences (empty when the firmware kept them all).
 pub fn violations(emu: &Emu) -> Vec<String> {
-    let m = emu.m();
+    violations_of(emu.m())
+}
+
+/// Every counter of the models that means the firmware did something the hardware
+/// would not accept, or that the emulator does not model, as a sentence.
+pub fn violations_of(m: &Machine) -> Vec<String> {
     let mut v = Vec::new();
     let a = m.adcs.violations;
     if a.aden_ignored > 0 {
@@ -165,17 +269,61 @@ pub fn violations(emu: &Emu) -> Vec<String> {
     if m.rcc.latency_too_low > 0 {
         v.push("FLASH: too few wait states for SYSCLK (§3.3.3)".into());
     }
-    if m.flash_ctl.stale_flag_refusals > 0 {
+    let f = &m.flash_ctl;
+    if f.stale_flag_refusals > 0 {
         v.push(format!(
             "FLASH: {} operations refused with PGSERR, error flags of an earlier one still set (§3.3.7)",
-            m.flash_ctl.stale_flag_refusals
+            f.stale_flag_refusals
         ));
     }
-    if m.flash_ctl.code_bank_erases > 0 {
+    for (n, what) in [
+        (
+            f.errors.progerr,
+            "double words programmed over data not erased (PROGERR, §3.3.8)",
+        ),
+        (
+            f.errors.pgaerr,
+            "programming writes misaligned or out of double-word order (PGAERR, §3.3.8)",
+        ),
+        (
+            f.errors.sizerr,
+            "programming writes narrower than a word (SIZERR, §3.3.8)",
+        ),
+        (
+            f.errors.pgserr,
+            "flash writes without PG, while locked, or with PG and PER both set (PGSERR, §3.7.5)",
+        ),
+    ] {
+        if n > 0 {
+            v.push(format!("FLASH: {n} {what}"));
+        }
+    }
+    if f.while_busy > 0 {
+        v.push(format!(
+            "FLASH: {} operations started while BSY (§3.3.7, §3.3.8: wait for BSY first); dropped here, what silicon does with them is not modelled",
+            f.while_busy
+        ));
+    }
+    if f.code_bank_erases > 0 {
         v.push(format!(
             "FLASH: {} page erases in the bank the code runs from: CPU stalled {} ms each (§3.3.8)",
-            m.flash_ctl.code_bank_erases,
+            f.code_bank_erases,
             crate::periph::flash::ERASE_S * 1e3
+        ));
+    }
+    if m.unmodelled.bank_swap > 0 {
+        v.push("SYSCFG: flash bank swap (MEMRMP.FB_MODE = 1, §10.2.1) set: not modelled, the code still runs from the image at 0x0800_0000".into());
+    }
+    if m.cordic.unsupported > 0 {
+        v.push(format!(
+            "CORDIC: {} arguments for a function the model does not compute (cosine and sine only, §17.3)",
+            m.cordic.unsupported
+        ));
+    }
+    if m.iwdg.protected_writes > 0 {
+        v.push(format!(
+            "IWDG: {} writes to PR/RLR without the 0x5555 key, ignored (§42.3.5)",
+            m.iwdg.protected_writes
         ));
     }
     let peaks = m.tim1.peaks.max(1);
@@ -191,16 +339,34 @@ pub fn violations(emu: &Emu) -> Vec<String> {
             m.tim1.breaks_unrouted
         ));
     }
-    if !m.unmodelled.unknown.is_empty() {
-        let list: Vec<String> = m
-            .unmodelled
-            .unknown
-            .keys()
+    if m.tim1.moe_refused > 0 {
+        v.push(format!(
+            "TIM1: MOE written 1 while the break input was active, refused {} times (§28.3.21): the firmware tried to re-arm the bridge during an over-current",
+            m.tim1.moe_refused
+        ));
+    }
+    if m.tim1.aoe_writes > 0 {
+        v.push(format!(
+            "TIM1: BDTR written with AOE = 1 ({}×): MOE set again by the update event after a break is not modelled (§28.3.21)",
+            m.tim1.aoe_writes
+        ));
+    }
+    let addrs = |map: &std::collections::BTreeMap<u32, u64>| {
+        map.keys()
             .map(|a| format!("{a:#010x}"))
-            .collect();
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    if !m.unmodelled.unknown.is_empty() {
         v.push(format!(
             "bus: accesses to registers no model knows: {}",
-            list.join(", ")
+            addrs(&m.unmodelled.unknown)
+        ));
+    }
+    if !m.unmodelled.unknown_ppb.is_empty() {
+        v.push(format!(
+            "private peripheral bus: accesses to registers no model knows (kept as plain memory): {}",
+            addrs(&m.unmodelled.unknown_ppb)
         ));
     }
     v
@@ -213,19 +379,28 @@ fn finish(
     notes: Vec<(String, String)>,
 ) -> Result<Outcome> {
     let m = emu.m();
+    let st = &m.stats;
     let mut out = Outcome {
         name: name.into(),
-        missed_periods: m.adcs.missed_triggers,
-        control_periods: m.stats.isr_count_total,
-        isr_instrs_mean: m.stats.isr_mean(),
-        isr_instrs_max: m.stats.isr_instrs_max,
-        isr_cycles_mean: m.stats.isr_cycles_mean(),
-        isr_cycles_max: m.stats.isr_cycles_max,
+        missed_periods: st.missed_control() as u64,
+        overruns_before_control: st.missed.iter().filter(|x| x.before_control).count() as u64,
+        missed: st.missed.clone(),
+        control_periods: st.isr_count_total,
+        isr_instrs_mean: st.isr_mean(),
+        isr_instrs_max: st.isr_instrs_max,
+        isr_cycles_mean: st.isr_cycles_mean(),
+        isr_cycles_max: st.isr_cycles_max,
         period_cycles: period_cycles(emu),
-        masked_max_instrs: m.stats.masked_max,
-        latency_max_instrs: m.stats.latency_max,
-        boots: m.stats.boots.len(),
-        hard_faults: m.stats.hard_faults.len(),
+        pwm_hz: 1.0 / m.board.period_s(),
+        isr_longest_cycles: st.isr_longest.cycles,
+        isr_longest_at_ms: st.isr_longest.at as f64 / TICK_HZ * 1e3,
+        task_interrupts_max: st.task_from_pend_max,
+        task_deadline_misses: st.task_deadline_misses,
+        masked_max_instrs: st.masked_max_run,
+        latency_max_instrs: st.latency_max,
+        boots: st.boots.len(),
+        hard_faults: st.hard_faults.len(),
+        nmis: st.nmis,
         notes,
         violations: violations(emu),
         emulated_s: m.time_s(),
@@ -251,6 +426,12 @@ fn run_until(
     let step = 0.05;
     let boots = emu.m().stats.boots.len();
     while emu.m().time_s() < limit_s {
+        if emu.m().powered_off {
+            bail!(
+                "{what}: the board's power was cut at {:.1} ms",
+                emu.m().time_s() * 1e3
+            );
+        }
         emu.run_for(step)?;
         let mut o = Outcome::default();
         read_stream(emu, &mut o)?;
@@ -283,7 +464,7 @@ fn run_until_state(emu: &mut Emu, state: &str, limit_s: f64) -> Result<f64> {
 }
 
 /// A board with an erased calibration area, powered on.
-fn fresh(elf: &[u8], flash: Option<Vec<u8>>) -> Result<Emu> {
+fn fresh(elf: &[u8], flash: Option<crate::cpu::KeptFlash>) -> Result<Emu> {
     Emu::new(elf, Board::commissioning(1)?, flash)
 }
 
@@ -309,6 +490,17 @@ pub fn run(name: &str, elf: &[u8]) -> Result<Outcome> {
                     p.residual_run_rad * 1e3
                 ),
             ));
+            for (b, c) in p.run_current.iter().enumerate() {
+                if let Some(c) = c {
+                    p.outcome.notes.push((
+                        format!(
+                            "boot {}: the current against the rotor's q axis in Run (plant)",
+                            b + 1
+                        ),
+                        describe_current(c),
+                    ));
+                }
+            }
             return Ok(p.outcome);
         }
         "wire-break" => {
@@ -348,26 +540,42 @@ pub fn run(name: &str, elf: &[u8]) -> Result<Outcome> {
             let mut emu = fresh(elf, None)?;
             run_until_state(&mut emu, "Run", 4.0)?;
             emu.run_for(0.2)?;
-            // The comparator's threshold below the running current: it trips.
+            // The comparator's threshold below the running current: it trips within the
+            // next period, the break path clears MOE in hardware.
+            let normal_a = emu.m().board.plant.break_level_a;
             emu.m_mut().board.plant.break_level_a = 0.05;
-            let t_trip = emu.m().now;
-            while !emu.m().board.plant.comparator_tripped() && emu.m().now < t_trip + ticks(0.01) {
+            let (t_trip, sets_before) = (emu.m().now, emu.m().tim1.moe_sets);
+            while emu.m().stats.breaks.is_empty() && emu.m().now < t_trip + ticks(0.01) {
                 emu.run_for(1.0e-6)?;
             }
-            let tripped_at = emu.m().now;
-            while Tim1::moe(&emu.m().regs) && emu.m().now < tripped_at + ticks(0.01) {
-                emu.run_for(0.2e-6)?;
-            }
-            let hw = emu.m().tim1.breaks;
-            note("MOE cleared by the break (hardware)", (hw > 0).to_string());
+            let b = *emu
+                .m()
+                .stats
+                .breaks
+                .first()
+                .context("over-current: no break within 10 ms of the comparator's trip")?;
             note(
-                "bridge off after the trip",
+                "comparator crossing → MOE cleared (break filter)",
                 format!(
-                    "{:.1} µs",
-                    (emu.m().now - tripped_at) as f64 / TICK_HZ * 1e6
+                    "{:.3} µs",
+                    (b.moe_cleared - b.crossing) as f64 / TICK_HZ * 1e6
                 ),
             );
+            // The open bridge lets the current fall back under the level; later the
+            // fault is gone altogether (the level back to normal). The supervisor holds
+            // the safe state: nothing may set MOE again.
             emu.run_for(0.05)?;
+            note(
+                "comparator still over its level 50 ms after the trip",
+                emu.m().board.plant.comparator_over().to_string(),
+            );
+            emu.m_mut().board.plant.break_level_a = normal_a;
+            emu.run_for(0.25)?;
+            note(
+                "MOE set again after the trip",
+                (emu.m().tim1.moe_sets - sets_before).to_string(),
+            );
+            note("MOE at the end", Tim1::moe(&emu.m().regs).to_string());
             emu
         }
         "watchdog" => {
@@ -387,7 +595,14 @@ pub fn run(name: &str, elf: &[u8]) -> Result<Outcome> {
                 "watchdog reset after the stall",
                 format!("{:.0} ms", (emu.m().time_s() - t_stall) * 1e3),
             );
+            // The stall's missed periods (the interrupt never returns for long), and
+            // those after the reset.
+            let reset = emu.m().stats.boots.last().map_or(0, |b| b.0);
+            let during = emu.m().stats.missed.iter().filter(|x| x.t < reset).count();
+            note("missed periods during the stall", during.to_string());
             emu.run_for(0.3)?;
+            let after = emu.m().stats.missed.iter().filter(|x| x.t >= reset).count();
+            note("missed periods after the reset", after.to_string());
             emu
         }
         "store-flash-error" => {
@@ -401,6 +616,10 @@ pub fn run(name: &str, elf: &[u8]) -> Result<Outcome> {
             emu.run_for(0.1)?;
             note("MOE in Safe", Tim1::moe(&emu.m().regs).to_string());
             emu
+        }
+        "torn-store" => {
+            let o = torn_store(elf, t0)?;
+            return Ok(o);
         }
         "rtt-host-stops" => {
             let mut emu = fresh(elf, None)?;
@@ -425,6 +644,69 @@ pub fn run(name: &str, elf: &[u8]) -> Result<Outcome> {
     finish(name, &emu, t0, notes)
 }
 
+/// The double word of the calibration record whose programming the power cut
+/// interrupts (the record is 28 double words: this one is in its middle, before the
+/// commit).
+pub const TORN_DOUBLE_WORD: u32 = 14;
+
+/// A power cut while the first store programs the record: the next power-up reads a
+/// torn double word (FLASH_ECCR.ECCD, NMI), must neither fault nor load it, and
+/// commissions again; the one after loads the new record.
+fn torn_store(elf: &[u8], t0: std::time::Instant) -> Result<Outcome> {
+    let mut emu = fresh(elf, None)?;
+    emu.m_mut().power_cut_at_program = Some(TORN_DOUBLE_WORD);
+    emu.run_until(4.0)?;
+    let torn = emu.m().flash_ctl.torn.clone();
+    if !emu.m().powered_off || torn.is_empty() {
+        bail!(
+            "torn-store: the store did not program {TORN_DOUBLE_WORD} double words within 4 s ({} programmed)",
+            emu.m().flash_ctl.programs
+        );
+    }
+    let cut = finish("torn-store", &emu, t0, Vec::new())?;
+    let mut again = fresh(elf, Some(emu.flash()))?;
+    run_until_state(&mut again, "Run", 6.0)?;
+    again.run_for(0.2)?;
+    let m = again.m();
+    let notes = vec![
+        (
+            "power cut while programming".into(),
+            format!(
+                "double word {TORN_DOUBLE_WORD} of the record, at {:#010x}, {:.1} ms after power-on",
+                crate::elf::FLASH_BASE + torn[0],
+                emu.m().time_s() * 1e3
+            ),
+        ),
+        (
+            "boot 2: double ECC errors read (FLASH_ECCR.ECCD), NMIs taken".into(),
+            format!("{}, {}", m.flash_ctl.ecc_double_errors, m.stats.nmis),
+        ),
+        (
+            "boot 2: torn double words left after its store".into(),
+            m.flash_ctl.torn.len().to_string(),
+        ),
+    ];
+    let second = finish("torn-store", &again, t0, notes)?;
+    let mut third = fresh(elf, Some(again.flash()))?;
+    run_until_state(&mut third, "Run", 2.0)?;
+    third.run_for(0.1)?;
+    let last = finish("torn-store", &third, t0, Vec::new())?;
+    let mut out = Outcome::merged(&[cut, second.clone(), last]);
+    out.notes = second.notes;
+    out.wall_s = t0.elapsed().as_secs_f64();
+    Ok(out)
+}
+
+fn describe_current(c: &CurrentVectorStats) -> String {
+    format!(
+        "mean angle error {:+.1} mrad electrical, pk-pk over the rotor angle {:.1} mrad, torque per amp {:.4} (at {:.2} A mean)",
+        c.angle_error_e_rad * 1e3,
+        c.angle_error_e_pk_pk_rad * 1e3,
+        c.torque_per_amp,
+        c.mean_current_a
+    )
+}
+
 /// The main job's power-up: both boots with their streams and the errors.
 pub struct PowerUp {
     pub outcome: Outcome,
@@ -433,48 +715,108 @@ pub struct PowerUp {
     pub raw_error_pkpk_rad: f64,
     pub residual_first_rad: f64,
     pub residual_run_rad: f64,
+    /// Per boot, over Run (from [`RUN_SETTLE_S`] after entering it to the end): the
+    /// current the bridge drove against the true rotor's q axis, from the plant.
+    pub run_current: [Option<CurrentVectorStats>; 2],
+    /// The flash the first boot left (its calibration stored).
+    pub commissioned: crate::cpu::KeptFlash,
+}
+
+/// A power-up on `flash` (a stored calibration) of a board whose sensor has been
+/// remounted `offset_shift_rad` (mechanical) since: the calibration's electrical offset
+/// is then wrong by `offset_shift_rad`·p. Its states, and the current against the rotor's
+/// q axis over Run (plant).
+pub fn remounted_power_up(
+    elf: &[u8],
+    flash: crate::cpu::KeptFlash,
+    offset_shift_rad: f64,
+) -> Result<(Outcome, Option<CurrentVectorStats>)> {
+    let t0 = std::time::Instant::now();
+    let mut board = Board::commissioning(1)?;
+    let mut p = board.plant.sensor.params.clone();
+    p.mount.offset_rad += offset_shift_rad;
+    board.plant.sensor = hil_sim::sensor::SensorSim::new(p, 1)?;
+    let mut emu = Emu::new(elf, board, Some(flash))?;
+    run_until_state(&mut emu, "Run", 2.0)?;
+    emu.run_for(0.3)?;
+    let o = finish("remounted", &emu, t0, Vec::new())?;
+    let c = run_current(&emu, &o, 0);
+    Ok((o, c))
+}
+
+/// Run measures start this long after the stream says Run (the speed ramp to the
+/// application speed of a loaded boot included, the hand-over from commissioning not).
+pub const RUN_SETTLE_S: f64 = 0.1;
+
+/// The plant per control period of boot `boot` (0 = power-on) of `emu`: the entry
+/// for the firmware's `ticks` = k is at k - 1.
+pub fn period_truth(emu: &Emu, boot: usize) -> &[PeriodTruth] {
+    emu.m().period_truth.get(boot).map_or(&[], |v| v.as_slice())
+}
+
+/// The sensor on the board, as the plant-side measures need it.
+pub fn probe(emu: &Emu) -> Probe {
+    Probe::of(&emu.m().board.plant.sensor.params)
+}
+
+/// Streamed estimates of boot `boot`, `(t_ms, θ̂)` with θ̂ mechanical in the motor
+/// frame, against the rotor at their control periods: raw-vs-corrected spatial error
+/// pk-pk (harmonics 1..=16 of the rotor angle, see [`plant_truth::score_estimates`]).
+pub fn score_estimates(emu: &Emu, boot: usize, records: &[(u32, f32)]) -> Result<EstimateScore> {
+    let pwm_hz = 1.0 / emu.m().board.period_s();
+    Ok(plant_truth::score_estimates(
+        period_truth(emu, boot),
+        pwm_hz,
+        &probe(emu),
+        records,
+        hil_sim::scenario::SPECTRUM_HARMONICS_OF_THETA_RM,
+    )?)
+}
+
+/// The periods of boot `boot` from `RUN_SETTLE_S` after the stream's Run to the end.
+fn run_periods<'a>(emu: &'a Emu, o: &Outcome, boot: usize) -> &'a [PeriodTruth] {
+    let log = period_truth(emu, boot);
+    let Some(run_ms) = o.entered(boot, "Run") else {
+        return &[];
+    };
+    let from = ((run_ms as f64 / 1e3 + RUN_SETTLE_S) / emu.m().board.period_s()).round() as usize;
+    log.get(from..).unwrap_or(&[])
+}
+
+/// The current vector over a boot's Run (plant).
+fn run_current(emu: &Emu, o: &Outcome, boot: usize) -> Option<CurrentVectorStats> {
+    let mut cv = CurrentVector::new(&emu.m().board.plant.motor);
+    for p in run_periods(emu, o, boot) {
+        cv.add_period(p);
+    }
+    cv.stats()
 }
 
 /// Erased-flash power-up to Run, then a second power-up with the kept flash.
 pub fn power_up_run(elf: &[u8]) -> Result<PowerUp> {
     let t0 = std::time::Instant::now();
     let mut emu = fresh(elf, None)?;
-    let t_run = run_until_state(&mut emu, "Run", 4.0)?;
+    run_until_state(&mut emu, "Run", 4.0)?;
     emu.run_for(0.5)?;
     let first = finish("power-up", &emu, t0, Vec::new())?;
     let (first_res, run_res) = residuals(&emu)?;
-    let raw = raw_error_pkpk(&emu, t_run);
-    let mut again = fresh(elf, Some(emu.flash()))?;
+    let raw = plant_truth::raw_error_pk_pk_rad(run_periods(&emu, &first, 0), &probe(&emu));
+    let current_1 = run_current(&emu, &first, 0);
+    let commissioned = emu.flash();
+    let mut again = fresh(elf, Some(commissioned.clone()))?;
     run_until_state(&mut again, "Run", 2.0)?;
     again.run_for(0.3)?;
     let second = finish("power-up", &again, t0, Vec::new())?;
-    let mut outcome = second.clone();
-    outcome.states = [first.states.clone(), second.states.clone()].concat();
-    outcome.events = first.events.clone();
-    outcome.events.extend(second.events.iter().map(|e| Event {
-        boot: e.boot + 1,
-        ..e.clone()
-    }));
-    outcome.missed_periods += first.missed_periods;
-    outcome.control_periods += first.control_periods;
-    outcome.isr_instrs_mean = (first.isr_instrs_mean * first.control_periods as f64
-        + second.isr_instrs_mean * second.control_periods as f64)
-        / (first.control_periods + second.control_periods).max(1) as f64;
-    outcome.isr_instrs_max = first.isr_instrs_max.max(second.isr_instrs_max);
-    outcome.isr_cycles_mean = (first.isr_cycles_mean * first.control_periods as f64
-        + second.isr_cycles_mean * second.control_periods as f64)
-        / (first.control_periods + second.control_periods).max(1) as f64;
-    outcome.isr_cycles_max = first.isr_cycles_max.max(second.isr_cycles_max);
-    outcome.masked_max_instrs = first.masked_max_instrs.max(second.masked_max_instrs);
-    outcome.violations = [first.violations.clone(), second.violations.clone()].concat();
-    outcome.emulated_s = first.emulated_s + second.emulated_s;
-    outcome.boots = first.boots + second.boots;
+    let current_2 = run_current(&again, &second, 0);
+    let outcome = Outcome::merged(&[first, second]);
     Ok(PowerUp {
         outcome,
         captures: vec![emu.m().rtt.bytes.clone(), again.m().rtt.bytes.clone()],
         raw_error_pkpk_rad: raw,
         residual_first_rad: first_res,
         residual_run_rad: run_res,
+        run_current: [current_1, current_2],
+        commissioned,
     })
 }
 
@@ -501,38 +843,15 @@ fn residuals(emu: &Emu) -> Result<(f64, f64)> {
     Ok((first, run))
 }
 
-/// The raw sensor's angle error against the simulated rotor (mechanical, within one
-/// sensor period), pk-pk over Run.
-fn raw_error_pkpk(emu: &Emu, from_s: f64) -> f64 {
-    let p = &emu.m().board.plant.sensor.params;
-    let n = p.model.sensor_periods as f64;
-    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-    for t in emu.m().board.truth_log.iter().filter(|t| t.t_s >= from_s) {
-        let magnet = if p.mount.reversed {
-            p.mount.offset_rad - t.theta_rad
-        } else {
-            p.mount.offset_rad + t.theta_rad
-        };
-        let e = drive::align::wrap_pi(
-            (t.y as f64).atan2(t.x as f64) as f32
-                - (n * magnet).rem_euclid(std::f64::consts::TAU) as f32,
-        ) as f64
-            / n;
-        lo = lo.min(e);
-        hi = hi.max(e);
-    }
-    hi - lo
-}
-
 /// docs/performance.md's per-scenario table and details.
 pub fn report(outcomes: &[Outcome], elf_note: &str) -> String {
     let mut s = String::new();
-    let _ = writeln!(s, "| scenario | boots | missed periods | control periods | ISR instructions mean / max | ISR est. cycles mean / max | longest masked stretch (instructions) | longest request→entry (instructions) | emulated |");
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "| scenario | boots | missed periods | control periods | ISR instructions mean / max | ISR est. cycles mean / max | longest interrupt (% of the period) | longest masked stretch (instructions) | adaptation task: interrupts from sample to return (misses) | longest request→entry (instructions) | emulated |");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
     for o in outcomes {
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {:.0} / {} | {:.0} / {} | {} | {} | {:.2} s |",
+            "| {} | {} | {} | {} | {:.0} / {} | {:.0} / {} | {:.1} % | {} | {} ({}) | {} | {:.2} s |",
             o.name,
             o.boots,
             o.missed_periods,
@@ -541,7 +860,10 @@ pub fn report(outcomes: &[Outcome], elf_note: &str) -> String {
             o.isr_instrs_max,
             o.isr_cycles_mean,
             o.isr_cycles_max,
+            100.0 * o.isr_longest_cycles as f64 / o.period_cycles.max(1) as f64,
             o.masked_max_instrs,
+            o.task_interrupts_max,
+            o.task_deadline_misses,
             o.latency_max_instrs,
             o.emulated_s
         );
@@ -564,6 +886,9 @@ pub fn report(outcomes: &[Outcome], elf_note: &str) -> String {
         for (k, v) in &o.notes {
             let _ = writeln!(s, "- {k}: {v}");
         }
+        for l in missed_lines(&o.missed, 5) {
+            let _ = writeln!(s, "- {l}");
+        }
         if o.violations.is_empty() {
             let _ = writeln!(s, "- rules broken: none");
         }
@@ -576,23 +901,69 @@ pub fn report(outcomes: &[Outcome], elf_note: &str) -> String {
     s
 }
 
+/// The missed periods, the first `max` in full and the rest counted by cause.
+pub fn missed_lines(missed: &[Missed], max: usize) -> Vec<String> {
+    let mut out: Vec<String> = missed
+        .iter()
+        .take(max)
+        .map(|x| {
+            format!(
+                "missed period at {:.2} ms: {}",
+                x.t as f64 / TICK_HZ * 1e3,
+                why(x)
+            )
+        })
+        .collect();
+    if missed.len() > max {
+        let mut by: Vec<(&str, usize)> = Vec::new();
+        for x in &missed[max..] {
+            match by.iter_mut().find(|(c, _)| *c == x.cause.describe()) {
+                Some((_, n)) => *n += 1,
+                None => by.push((x.cause.describe(), 1)),
+            }
+        }
+        let rest: Vec<String> = by.iter().map(|(c, n)| format!("{n} × {c}")).collect();
+        out.push(format!(
+            "and {} more missed periods: {}",
+            missed.len() - max,
+            rest.join(", ")
+        ));
+    }
+    out
+}
+
+/// Why a period was missed, in words.
+fn why(x: &Missed) -> String {
+    let when = if x.before_control {
+        "before the control interrupt first ran (init), "
+    } else {
+        ""
+    };
+    let held = match (x.in_isr_instrs, x.masked_instrs) {
+        (Some(n), _) => format!(", the control interrupt {n} instructions in"),
+        (None, Some(n)) => format!(", interrupts masked for {n} instructions"),
+        (None, None) => String::new(),
+    };
+    format!("{when}{}{held}", x.cause.describe())
+}
+
 /// The control interrupt measured over Run: the commissioning power-up of an erased
 /// board, the measurement window restarted when the stream reports `Run` (the stream is
 /// polled every 50 ms of emulated time), then `window_s` in Run.
 #[derive(Clone, Debug)]
 pub struct Perf {
+    pub sensor: SensorBoard,
     /// The PWM rate of the timer, and the one the firmware's banner states.
     pub pwm_hz: f64,
     pub firmware_pwm_hz: Option<u32>,
     pub period_cycles: u64,
     /// The states of the power-up with the firmware's t_ms.
     pub states: Vec<(String, u32)>,
-    /// Missed periods over the whole power-up (every trigger that found the previous
-    /// sequence unread), those after the control interrupt first ran (control periods
-    /// lost), and in the window.
-    pub missed_total: u64,
+    /// Missed control periods after the control interrupt first ran (power-up and
+    /// window), those in the window, and init's overruns before it.
     pub missed_control: u64,
     pub missed_window: u64,
+    pub overruns_before_control: u64,
     pub hard_faults: usize,
     pub violations: Vec<String>,
     pub isr_count: u64,
@@ -610,16 +981,43 @@ pub struct Perf {
     /// When the power-up's longest interrupt ended (ms) and its largest stage (label,
     /// est. cycles).
     pub powerup_isr_max_at: (f64, &'static str, u64),
+    /// The whole run's longest interrupt (est. cycles, ending at ms) and masked stretch.
+    pub longest_isr: (u64, f64),
+    pub masked_max_run: u64,
     /// The adaptation task's longest run before Run and in the window: est. cycles
     /// (preemptions included), control interrupts during it, when it ended (ms).
     pub powerup_task_max: (u64, u64, f64),
     pub task_max: (u64, u64, f64),
+    /// Over the whole run: the most control interrupts entered from a sample to the
+    /// return of the task run that served it (when, ms), and the runs past the deadline.
+    pub task_interrupts_max: (u64, f64),
+    pub task_deadline_misses: u64,
     /// The missed periods: (ms, why, pc of the code running then).
     pub missed: Vec<(f64, String, u32)>,
     pub window_s: f64,
     pub wall_s: f64,
     /// Every path bank the stream named, in order (the first is init's).
     pub banks: Vec<Vec<String>>,
+}
+
+impl Perf {
+    /// What the gate checks ([`budget`]).
+    pub fn budget_measures(&self) -> Measured {
+        Measured {
+            build: Build {
+                pwm_hz: self.pwm_hz.round() as u32,
+                sensor: self.sensor,
+            },
+            hard_faults: self.hard_faults,
+            rules_broken: self.violations.len(),
+            missed_periods: self.missed_control as usize,
+            run_isr_cycles_max: Some(self.isr_cycles_max),
+            isr_longest_cycles: self.longest_isr.0,
+            period_cycles: self.period_cycles,
+            masked_max_instrs: self.masked_max_run,
+            task_interrupts_max: self.task_interrupts_max.0,
+        }
+    }
 }
 
 /// The sensor the emulated board carries: it must be the one the firmware was built for.
@@ -642,7 +1040,7 @@ pub fn perf_run(elf: &[u8], window_s: f64, sensor: SensorBoard) -> Result<Perf> 
     };
     let mut emu = Emu::new(elf, board, None)?;
     run_until_state(&mut emu, "Run", to_run_s)?;
-    let missed_before = emu.m().adcs.missed_triggers;
+    let missed_before = emu.m().stats.missed_control();
     let st = &emu.m().stats;
     let powerup_masked_max = (st.masked_max, st.masked_max_at as f64 / TICK_HZ * 1e3);
     let powerup_isr_max = (st.isr_instrs_max, st.isr_cycles_max);
@@ -706,15 +1104,17 @@ pub fn perf_run(elf: &[u8], window_s: f64, sensor: SensorBoard) -> Result<Perf> 
             .ok(),
         _ => None,
     });
+    let ms = |t: u64| t as f64 / TICK_HZ * 1e3;
     Ok(Perf {
+        sensor,
         banks,
         pwm_hz: 1.0 / m.board.period_s(),
         firmware_pwm_hz,
         period_cycles: period_cycles(&emu),
         states: out.states.first().cloned().unwrap_or_default(),
-        missed_total: m.adcs.missed_triggers,
-        missed_control: st.missed.iter().filter(|x| !x.before_control).count() as u64,
-        missed_window: m.adcs.missed_triggers - missed_before,
+        missed_control: st.missed_control() as u64,
+        missed_window: (st.missed_control() - missed_before) as u64,
+        overruns_before_control: out.overruns_before_control,
         hard_faults: st.hard_faults.len(),
         violations: out.violations,
         isr_count: st.isr_count,
@@ -727,34 +1127,20 @@ pub fn perf_run(elf: &[u8], window_s: f64, sensor: SensorBoard) -> Result<Perf> 
         powerup_masked_max,
         powerup_isr_max,
         powerup_isr_max_at,
+        longest_isr: (st.isr_longest.cycles, ms(st.isr_longest.at)),
+        masked_max_run: st.masked_max_run,
         powerup_task_max,
         task_max: task_max(st),
-        missed: st
-            .missed
-            .iter()
-            .map(|x| {
-                let when = if x.before_control {
-                    "before the control interrupt first ran (init), "
-                } else {
-                    ""
-                };
-                let why = match (x.in_isr_instrs, x.masked_instrs) {
-                    (Some(n), _) => {
-                        format!("the control interrupt still running ({n} instructions in)")
-                    }
-                    (None, Some(n)) => format!("interrupts masked for {n} instructions"),
-                    (None, None) => "the interrupt pending behind another".to_string(),
-                };
-                (x.t as f64 / TICK_HZ * 1e3, format!("{when}{why}"), x.pc)
-            })
-            .collect(),
+        task_interrupts_max: (st.task_from_pend_max, ms(st.task_from_pend_max_at)),
+        task_deadline_misses: st.task_deadline_misses,
+        missed: st.missed.iter().map(|x| (ms(x.t), why(x), x.pc)).collect(),
         window_s,
         wall_s: t0.elapsed().as_secs_f64(),
     })
 }
 
-/// docs/performance.md's table of one build: the stages, the whole interrupt and the
-/// period's figures.
+/// docs/performance.md's table of one build: the stages, the whole interrupt, the
+/// period's figures and the gate's verdicts.
 pub fn perf_table(p: &Perf, title: &str) -> String {
     let mut s = String::new();
     let _ = writeln!(
@@ -784,7 +1170,7 @@ pub fn perf_table(p: &Perf, title: &str) -> String {
         .collect();
     let _ = writeln!(
         s,
-        "- whole interrupt: {:.0} cycles mean ({:.1} % of the period), {} max ({:.1} %), over {} interrupts in {:.1} s of Run",
+        "- whole interrupt in Run: {:.0} cycles mean ({:.1} % of the period), {} max ({:.1} %), over {} interrupts in {:.1} s of Run",
         p.isr_cycles_mean,
         share(p.isr_cycles_mean),
         p.isr_cycles_max,
@@ -794,15 +1180,22 @@ pub fn perf_table(p: &Perf, title: &str) -> String {
     );
     let _ = writeln!(
         s,
-        "- longest interrupt-masked stretch in Run: {} instructions",
-        p.masked_max_instrs
+        "- longest control interrupt at any moment: {} est. cycles ({:.1} % of the period), ending at {:.1} ms",
+        p.longest_isr.0,
+        share(p.longest_isr.0 as f64),
+        p.longest_isr.1
     );
     let _ = writeln!(
         s,
-        "- missed control periods: {} after the control interrupt started, {} in the window (trigger overruns over the whole power-up, init included: {}); HardFaults: {}; rules broken: {}",
+        "- longest interrupt-masked stretch: {} instructions in Run, {} over the run",
+        p.masked_max_instrs, p.masked_max_run
+    );
+    let _ = writeln!(
+        s,
+        "- missed control periods (a trigger finding the control interrupt running, the previous sequence unread or converting, or the ADC not armed): {} after the control interrupt started, {} in the window; init's overruns before it: {}; HardFaults: {}; rules broken: {}",
         p.missed_control,
         p.missed_window,
-        p.missed_total,
+        p.overruns_before_control,
         p.hard_faults,
         if p.violations.is_empty() { "none".to_string() } else { p.violations.join("; ") }
     );
@@ -813,23 +1206,32 @@ pub fn perf_table(p: &Perf, title: &str) -> String {
         p.powerup_masked_max.1,
         p.powerup_isr_max.0,
         p.powerup_isr_max.1,
-        100.0 * p.powerup_isr_max.1 as f64 / p.period_cycles.max(1) as f64,
+        share(p.powerup_isr_max.1 as f64),
         p.powerup_isr_max_at.0,
         p.powerup_isr_max_at.2,
         p.powerup_isr_max_at.1
     );
     let _ = writeln!(
         s,
-        "- adaptation task (its updates are due {} periods after their sample): longest run {} est. cycles before Run (ending at {:.1} ms), {} in Run, control interrupts included; during it at most {} control periods before Run, {} in Run",
+        "- adaptation task (an update is in force {} periods after its sample: the task returns before the {}th control interrupt after it enters): at most {} control interrupts entered from a sample to the return that served it{}, {} runs late; longest run {} est. cycles before Run (ending at {:.1} ms), {} in Run, control interrupts included",
         mras::UPDATE_LATENCY_PERIODS,
+        mras::UPDATE_LATENCY_PERIODS,
+        p.task_interrupts_max.0,
+        if p.task_interrupts_max.0 > 0 {
+            format!(" (ending at {:.1} ms)", p.task_interrupts_max.1)
+        } else {
+            String::new()
+        },
+        p.task_deadline_misses,
         p.powerup_task_max.0,
         p.powerup_task_max.2,
         p.task_max.0,
-        p.powerup_task_max.1,
-        p.task_max.1
     );
-    for (ms, why, _) in &p.missed {
-        let _ = writeln!(s, "- trigger overrun at {ms:.1} ms: {why}");
+    for (ms, why, _) in p.missed.iter().take(5) {
+        let _ = writeln!(s, "- missed period at {ms:.2} ms: {why}");
+    }
+    if p.missed.len() > 5 {
+        let _ = writeln!(s, "- and {} more missed periods", p.missed.len() - 5);
     }
     let _ = writeln!(s, "- power-up: {}", states.join(" → "));
     if p.banks.len() > 1 {
@@ -843,5 +1245,9 @@ pub fn perf_table(p: &Perf, title: &str) -> String {
                 .join(" → ")
         );
     }
+    let _ = writeln!(s, "\nThe gate (`drive-emu perf`):\n");
+    s.push_str(&budget::verdict_lines(&budget::evaluate(
+        &p.budget_measures(),
+    )));
     s
 }

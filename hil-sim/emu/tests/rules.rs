@@ -5,7 +5,7 @@
 use drive_emu::board::Board;
 use drive_emu::machine::Machine;
 use drive_emu::periph::flash::{CR as FLASH_CR, KEYR, SR as FLASH_SR};
-use drive_emu::periph::rcc::{AHB2ENR, APB2ENR};
+use drive_emu::periph::rcc::{AHB1ENR, AHB2ENR, APB2ENR};
 use drive_emu::periph::ticks;
 use drive_emu::periph::tim1::{self, Tim1};
 use drive_emu::rtt::Rtt;
@@ -176,4 +176,394 @@ fn bkin_clears_moe_only_when_routed_by_af1() {
         !break_clears_moe(false),
         "AF1.BKINE = 0: the pin does not reach the break"
     );
+}
+
+// ---- missed control periods, as the hardware sees them ----
+
+use drive_emu::machine::{ADC1_2_IRQ, USART3_IRQ};
+use drive_emu::nvic::irq;
+use drive_emu::scenarios::violations_of;
+use drive_emu::stats::MissCause;
+
+const ADC1_IER: u32 = 0x5000_0004;
+const ADC1_JSQR: u32 = 0x5000_004C;
+const ISR_JEOS: u32 = 1 << 6;
+/// One PWM period of `pwm()`: centre-aligned, ARR 4250 at 170 MHz.
+const PERIOD_S: f64 = 50e-6;
+
+/// The firmware's acquisition: ADC1 calibrated and enabled, the injected pair on
+/// TIM1 TRGO2 (JEXTSEL 8, rising edge), JEOS raising ADC1_2, TIM1 running.
+fn acquisition(m: &mut Machine) {
+    calibrated_adc(m);
+    wait(m, 1e-6);
+    m.mmio_write(ADC1_CR, 4, 1 << 28 | 1); // ADEN
+    wait(m, 1e-6);
+    m.mmio_write(ADC1_JSQR, 4, 1 | 8 << 2 | 1 << 7 | 1 << 9 | 6 << 15);
+    m.mmio_write(ADC1_IER, 4, ISR_JEOS);
+    m.mmio_write(ADC1_CR, 4, 1 << 28 | 1 | 1 << 3); // JADSTART
+    pwm(m, 1, true);
+}
+
+/// Wait (in 1 µs steps) until the control interrupt is requested.
+fn until_requested(m: &mut Machine) {
+    for _ in 0..200 {
+        if m.nvic.irq_pending(ADC1_2_IRQ) {
+            return;
+        }
+        wait(m, 1e-6);
+    }
+    panic!("no control interrupt requested within 200 µs");
+}
+
+/// Control interrupts that clear JEOS at entry (as the firmware's `Adcs::read` does)
+/// and last `periods` PWM periods each, `n` times back to back.
+fn control_interrupts(m: &mut Machine, periods: f64, n: usize) {
+    for _ in 0..n {
+        until_requested(m);
+        m.exception_entered(irq(ADC1_2_IRQ), 0);
+        m.mmio_write(ADC1_ISR, 4, ISR_JEOS);
+        wait(m, periods * PERIOD_S);
+        m.exception_returned(0);
+    }
+}
+
+#[test]
+fn a_control_interrupt_of_one_and_a_half_periods_misses_periods_though_jeos_is_read() {
+    let mut m = machine();
+    acquisition(&mut m);
+    control_interrupts(&mut m, 0.4, 10);
+    assert!(m.stats.missed.is_empty(), "{:?}", m.stats.missed);
+    control_interrupts(&mut m, 1.5, 20);
+    let missed = &m.stats.missed;
+    // Every trigger lands in an interrupt that runs back to back with the next: the
+    // whole stretch (about 30 periods) is missed, and never by an unread sequence,
+    // which is all a JEOS-only count would have seen.
+    assert!(missed.len() >= 25, "{} missed: {missed:?}", missed.len());
+    assert!(missed
+        .iter()
+        .all(|x| x.cause == MissCause::ControlRunning && !x.before_control));
+    assert!(missed.iter().all(|x| x.in_isr_instrs.is_some()));
+}
+
+#[test]
+fn a_sequence_left_unread_or_an_adc_disarmed_after_the_control_ran_is_a_missed_period() {
+    let mut m = machine();
+    acquisition(&mut m);
+    // Before the control interrupt ever ran (init): counted apart.
+    until_requested(&mut m);
+    wait(&mut m, PERIOD_S);
+    assert!(m.stats.missed.iter().all(|x| x.before_control));
+    assert_eq!(m.stats.missed_control(), 0);
+    // The interrupt runs but leaves JEOS set: the next trigger finds it unread.
+    m.exception_entered(irq(ADC1_2_IRQ), 0);
+    m.exception_returned(0);
+    m.mmio_write(ADC1_IER, 4, 0); // no more requests: nothing reads the sequence
+    wait(&mut m, 2.0 * PERIOD_S);
+    assert!(m
+        .stats
+        .missed
+        .iter()
+        .any(|x| x.cause == MissCause::SequenceUnread && !x.before_control));
+    // The ADC disabled (ADDIS) once the control interrupt has run: triggers are lost.
+    m.mmio_write(ADC1_ISR, 4, ISR_JEOS);
+    m.mmio_write(ADC1_CR, 4, 1 << 28 | 1 << 1);
+    let before = m.stats.missed.len();
+    wait(&mut m, 3.0 * PERIOD_S);
+    let lost: Vec<_> = m.stats.missed[before..].iter().map(|x| x.cause).collect();
+    assert!(
+        lost.len() >= 2 && lost.iter().all(|c| *c == MissCause::AdcNotArmed),
+        "{lost:?}"
+    );
+}
+
+#[test]
+fn the_adaptation_task_returning_after_its_update_is_due_misses_its_deadline() {
+    let mut m = machine();
+    let ispr1 = 0xE000_E204;
+    // Sample handed over in control interrupt k: USART3 pended from it.
+    m.exception_entered(irq(ADC1_2_IRQ), 0);
+    m.ppb_write(ispr1, 4, 1 << (USART3_IRQ - 32));
+    m.exception_returned(0);
+    m.exception_entered(irq(USART3_IRQ), 0);
+    // Three control interrupts preempt it: the update is still in time.
+    for _ in 0..3 {
+        m.exception_entered(irq(ADC1_2_IRQ), 0);
+        m.exception_returned(0);
+    }
+    m.exception_returned(0);
+    assert_eq!(
+        (m.stats.task_from_pend_max, m.stats.task_deadline_misses),
+        (3, 0)
+    );
+    // Four: the fourth applies updates due by then, and this one is not in the queue.
+    m.exception_entered(irq(ADC1_2_IRQ), 0);
+    m.ppb_write(0xE000_EF00, 4, USART3_IRQ as u32); // STIR
+    m.exception_returned(0);
+    m.exception_entered(irq(USART3_IRQ), 0);
+    for _ in 0..4 {
+        m.exception_entered(irq(ADC1_2_IRQ), 0);
+        m.exception_returned(0);
+    }
+    m.exception_returned(0);
+    assert_eq!(
+        (m.stats.task_from_pend_max, m.stats.task_deadline_misses),
+        (4, 1)
+    );
+}
+
+// ---- over-current: the comparator as a level through the break filter ----
+
+/// PA6 on AF6 (TIM1_BKIN), TIM1 running with MOE on, BKF as given, the comparator's
+/// level just above the standing current.
+fn overcurrent_bench(bkf: u32) -> Machine {
+    let mut m = machine();
+    m.mmio_write(AHB2ENR, 4, 1);
+    m.mmio_write(0x4800_0000, 4, 0b10 << 12);
+    m.mmio_write(0x4800_0020, 4, 6 << 24);
+    pwm(&mut m, 1, true);
+    let bdtr = 85 | 1 << 12 | 1 << 10 | 1 << 11 | bkf << 16;
+    m.mmio_write(tim1::BDTR, 4, bdtr);
+    m.mmio_write(tim1::BDTR, 4, bdtr | 1 << 15);
+    // Phase a high a little longer than b and c: a few amperes through the windings.
+    m.mmio_write(tim1::CCR1, 4, 2200);
+    m.mmio_write(tim1::CCR1 + 4, 4, 2125);
+    m.mmio_write(tim1::CCR1 + 8, 4, 2125);
+    for _ in 0..40 {
+        wait(&mut m, PERIOD_S);
+    }
+    assert!(Tim1::moe(&m.regs));
+    m
+}
+
+fn trip(m: &mut Machine) {
+    m.board.plant.break_level_a = 1e-3;
+    for _ in 0..4 {
+        wait(m, PERIOD_S);
+    }
+}
+
+#[test]
+fn the_break_clears_moe_its_filter_after_the_comparator_crosses() {
+    for (bkf, latency_s) in [(0, 0.0), (3, 8.0 / 170e6), (15, 8.0 * 32.0 / 170e6)] {
+        let mut m = overcurrent_bench(bkf);
+        trip(&mut m);
+        assert!(!Tim1::moe(&m.regs), "BKF {bkf}");
+        let b = m.stats.breaks[0];
+        let dt = (b.moe_cleared - b.crossing) as f64 / 170e6;
+        assert!((dt - latency_s).abs() < 1.5 / 170e6, "BKF {bkf}: {dt} s");
+        // The bridge opened: the current fell, and the comparator (a level) with it.
+        assert!(!m.board.plant.comparator_over(), "BKF {bkf}");
+    }
+}
+
+#[test]
+fn moe_written_during_an_active_break_is_refused_and_reported() {
+    let mut m = overcurrent_bench(3);
+    // Any current, none included, is over a negative level: the break stays active.
+    m.board.plant.break_level_a = -1.0;
+    wait(&mut m, 2.0 * PERIOD_S);
+    assert!(!Tim1::moe(&m.regs));
+    let bdtr = m.mmio_read(tim1::BDTR, 4);
+    m.mmio_write(tim1::BDTR, 4, bdtr | 1 << 15);
+    assert!(!Tim1::moe(&m.regs));
+    assert_eq!(m.tim1.moe_refused, 1);
+    assert!(violations_of(&m)
+        .iter()
+        .any(|v| v.contains("MOE written 1 while the break input was active")));
+    // Once the level is back under, the hardware takes MOE again: whether the firmware
+    // does is its supervisor's business (the overcurrent scenario checks that it
+    // does not).
+    m.board.plant.break_level_a = 100.0;
+    wait(&mut m, 2.0 * PERIOD_S);
+    let sets = m.tim1.moe_sets;
+    m.mmio_write(tim1::BDTR, 4, bdtr | 1 << 15);
+    assert!(Tim1::moe(&m.regs));
+    assert_eq!(m.tim1.moe_sets, sets + 1);
+}
+
+#[test]
+fn the_comparator_pin_reads_low_only_while_over_its_level() {
+    let mut m = overcurrent_bench(3);
+    let idr = 0x4800_0010;
+    assert_ne!(m.mmio_read(idr, 4) & 1 << 6, 0, "pulled up");
+    m.board.plant.break_level_a = -1.0;
+    wait(&mut m, PERIOD_S);
+    assert_eq!(m.mmio_read(idr, 4) & 1 << 6, 0);
+}
+
+// ---- flash: errors, BSY, a torn double word ----
+
+/// Unlocked with PG set.
+fn programming(m: &mut Machine) {
+    m.mmio_write(KEYR, 4, 0x4567_0123);
+    m.mmio_write(KEYR, 4, 0xCDEF_89AB);
+    m.mmio_write(FLASH_CR, 4, 1);
+}
+
+const CALIB: u32 = 0x7F000;
+
+#[test]
+fn flash_programming_errors_are_reported_by_flag() {
+    type Case = fn(&mut Machine);
+    let cases: [(&str, Case); 6] = [
+        ("PROGERR", |m| {
+            m.flash_write(CALIB, 4, 1);
+            m.flash_write(CALIB + 4, 4, 2);
+            wait(m, 1e-3);
+            m.flash_write(CALIB, 4, 3);
+            m.flash_write(CALIB + 4, 4, 4);
+        }),
+        ("PGAERR", |m| m.flash_write(CALIB + 4, 4, 1)),
+        ("SIZERR", |m| m.flash_write(CALIB, 2, 1)),
+        ("PGSERR", |m| {
+            m.mmio_write(FLASH_CR, 4, 0);
+            m.flash_write(CALIB, 4, 1);
+        }),
+        ("while BSY", |m| {
+            m.flash_write(CALIB, 4, 1);
+            m.flash_write(CALIB + 4, 4, 2);
+            m.flash_write(CALIB + 8, 4, 1);
+            m.flash_write(CALIB + 12, 4, 2);
+        }),
+        ("stale", |m| {
+            m.flash_write(CALIB, 2, 1);
+            m.flash_write(CALIB, 4, 1);
+            m.flash_write(CALIB + 4, 4, 2);
+        }),
+    ];
+    for (flag, f) in cases {
+        let mut m = machine();
+        programming(&mut m);
+        f(&mut m);
+        let v = violations_of(&m);
+        let key = match flag {
+            "while BSY" => "while BSY",
+            "stale" => "error flags of an earlier one still set",
+            k => k,
+        };
+        assert!(v.iter().any(|s| s.contains(key)), "{flag}: {v:#?}");
+    }
+    // A sequence that keeps every rule breaks none.
+    let mut m = machine();
+    programming(&mut m);
+    m.flash_write(CALIB, 4, 1);
+    m.flash_write(CALIB + 4, 4, 2);
+    wait(&mut m, 1e-3);
+    m.flash_write(CALIB + 8, 4, 1);
+    m.flash_write(CALIB + 12, 4, 2);
+    assert!(violations_of(&m).is_empty(), "{:#?}", violations_of(&m));
+}
+
+#[test]
+fn a_power_cut_while_programming_tears_the_double_word_and_its_read_raises_the_nmi() {
+    let mut m = machine();
+    programming(&mut m);
+    m.flash_write(CALIB, 4, 0x1111_1111);
+    m.flash_write(CALIB + 4, 4, 0x2222_2222);
+    assert_eq!(m.power_cut(), Some(CALIB));
+    assert_eq!(m.flash_read(CALIB + 4, 4), 0xFFFF_FFFF, "half programmed");
+    assert!(m.nvic.nmi_pending);
+    let eccr = 0x4002_2018;
+    assert_ne!(m.mmio_read(eccr, 4) & 1 << 31, 0, "ECCD");
+    // ECCD is cleared by writing 1 (what the firmware's NMI handler does).
+    m.mmio_write(eccr, 4, 1 << 31);
+    assert_eq!(m.mmio_read(eccr, 4) & 1 << 31, 0);
+    // A word elsewhere reads without error; erasing the page removes the torn word.
+    m.nvic.nmi_pending = false;
+    m.flash_read(CALIB + 8, 4);
+    assert!(!m.nvic.nmi_pending);
+    wait(&mut m, 1e-3);
+    m.mmio_write(FLASH_CR, 4, 0);
+    erase(&mut m, true, 126);
+    assert!(m.flash_ctl.torn.is_empty());
+    // Nothing torn without a programming under way.
+    assert_eq!(m.power_cut(), None);
+}
+
+#[test]
+fn the_code_bank_follows_the_bank_swap_which_is_reported() {
+    let mut m = machine();
+    m.mmio_write(APB2ENR, 4, 1); // SYSCFG
+    m.mmio_write(0x4001_0000, 4, 1 << 8); // FB_MODE
+    erase(&mut m, true, 126);
+    assert_eq!(m.flash_ctl.code_bank_erases, 1, "bank 2 holds the code now");
+    assert!(violations_of(&m).iter().any(|v| v.contains("FB_MODE")));
+}
+
+// ---- the other counters ----
+
+#[test]
+fn cordic_functions_the_model_does_not_compute_are_reported() {
+    let mut m = machine();
+    m.mmio_write(AHB1ENR, 4, 1 << 3); // CORDICEN
+    m.mmio_write(drive_emu::periph::misc::CORDIC_CSR, 4, 0);
+    m.mmio_write(drive_emu::periph::misc::CORDIC_WDATA, 4, 0x2000_0000);
+    assert!(violations_of(&m).is_empty());
+    m.mmio_write(drive_emu::periph::misc::CORDIC_CSR, 4, 3); // arctangent
+    m.mmio_write(drive_emu::periph::misc::CORDIC_WDATA, 4, 0x2000_0000);
+    assert!(violations_of(&m).iter().any(|v| v.contains("CORDIC")));
+}
+
+#[test]
+fn iwdg_prescaler_writes_without_the_key_are_ignored_and_reported() {
+    let mut m = machine();
+    use drive_emu::periph::misc::{IWDG_KR, IWDG_PR};
+    m.mmio_write(IWDG_PR, 4, 3);
+    assert_eq!(m.mmio_read(IWDG_PR, 4), 0);
+    assert!(violations_of(&m).iter().any(|v| v.contains("IWDG")));
+    let mut m = machine();
+    m.mmio_write(IWDG_KR, 4, 0x5555);
+    m.mmio_write(IWDG_PR, 4, 3);
+    assert_eq!(m.mmio_read(IWDG_PR, 4), 3);
+    assert!(violations_of(&m).is_empty());
+}
+
+#[test]
+fn unknown_registers_on_either_bus_and_aoe_are_reported() {
+    let mut m = machine();
+    m.ppb_write(0xE000_E010, 4, 0); // SysTick CSR: known, plain
+    assert!(violations_of(&m).is_empty());
+    m.ppb_write(0xE000_EF50, 4, 0); // ICIALLU: a Cortex-M7 cache register
+    assert!(violations_of(&m)
+        .iter()
+        .any(|v| v.contains("private peripheral bus") && v.contains("0xe000ef50")));
+    let mut m = machine();
+    m.mmio_read(0x4000_2C00, 4); // no register there in the models
+    assert!(violations_of(&m).iter().any(|v| v.contains("0x40002c00")));
+    let mut m = machine();
+    m.mmio_write(APB2ENR, 4, 1 << 11);
+    m.mmio_write(tim1::BDTR, 4, 1 << 14); // AOE
+    assert!(violations_of(&m).iter().any(|v| v.contains("AOE")));
+}
+
+#[test]
+fn the_pll_locks_after_its_start_up_and_a_switch_waits_for_it() {
+    use drive_emu::periph::rcc::{CFGR, CR, PLLCFGR};
+    let mut m = machine();
+    // HSI16 / 4 · 85 / 2 = 170 MHz.
+    m.mmio_write(PLLCFGR, 4, 2 | 3 << 4 | 85 << 8 | 1 << 24);
+    m.mmio_write(CR, 4, 1 << 8 | 1 << 24);
+    assert_eq!(
+        m.mmio_read(CR, 4) & 1 << 25,
+        0,
+        "PLLRDY only after it locks"
+    );
+    m.mmio_write(CFGR, 4, 3);
+    assert_eq!(
+        m.mmio_read(CFGR, 4) >> 2 & 3,
+        1,
+        "the switch waits, on HSI16"
+    );
+    wait(&mut m, 50e-6);
+    assert_ne!(m.mmio_read(CR, 4) & 1 << 25, 0);
+    assert_eq!(m.mmio_read(CFGR, 4) >> 2 & 3, 3);
+    assert_eq!(m.rcc.sysclk_hz, 170_000_000);
+    // HSE: the NUCLEO-G474RE's 24 MHz crystal, 2 ms to start.
+    m.mmio_write(CR, 4, 1 << 8 | 1 << 24 | 1 << 16);
+    wait(&mut m, 1e-3);
+    assert_eq!(m.mmio_read(CR, 4) & 1 << 17, 0);
+    wait(&mut m, 1.5e-3);
+    assert_ne!(m.mmio_read(CR, 4) & 1 << 17, 0);
+    m.mmio_write(CFGR, 4, 2);
+    assert_eq!(m.rcc.sysclk_hz, 24_000_000);
 }

@@ -2,7 +2,9 @@
 //! Needs the release ELF (`cargo xtask build-cross`); `DRIVE_EMU_ELF` runs another one
 //! (e.g. an older firmware, to see which rules it breaks).
 
-use drive_emu::scenarios::{self, Outcome};
+use drive_emu::budget;
+use drive_emu::scenarios::{self, Outcome, SensorBoard};
+use drive_emu::stats::MissCause;
 
 fn elf() -> Vec<u8> {
     let path = std::env::var_os("DRIVE_EMU_ELF")
@@ -22,50 +24,113 @@ fn run(name: &str) -> Outcome {
     o
 }
 
-/// What every scenario must show: no missed control period, no fault the scenario did
-/// not cause, no hardware rule broken.
+/// What every scenario must show: the budgets of `budget.rs` (no missed control
+/// period, no HardFault, no hardware rule broken, every control interrupt within its
+/// share of the period, masked stretches and the adaptation task's deadline; a build's
+/// known failures as listed there).
 fn healthy(o: &Outcome) {
-    assert_eq!(o.missed_periods, 0, "{}: missed control periods", o.name);
-    assert_eq!(o.hard_faults, 0, "{}: HardFault", o.name);
+    let v = budget::evaluate(&o.budget_measures(SensorBoard::Kmz41));
+    let failed: Vec<String> = v
+        .iter()
+        .filter(|x| x.fails())
+        .map(|x| x.describe())
+        .collect();
     assert!(
-        o.violations.is_empty(),
-        "{}: rules broken: {:#?}",
+        failed.is_empty(),
+        "{}: over budget:\n  {}\nrules broken: {:#?}\nmissed: {:#?}",
         o.name,
-        o.violations
-    );
-    assert!(
-        o.isr_cycles_max < o.period_cycles,
-        "{}: the control interrupt overran the period",
-        o.name
+        failed.join("\n  "),
+        o.violations,
+        scenarios::missed_lines(&o.missed, 5)
     );
 }
+
+/// The note `key` as a number (its unit after a space, if any).
+fn number(o: &Outcome, key: &str) -> f64 {
+    let v = o
+        .note(key)
+        .unwrap_or_else(|| panic!("{}: no note `{key}`", o.name));
+    v.split(' ')
+        .next()
+        .and_then(|x| x.parse().ok())
+        .unwrap_or_else(|| panic!("{}: `{key}` = `{v}` is not a number", o.name))
+}
+
+fn event_in(o: &Outcome, boot: usize, kind: &str, text: &str) -> bool {
+    o.events
+        .iter()
+        .any(|e| e.boot == boot && e.kind == kind && e.text.contains(text))
+}
+
+fn states(o: &Outcome, boot: usize) -> Vec<&str> {
+    o.states[boot].iter().map(|(s, _)| s.as_str()).collect()
+}
+
+const COMMISSIONING: [&str; 8] = [
+    "LoadCalibration",
+    "Align",
+    "Sweep",
+    "SpinUp",
+    "Adapt",
+    "Verify",
+    "Store",
+    "Run",
+];
 
 #[test]
 fn erased_flash_commissions_to_run_then_the_next_power_up_loads() {
     let o = run("power-up");
     healthy(&o);
-    let seq: Vec<&str> = o.states[0].iter().map(|(s, _)| s.as_str()).collect();
-    assert_eq!(
-        seq,
-        [
-            "LoadCalibration",
-            "Align",
-            "Sweep",
-            "SpinUp",
-            "Adapt",
-            "Verify",
-            "Store",
-            "Run"
-        ]
-    );
+    assert_eq!(states(&o, 0), COMMISSIONING);
     assert!(o.has_event("mras-stored", ""));
-    let second: Vec<&str> = o.states[1].iter().map(|(s, _)| s.as_str()).collect();
-    assert_eq!(second, ["LoadCalibration", "Run"]);
+    assert_eq!(states(&o, 1), ["LoadCalibration", "Run"]);
     assert!(o.has_event("mras-loaded", ""));
     assert!(
         o.entered(1, "Run").unwrap() < 200,
         "the stored calibration loads at once"
     );
+}
+
+/// The drive's angle at the plant, in Run, both boots: the current the bridge drives
+/// against the true rotor's q axis (never what the firmware reports). Measured on this
+/// release ELF: mean +2.1 / +4.4 mrad electrical, pk-pk over the rotor angle 11.1 /
+/// 16.6 mrad, torque per amp 0.9999 (commissioned / loaded boot). Bounds at about 2x:
+/// mean within 10 mrad, pk-pk within 35 mrad; torque per amp at least 0.999 (the cost
+/// of a 45 mrad error). An electrical offset 0.3 rad off gives 300 mrad and 0.955; a
+/// correction of the wrong sign doubles the raw sensor's error (asserted here to be
+/// over 100 mrad mechanical, over 400 mrad electrical pk-pk), far past both. The
+/// offset case is run here too: the calibration loaded on a sensor remounted since
+/// measures -296 mrad and 0.957.
+#[test]
+fn in_run_the_current_is_on_the_rotors_q_axis_at_the_plant() {
+    let p = scenarios::power_up_run(&elf()).unwrap_or_else(|e| panic!("{e:#}"));
+    assert!(
+        p.raw_error_pkpk_rad > 0.1,
+        "raw {} rad",
+        p.raw_error_pkpk_rad
+    );
+    for (b, c) in p.run_current.iter().enumerate() {
+        let c = c.unwrap_or_else(|| panic!("boot {}: no Run window", b + 1));
+        eprintln!("boot {}: {c:?}", b + 1);
+        assert!(c.periods > 2_000, "boot {}: {c:?}", b + 1);
+        assert!(c.angle_error_e_rad.abs() < 10e-3, "boot {}: {c:?}", b + 1);
+        assert!(c.angle_error_e_pk_pk_rad < 35e-3, "boot {}: {c:?}", b + 1);
+        assert!(c.torque_per_amp > 0.999, "boot {}: {c:?}", b + 1);
+    }
+    // The same bounds fail a drive whose electrical offset is 0.3 rad wrong: the
+    // stored calibration loaded on a board whose sensor was remounted 0.3/p rad since.
+    let p_pairs = drive_emu::board::Board::commissioning(1)
+        .unwrap()
+        .plant
+        .motor
+        .pole_pairs as f64;
+    let (o, c) = scenarios::remounted_power_up(&elf(), p.commissioned, 0.3 / p_pairs)
+        .unwrap_or_else(|e| panic!("{e:#}"));
+    let c = c.expect("a Run window");
+    eprintln!("remounted: {c:?}");
+    assert_eq!(states(&o, 0), ["LoadCalibration", "Run"]);
+    assert!(c.angle_error_e_rad.abs() > 0.2, "{c:?}");
+    assert!(c.torque_per_amp < 0.98, "{c:?}");
 }
 
 #[test]
@@ -84,29 +149,78 @@ fn a_sensor_wire_break_in_run_turns_the_bridge_off_within_one_period() {
 }
 
 #[test]
-fn over_current_on_bkin_clears_moe_in_hardware() {
+fn over_current_on_bkin_clears_moe_in_hardware_and_the_bridge_stays_off() {
     let o = run("overcurrent");
     healthy(&o);
-    assert_eq!(o.note("MOE cleared by the break (hardware)"), Some("true"));
     assert!(o.has_event("mras-fault", "cause=OverCurrent"));
+    // The comparator's crossing to MOE clear: the break filter (BKF), more than
+    // nothing and within a period.
+    let us = number(&o, "comparator crossing → MOE cleared (break filter)");
+    assert!(us > 0.0 && us < 1e6 / o.pwm_hz, "{us} µs");
+    // The supervisor holds the safe state after OverCurrent (it releases only on a
+    // restart, which nothing asks for): MOE stays 0 once the current has fallen back
+    // under the level, and after the level is back to normal.
+    assert_eq!(
+        o.note("comparator still over its level 50 ms after the trip"),
+        Some("false")
+    );
+    assert_eq!(number(&o, "MOE set again after the trip"), 0.0);
+    assert_eq!(o.note("MOE at the end"), Some("false"));
 }
 
 #[test]
 fn a_stalled_firmware_is_reset_by_the_watchdog_and_reports_it() {
     let o = run("watchdog");
-    assert_eq!(o.missed_periods, 0);
     assert_eq!(o.boots, 2, "one watchdog reset");
     assert!(o.has_event("mras-fault", "cause=Watchdog"));
-    let ms: f64 = o
-        .note("watchdog reset after the stall")
-        .unwrap()
-        .trim_end_matches(" ms")
-        .parse()
-        .unwrap();
+    let ms = number(&o, "watchdog reset after the stall");
     assert!(
         (90.0..=120.0).contains(&ms),
         "IWDG after {ms} ms (100 ms configured)"
     );
+    // The stuck line keeps the control interrupt running: every trigger of the stall
+    // is a missed period, and none after the reset.
+    let period_ms = 1e3 / o.pwm_hz;
+    assert!(number(&o, "missed periods during the stall") > 0.9 * ms / period_ms);
+    assert!(o
+        .missed
+        .iter()
+        .all(|x| x.cause == MissCause::ControlRunning));
+    assert_eq!(number(&o, "missed periods after the reset"), 0.0);
+    assert_eq!(o.hard_faults, 0);
+    assert!(o.violations.is_empty(), "{:#?}", o.violations);
+}
+
+/// Made to last 1.5 periods, the control interrupt of the release firmware (its real
+/// code, then a busy-wait the emulator adds before the return) misses periods: the
+/// firmware reads JEOS at entry, so no sequence is ever left unread, and yet no trigger
+/// finds the interrupt idle. The gate fails such a build.
+#[test]
+fn a_control_interrupt_of_one_and_a_half_periods_is_reported_missing_periods() {
+    let mut emu = drive_emu::Emu::new(
+        &elf(),
+        drive_emu::board::Board::commissioning(1).unwrap(),
+        None,
+    )
+    .unwrap();
+    emu.run_for(0.1).unwrap();
+    assert!(emu.m().stats.missed.is_empty());
+    let period = emu.m().board.period_ticks();
+    emu.m_mut().control_busy_ticks = 3 * period / 2;
+    emu.run_for(0.05).unwrap();
+    let m = emu.m();
+    let periods = 0.05 / m.board.period_s();
+    let missed = &m.stats.missed;
+    assert!(
+        missed.len() as f64 > 0.9 * periods,
+        "{} of {periods}",
+        missed.len()
+    );
+    assert!(missed.iter().all(|x| x.cause == MissCause::ControlRunning));
+    let o = scenarios::violations(&emu);
+    assert!(o.is_empty(), "{o:#?}");
+    let longest = m.stats.isr_longest.cycles as f64 / scenarios::period_cycles(&emu) as f64;
+    assert!(longest > 1.5, "{longest} periods");
 }
 
 #[test]
@@ -118,30 +232,53 @@ fn a_store_that_hits_a_flash_error_ends_safe_with_its_cause() {
     assert_eq!(o.note("MOE in Safe"), Some("false"));
 }
 
+/// A power cut while the first store programs the record's 14th double word: the
+/// next power-up reads the torn word (FLASH_ECCR.ECCD, NMI), the firmware's NMI handler
+/// turns it into a failed read, the drive neither faults nor runs on the record: it
+/// says why it commissions again, does, and stores; the power-up after loads that.
+#[test]
+fn a_power_cut_during_the_store_tears_the_record_and_the_next_power_up_commissions_again() {
+    let o = run("torn-store");
+    healthy(&o);
+    let first = states(&o, 0);
+    assert_eq!(first.last(), Some(&"Store"), "{first:?}");
+    assert!(!event_in(&o, 0, "mras-stored", ""));
+    assert!(event_in(&o, 1, "mras-not-loaded", "reason=Flash"));
+    assert!(!event_in(&o, 1, "mras-loaded", ""));
+    assert!(!o.has_event("mras-fault", ""), "no fault: {:#?}", o.events);
+    let ecc = o
+        .note("boot 2: double ECC errors read (FLASH_ECCR.ECCD), NMIs taken")
+        .unwrap();
+    let (errors, nmis) = ecc.split_once(", ").unwrap();
+    assert!(
+        errors.parse::<u32>().unwrap() >= 1 && nmis.parse::<u32>().unwrap() >= 1,
+        "{ecc}"
+    );
+    assert_eq!(states(&o, 1), COMMISSIONING);
+    assert!(event_in(&o, 1, "mras-stored", ""));
+    assert_eq!(states(&o, 2), ["LoadCalibration", "Run"]);
+    assert!(event_in(&o, 2, "mras-loaded", ""));
+}
+
 #[test]
 fn a_host_that_stops_reading_rtt_costs_no_control_period() {
     let o = run("rtt-host-stops");
     healthy(&o);
-    let during: u64 = o
-        .note("control periods while the host did not read (1 s)")
-        .unwrap()
-        .parse()
-        .unwrap();
+    let during = number(&o, "control periods while the host did not read (1 s)");
     // One control period per PWM period: the rate the firmware programmed (170 MHz).
-    assert_eq!(during, 170_000_000 / o.period_cycles);
+    assert_eq!(during as u64, 170_000_000 / o.period_cycles);
     assert!(o.entered(0, "Run").is_some());
 }
 
 /// The control interrupt by stage over Run (what `cargo xtask perf` reports): the
-/// stages add up to the whole interrupt, each has work, cycles weigh more than
-/// instructions, and the period the emulator drives the plant with is the one the
-/// firmware says it runs (its banner). `DRIVE_EMU_ELF` = the 40 kHz build checks that.
+/// stages add up to the whole interrupt, each has work, the period the emulator drives
+/// the plant with is the one the firmware says it runs (its banner), and the build
+/// passes the gate. `DRIVE_EMU_ELF` = the 40 kHz build checks that one.
 #[test]
-fn the_control_interrupt_by_stage_adds_up_and_fits_the_period_in_run() {
-    let p = scenarios::perf_run(&elf(), 0.1, scenarios::SensorBoard::Kmz41)
-        .unwrap_or_else(|e| panic!("{e:#}"));
+fn the_control_interrupt_by_stage_adds_up_and_the_build_passes_the_gate() {
+    let p =
+        scenarios::perf_run(&elf(), 0.1, SensorBoard::Kmz41).unwrap_or_else(|e| panic!("{e:#}"));
     eprintln!("{}", scenarios::perf_table(&p, "test"));
-    assert_eq!(p.missed_control, 0, "missed control periods");
     assert_eq!(p.firmware_pwm_hz, Some(p.pwm_hz.round() as u32));
     assert_eq!(
         p.period_cycles,
@@ -166,9 +303,11 @@ fn the_control_interrupt_by_stage_adds_up_and_fits_the_period_in_run() {
         );
         assert!(*cycles_max as f64 >= *cycles_mean, "{label}");
     }
-    assert!(p.isr_cycles_mean > p.isr_instrs_mean);
-    assert!(
-        p.isr_cycles_max < p.period_cycles,
-        "the interrupt overran the period"
-    );
+    let v = budget::evaluate(&p.budget_measures());
+    let failed: Vec<String> = v
+        .iter()
+        .filter(|x| x.fails())
+        .map(|x| x.describe())
+        .collect();
+    assert!(failed.is_empty(), "{}", failed.join("\n"));
 }

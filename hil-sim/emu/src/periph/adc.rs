@@ -64,10 +64,18 @@ pub struct AdcViolations {
 pub struct Adcs {
     pub conv: [Converter; 2],
     pub violations: AdcViolations,
-    /// Triggers that found the previous sequence unread (JEOS still set) or still
-    /// converting: a control period the firmware did not run.
-    pub missed_triggers: u64,
+    /// Triggers that started a sequence.
     pub triggers: u64,
+}
+
+/// What a TIM1 TRGO2 found on ADC1 (the master of the dual sequence).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Trigger {
+    /// Not ready, JADSTART clear, or listening to another trigger: the trigger is lost
+    /// and no flag says so.
+    NotArmed,
+    /// A sequence started; the previous one was unread (JEOS set) or still converting.
+    Started { unread: bool, converting: bool },
 }
 
 fn base(i: usize) -> u32 {
@@ -78,7 +86,6 @@ impl Adcs {
     pub fn reset(&mut self) {
         *self = Self {
             violations: self.violations,
-            missed_triggers: self.missed_triggers,
             triggers: self.triggers,
             ..Self::default()
         };
@@ -183,25 +190,27 @@ impl Adcs {
 
     /// TIM1 TRGO2 rose at `now`: start the injected sequences that listen to it.
     /// `sample(adc, channel)` is the analog front end at this instant, in counts.
-    pub fn trgo2(&mut self, regs: &mut RegFile, now: u64, sample: &dyn Fn(usize, u32) -> u16) {
+    pub fn trgo2(
+        &mut self,
+        regs: &mut RegFile,
+        now: u64,
+        sample: &dyn Fn(usize, u32) -> u16,
+    ) -> Trigger {
         self.update(regs, now);
         let jsqr = regs.get(ADC1 + JSQR);
         let armed = Self::ready(regs, 0)
             && regs.bit(ADC1 + CR, CR_JADSTART)
             && (jsqr >> 7) & 0b11 != 0
             && (jsqr >> 2) & 0x1F == JEXTSEL_TIM1_TRGO2;
-        if !armed {
-            return;
-        }
-        self.triggers += 1;
-        let Some(clk) = Self::clock_ticks(regs) else {
-            return;
+        let Some(clk) = Self::clock_ticks(regs).filter(|_| armed) else {
+            return Trigger::NotArmed;
         };
+        self.triggers += 1;
         let dual = regs.get(COMMON_CCR) & 0x1F == DUAL_INJECTED_SIMULTANEOUS;
-        let unread = regs.bit(ADC1 + ISR, ISR_JEOS) || self.conv[0].pending.is_some();
-        if unread {
-            self.missed_triggers += 1;
-        }
+        let found = Trigger::Started {
+            unread: regs.bit(ADC1 + ISR, ISR_JEOS),
+            converting: self.conv[0].pending.is_some(),
+        };
         for i in 0..2 {
             if i == 1 && !(dual && Self::ready(regs, 1)) {
                 continue;
@@ -219,6 +228,7 @@ impl Adcs {
             let end = now + half_clocks * clk / 2;
             self.conv[i].pending = Some((end, vals, n as u32));
         }
+        found
     }
 
     /// The next end of a sequence.

@@ -51,12 +51,32 @@ pub struct FlashCtl {
     first_word: Option<(u32, u32)>,
     /// Torn double words (a power cut while programming): reads raise a double ECC error.
     pub torn: Vec<u32>,
+    /// The double word being programmed (offset into the image), until BSY clears.
+    pub in_flight: Option<u32>,
     /// Erases of the bank the code runs from: the CPU stalls (no read-while-write).
     pub code_bank_erases: u32,
     pub erases: u32,
     pub programs: u32,
     /// Operations refused because error flags of an earlier one were still set.
     pub stale_flag_refusals: u32,
+    /// What the firmware asked of the flash and the hardware refused (FLASH_SR flags,
+    /// §3.7.5): programming a double word that is not erased (PROGERR), misaligned
+    /// (PGAERR), narrower than a word (SIZERR), or without PG / while locked (PGSERR).
+    pub errors: FlashErrors,
+    /// Operations started while BSY (erase STRT, a double word's second write): RM0440
+    /// does not say what silicon does with them; dropped here.
+    pub while_busy: u32,
+    /// Reads of torn double words (double ECC errors, each raising the NMI).
+    pub ecc_double_errors: u32,
+}
+
+/// Programming errors the firmware caused, by flag.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct FlashErrors {
+    pub progerr: u32,
+    pub pgaerr: u32,
+    pub sizerr: u32,
+    pub pgserr: u32,
 }
 
 /// What a flash operation needs from the machine.
@@ -83,6 +103,9 @@ impl FlashCtl {
             erases: self.erases,
             programs: self.programs,
             stale_flag_refusals: self.stale_flag_refusals,
+            errors: self.errors,
+            while_busy: self.while_busy,
+            ecc_double_errors: self.ecc_double_errors,
             ..Self::default()
         };
         regs.set_bits(CR, CR_LOCK, true);
@@ -100,6 +123,7 @@ impl FlashCtl {
     pub fn complete(&mut self, regs: &mut RegFile, now: u64) {
         if self.busy_until.is_some_and(|t| t <= now) {
             self.busy_until = None;
+            self.in_flight = None;
             regs.set_bits(SR, SR_BSY, false);
             if regs.bit(CR, CR_EOPIE) {
                 regs.set_bits(SR, SR_EOP, true);
@@ -161,11 +185,12 @@ impl FlashCtl {
                 if cr & CR_PER == 0 {
                     return Effect::None;
                 }
-                if self.refuse_stale(regs) || self.busy() {
+                if self.refuse_stale(regs) || self.refuse_busy() {
                     return Effect::None;
                 }
                 if cr & CR_PG != 0 {
                     regs.set_bits(SR, SR_PGSERR, true);
+                    self.errors.pgserr += 1;
                     return Effect::None;
                 }
                 let dual = Self::dual_bank(regs);
@@ -202,6 +227,24 @@ impl FlashCtl {
         }
     }
 
+    fn refuse_busy(&mut self) -> bool {
+        if self.busy() {
+            self.while_busy += 1;
+        }
+        self.busy()
+    }
+
+    /// A power cut: the double word being programmed is left torn (data and ECC
+    /// inconsistent; its next read is a double ECC error). Returns its offset.
+    pub fn power_cut(&mut self) -> Option<u32> {
+        let dw = self.in_flight.take()?;
+        self.busy_until = None;
+        if !self.torn.contains(&dw) {
+            self.torn.push(dw);
+        }
+        Some(dw)
+    }
+
     /// A bus write into the flash array (programming, §3.3.8). `erased` tells whether
     /// the double word at an offset is all ones.
     pub fn on_array_write(
@@ -215,16 +258,19 @@ impl FlashCtl {
     ) -> Effect {
         if !regs.bit(CR, CR_PG) || regs.bit(CR, CR_LOCK) {
             regs.set_bits(SR, SR_PGSERR, true);
+            self.errors.pgserr += 1;
             return Effect::None;
         }
         if size != 4 {
             regs.set_bits(SR, SR_SIZERR, true);
+            self.errors.sizerr += 1;
             return Effect::None;
         }
         match self.first_word.take() {
             None => {
                 if !addr.is_multiple_of(8) {
                     regs.set_bits(SR, SR_PGAERR, true);
+                    self.errors.pgaerr += 1;
                     return Effect::None;
                 }
                 self.first_word = Some((addr, v));
@@ -233,9 +279,10 @@ impl FlashCtl {
             Some((a0, lo)) => {
                 if addr != a0 + 4 {
                     regs.set_bits(SR, SR_PGAERR, true);
+                    self.errors.pgaerr += 1;
                     return Effect::None;
                 }
-                if self.refuse_stale(regs) || self.busy() {
+                if self.refuse_stale(regs) || self.refuse_busy() {
                     return Effect::None;
                 }
                 let offset = a0 - FLASH_BASE;
@@ -249,9 +296,11 @@ impl FlashCtl {
                 // (§3.7.5 FLASH_SR.PROGERR).
                 if !erased(offset) && (lo, v) != (0, 0) {
                     regs.set_bits(SR, SR_PROGERR, true);
+                    self.errors.progerr += 1;
                     return Effect::None;
                 }
                 self.programs += 1;
+                self.in_flight = Some(offset);
                 self.busy_until = Some(now + super::ticks(PROGRAM_S));
                 regs.set_bits(SR, SR_BSY, true);
                 self.torn.retain(|&t| t != offset);
@@ -267,6 +316,7 @@ impl FlashCtl {
         if !self.torn.contains(&dw) {
             return false;
         }
+        self.ecc_double_errors += 1;
         let bank2 = dw >= BANK_BYTES;
         let addr = (dw % BANK_BYTES) & 0x7FFFF;
         regs.set(

@@ -68,12 +68,15 @@ pub struct Iwdg {
     /// PR/RLR updates in flight (SR.PVU/RVU) until this time.
     sr_busy_until: u64,
     pub expiries: u32,
+    /// PR/RLR writes without the 0x5555 key first: ignored by the hardware (§42.3.5).
+    pub protected_writes: u32,
 }
 
 impl Iwdg {
     pub fn reset(&mut self) {
         *self = Self {
             expiries: self.expiries,
+            protected_writes: self.protected_writes,
             ..Self::default()
         };
     }
@@ -101,6 +104,7 @@ impl Iwdg {
             IWDG_PR | IWDG_RLR => {
                 if !self.write_access {
                     regs.set(addr, old);
+                    self.protected_writes += 1;
                 } else {
                     self.sr_busy_until = now + super::ticks(5.0 / LSI_HZ);
                     let bit = if addr == IWDG_PR { 1 } else { 2 };
@@ -124,7 +128,17 @@ impl Iwdg {
 }
 
 pub const GPIOA: u32 = 0x4800_0000;
+pub const GPIOA_IDR: u32 = GPIOA + 0x10;
+/// PA6: the shield's over-current comparator, open drain, active low (pulled up).
+pub const PA6: u32 = 1 << 6;
+pub const SYSCFG_MEMRMP: u32 = 0x4001_0000;
 pub const SYSCFG_CFGR2: u32 = 0x4001_001C;
+
+/// SYSCFG_MEMRMP.FB_MODE (§10.2.1): bank 2 mapped at 0x0800_0000 and bank 1 at
+/// 0x0804_0000, so that code linked for 0x0800_0000 runs from bank 2.
+pub fn banks_swapped(regs: &RegFile) -> bool {
+    regs.bit(SYSCFG_MEMRMP, 1 << 8)
+}
 
 /// Is PA6 in alternate function 6 (TIM1_BKIN)? (§9.4.1 MODER, §9.4.9 AFRL)
 pub fn pa6_is_bkin(regs: &RegFile) -> bool {

@@ -56,8 +56,29 @@ pub fn clock_gate(periph: &str) -> Option<(u32, u32)> {
     })
 }
 
+/// Oscillator start-up: HSI16 (t_su(HSI16)), the HSE crystal (t_SU(HSE)) and the PLL
+/// (t_LOCK), typical figures of the STM32G474 datasheet (DS12288) as recalled; what they
+/// enforce does not hang on their values: a ready bit comes up after its enable, and a
+/// clock switch to a source not yet ready waits for it (§7.2.7).
+const HSI16_STARTUP_S: f64 = 1.0e-6;
+const HSE_STARTUP_S: f64 = 2.0e-3;
+const PLL_LOCK_S: f64 = 40.0e-6;
+
+const CR_HSION: u32 = 1 << 8;
+const CR_HSIRDY: u32 = 1 << 10;
+const CR_HSEON: u32 = 1 << 16;
+const CR_HSERDY: u32 = 1 << 17;
+const CR_PLLON: u32 = 1 << 24;
+const CR_PLLRDY: u32 = 1 << 25;
+
 #[derive(Debug, Default)]
 pub struct Rcc {
+    /// The crystal on OSC_IN/OSC_OUT (Hz): the board's ([`crate::board::Board::hse_hz`]).
+    pub hse_hz: f64,
+    /// When HSI16, HSE and the PLL become ready (ticks), while they start.
+    ready_at: [Option<u64>; 3],
+    /// A switch (CFGR.SW) to a source not ready yet: it takes effect when it is.
+    pending_sw: Option<u32>,
     /// Ticks per executed instruction at the current SYSCLK (170 MHz → 1; HSI16 → 11).
     pub ticks_per_instr: u64,
     /// The system clock in Hz, as the switch status says.
@@ -70,37 +91,95 @@ pub struct Rcc {
 }
 
 impl Rcc {
-    pub fn reset(&mut self, regs: &mut RegFile) {
-        // HSI16 is on and ready out of reset (§7.2.2).
-        regs.set_bits(CR, 1 << 10, true);
-        self.sysclk_hz = 16_000_000;
-        self.ticks_per_instr = 11;
+    /// The RCC of a board whose HSE crystal runs at `hse_hz`.
+    pub fn with_hse(hse_hz: f64) -> Self {
+        Self {
+            hse_hz,
+            ..Self::default()
+        }
     }
 
-    /// Write side effects: ready bits follow their enables at once (the oscillators'
-    /// start-up times are microseconds and nothing depends on them here); the switch
-    /// takes effect when its source is ready.
-    pub fn on_write(&mut self, regs: &mut RegFile, addr: u32, flash_latency: u32) {
+    pub fn reset(&mut self, regs: &mut RegFile) {
+        // HSI16 is on and ready out of reset (§7.2.2).
+        regs.set_bits(CR, CR_HSIRDY, true);
+        self.sysclk_hz = 16_000_000;
+        self.ticks_per_instr = 11;
+        self.ready_at = [None; 3];
+        self.pending_sw = None;
+    }
+
+    /// The next oscillator to become ready (ticks).
+    pub fn next_event(&self) -> Option<u64> {
+        self.ready_at.iter().flatten().min().copied()
+    }
+
+    /// Ready bits that came up by `now`, and a switch that waited for one.
+    pub fn update(&mut self, regs: &mut RegFile, now: u64, flash_latency: u32) {
+        for (k, rdy) in [CR_HSIRDY, CR_HSERDY, CR_PLLRDY].into_iter().enumerate() {
+            if self.ready_at[k].is_some_and(|t| t <= now) {
+                self.ready_at[k] = None;
+                regs.set_bits(CR, rdy, true);
+            }
+        }
+        if let Some(sw) = self.pending_sw {
+            if Self::source_ready(regs, sw) {
+                self.pending_sw = None;
+                self.switch(regs, sw, flash_latency);
+            }
+        }
+    }
+
+    fn source_ready(regs: &RegFile, sw: u32) -> bool {
+        match sw {
+            1 => regs.bit(CR, CR_HSIRDY),
+            2 => regs.bit(CR, CR_HSERDY),
+            3 => regs.bit(CR, CR_PLLRDY),
+            _ => false,
+        }
+    }
+
+    fn switch(&mut self, regs: &mut RegFile, sw: u32, flash_latency: u32) {
+        let cfgr = regs.get(CFGR);
+        regs.set(CFGR, (cfgr & !0b1100) | (sw << 2));
+        self.update_sysclk(regs, flash_latency);
+    }
+
+    /// Write side effects: an oscillator's ready bit comes up its start-up time after
+    /// its enable, and drops with it; the switch takes effect when its source is ready.
+    pub fn on_write(
+        &mut self,
+        regs: &mut RegFile,
+        addr: u32,
+        old: u32,
+        now: u64,
+        flash_latency: u32,
+    ) {
         match addr {
             CR => {
                 let cr = regs.get(CR);
-                regs.set_bits(CR, 1 << 10, cr & (1 << 8) != 0); // HSIRDY
-                regs.set_bits(CR, 1 << 17, cr & (1 << 16) != 0); // HSERDY
-                let pll_ok = cr & (1 << 24) != 0 && regs.get(PLLCFGR) & 0b11 != 0;
-                regs.set_bits(CR, 1 << 25, pll_ok); // PLLRDY
+                let oscillators = [
+                    (CR_HSION, CR_HSIRDY, HSI16_STARTUP_S),
+                    (CR_HSEON, CR_HSERDY, HSE_STARTUP_S),
+                    (CR_PLLON, CR_PLLRDY, PLL_LOCK_S),
+                ];
+                for (k, (on, rdy, startup_s)) in oscillators.into_iter().enumerate() {
+                    // The PLL locks only with a source selected (PLLCFGR.PLLSRC).
+                    let can_run = on != CR_PLLON || regs.get(PLLCFGR) & 0b11 != 0;
+                    if cr & on == 0 || !can_run {
+                        regs.set_bits(CR, rdy, false);
+                        self.ready_at[k] = None;
+                    } else if old & on == 0 && !regs.bit(CR, rdy) {
+                        self.ready_at[k] = Some(now + super::ticks(startup_s));
+                    }
+                }
             }
             CFGR => {
-                let cfgr = regs.get(CFGR);
-                let sw = cfgr & 0b11;
-                let ready = match sw {
-                    1 => regs.bit(CR, 1 << 10),
-                    2 => regs.bit(CR, 1 << 17),
-                    3 => regs.bit(CR, 1 << 25),
-                    _ => false,
-                };
-                if ready {
-                    regs.set(CFGR, (cfgr & !0b1100) | (sw << 2));
-                    self.update_sysclk(regs, flash_latency);
+                let sw = regs.get(CFGR) & 0b11;
+                if Self::source_ready(regs, sw) {
+                    self.pending_sw = None;
+                    self.switch(regs, sw, flash_latency);
+                } else {
+                    self.pending_sw = Some(sw);
                 }
             }
             CSR => {
@@ -122,10 +201,10 @@ impl Rcc {
         let cfgr = regs.get(CFGR);
         let hz = match (cfgr >> 2) & 0b11 {
             1 => 16_000_000,
-            2 => 24_000_000,
+            2 => self.hse_hz as u32,
             3 => {
                 let p = regs.get(PLLCFGR);
-                let input = if p & 0b11 == 3 { 24.0e6 } else { 16.0e6 };
+                let input = if p & 0b11 == 3 { self.hse_hz } else { 16.0e6 };
                 let m = ((p >> 4) & 0xF) + 1;
                 let n = (p >> 8) & 0x7F;
                 let r = 2 * (((p >> 25) & 0b11) + 1);

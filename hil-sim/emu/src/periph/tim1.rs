@@ -21,6 +21,7 @@ pub const BDTR: u32 = TIM1 + 0x44;
 pub const AF1: u32 = TIM1 + 0x60;
 
 const CR1_CEN: u32 = 1 << 0;
+const CR1_CKD_SHIFT: u32 = 8;
 const CR1_UDIS: u32 = 1 << 1;
 const CR1_ARPE: u32 = 1 << 7;
 const SR_UIF: u32 = 1 << 0;
@@ -28,6 +29,8 @@ pub const SR_BIF: u32 = 1 << 7;
 pub const BDTR_MOE: u32 = 1 << 15;
 const BDTR_BKE: u32 = 1 << 12;
 const BDTR_BKP: u32 = 1 << 13;
+const BDTR_AOE: u32 = 1 << 14;
+const BDTR_BKF_SHIFT: u32 = 16;
 const AF1_BKINE: u32 = 1 << 0;
 const AF1_BKINP: u32 = 1 << 9;
 
@@ -65,6 +68,11 @@ pub struct Tim1 {
     pub peaks: u64,
     /// MOE written 1 while the break was active (refused by hardware).
     pub moe_refused: u64,
+    /// MOE set by a write (0 → 1), and the time of the last one (ticks).
+    pub moe_sets: u64,
+    pub moe_set_at: Option<u64>,
+    /// BDTR written with AOE (MOE set again by the update event), which is not modelled.
+    pub aoe_writes: u64,
     /// Breaks that cleared MOE.
     pub breaks: u64,
     /// Periods the comparator was tripped with the bridge on and no break routed.
@@ -77,6 +85,9 @@ impl Tim1 {
             updates: self.updates,
             peaks: self.peaks,
             moe_refused: self.moe_refused,
+            moe_sets: self.moe_sets,
+            moe_set_at: self.moe_set_at,
+            aoe_writes: self.aoe_writes,
             breaks: self.breaks,
             breaks_unrouted: self.breaks_unrouted,
             ..Self::default()
@@ -160,10 +171,21 @@ impl Tim1 {
                     self.ccr[k] = regs.get(a);
                 }
             }
-            BDTR if regs.get(BDTR) & BDTR_MOE != 0 && break_in && regs.bit(BDTR, BDTR_BKE) => {
-                // §28.3.21: MOE cannot be set while the break input is active.
-                regs.set_bits(BDTR, BDTR_MOE, false);
-                self.moe_refused += 1;
+            BDTR => {
+                let bdtr = regs.get(BDTR);
+                if bdtr & BDTR_AOE != 0 {
+                    self.aoe_writes += 1;
+                }
+                if bdtr & BDTR_MOE != 0 && old & BDTR_MOE == 0 {
+                    if break_in && bdtr & BDTR_BKE != 0 {
+                        // §28.3.21: MOE cannot be set while the break input is active.
+                        regs.set_bits(BDTR, BDTR_MOE, false);
+                        self.moe_refused += 1;
+                    } else {
+                        self.moe_sets += 1;
+                        self.moe_set_at = Some(now);
+                    }
+                }
             }
             _ => {}
         }
@@ -295,17 +317,65 @@ impl Tim1 {
         (af1 & AF1_BKINE != 0 && pin_active) || lockup
     }
 
-    /// Apply the break (§28.3.21): MOE cleared asynchronously, BIF set.
-    pub fn apply_break(&mut self, regs: &mut RegFile, now: u64, active: bool) {
-        if active && regs.bit(BDTR, BDTR_BKE) {
-            self.mark(regs, now);
-            if regs.bit(BDTR, BDTR_MOE) {
-                self.breaks += 1;
-            }
-            regs.set_bits(BDTR, BDTR_MOE, false);
-            regs.set_bits(SR, SR_BIF, true);
-            self.moe_dropped = true;
+    /// Apply the break (§28.3.21): MOE cleared asynchronously, BIF set. Returns
+    /// whether it cleared MOE.
+    pub fn apply_break(&mut self, regs: &mut RegFile, now: u64, active: bool) -> bool {
+        if !(active && regs.bit(BDTR, BDTR_BKE)) {
+            return false;
         }
+        self.mark(regs, now);
+        let cleared = regs.bit(BDTR, BDTR_MOE);
+        if cleared {
+            self.breaks += 1;
+        }
+        regs.set_bits(BDTR, BDTR_MOE, false);
+        regs.set_bits(SR, SR_BIF, true);
+        self.moe_dropped = true;
+        cleared
+    }
+
+    /// Would an active-low comparator output on the BKIN pin break the bridge now:
+    /// break enabled, the pin routed (AF1.BKINE), the polarity (BKP, BKINP) such that
+    /// low is active, and MOE on?
+    pub fn break_armed_for_low_pin(regs: &RegFile) -> bool {
+        regs.bit(BDTR, BDTR_BKE)
+            && Self::moe(regs)
+            && Self::break_input(regs, true, false)
+            && !Self::break_input(regs, false, false)
+    }
+
+    /// The break input filter's latency (s): N consecutive samples at f_SAMPLING
+    /// (TIMx_BDTR.BKF, RM0440 §28.6.20), f_DTS from CR1.CKD; 0 without a filter (the
+    /// break acts asynchronously). `timer_clock_hz` is f_tim_ker_ck (= f_CK_INT). The
+    /// sampling phase is not modelled: N whole sampling periods.
+    pub fn break_filter_s(regs: &RegFile, timer_clock_hz: f64) -> f64 {
+        let bkf = (regs.get(BDTR) >> BDTR_BKF_SHIFT) & 0xF;
+        let dts_div = match (regs.get(CR1) >> CR1_CKD_SHIFT) & 0b11 {
+            0 => 1.0,
+            1 => 2.0,
+            _ => 4.0,
+        };
+        // (divider of f_CK_INT, or of f_DTS when `dts`; N)
+        let (dts, div, n) = match bkf {
+            0 => return 0.0,
+            1 => (false, 1.0, 2.0),
+            2 => (false, 1.0, 4.0),
+            3 => (false, 1.0, 8.0),
+            4 => (true, 2.0, 6.0),
+            5 => (true, 2.0, 8.0),
+            6 => (true, 4.0, 6.0),
+            7 => (true, 4.0, 8.0),
+            8 => (true, 8.0, 6.0),
+            9 => (true, 8.0, 8.0),
+            10 => (true, 16.0, 5.0),
+            11 => (true, 16.0, 6.0),
+            12 => (true, 16.0, 8.0),
+            13 => (true, 32.0, 5.0),
+            14 => (true, 32.0, 6.0),
+            _ => (true, 32.0, 8.0),
+        };
+        let f_sampling = timer_clock_hz / if dts { dts_div * div } else { div };
+        n / f_sampling
     }
 
     /// Dead time in ticks from BDTR.DTG (§28.6.20, t_DTS = t_CK_INT with CKD = 0).
