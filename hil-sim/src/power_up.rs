@@ -5,6 +5,7 @@
 //! stored.
 
 use crate::accuracy::stats::Dist;
+use crate::plant_truth::CurrentVector;
 use crate::rig::{Rig, SimFlash, Step, Streamed};
 use crate::scenario::{NamedCoefficient, Probe, Scenario, Window, WindowStats};
 use crate::stream::Losses;
@@ -38,11 +39,12 @@ pub struct Boot {
     pub coefficients: Vec<NamedCoefficient>,
     /// The alignment in force at the end.
     pub alignment: Alignment,
-    /// Over the Run window: the mean error of the electrical angle the control period
-    /// turns the current by (aligned, corrected estimate) against the rotor's true one.
+    /// Over the Run window, measured at the plant ([`CurrentVector`]): the mean error of
+    /// the electrical angle of the current the bridge drives against the rotor's q axis.
     pub run_angle_error_e_rad: Option<f64>,
-    /// Over the Run window: mean torque over mean current magnitude, relative to the
-    /// torque constant (1 when the current is all on the q axis), and the mean speed.
+    /// Over the Run window, at the plant: mean torque over mean current magnitude,
+    /// relative to the torque constant (1 when the current is all on the q axis); and
+    /// the mean speed.
     pub run_torque_per_amp: Option<f64>,
     pub run_speed_rad_s: Option<f64>,
     /// Control periods that did not run (CPU stalled by flash).
@@ -129,7 +131,6 @@ pub fn run_boot<const H: usize, const U: usize>(
 ) -> Boot {
     let t_s = sc.sample_period_s();
     let probe = Probe::of(&rig.plant.sensor.params);
-    let kt = rig.plant.motor.torque_constant_nm_a();
     let steps = (duration_s / t_s).round() as u64;
     let mut transitions = vec![(0.0, State::CheckSensor)];
     let mut faulted = 0u32;
@@ -138,10 +139,8 @@ pub fn run_boot<const H: usize, const U: usize>(
     let (mut spin_slice, mut spin_up): (Option<(f64, Window)>, Option<Window>) = (None, None);
     let run_from = 0.8 * duration_s;
     let mut run = Window::new(run_from, duration_s + t_s);
-    let (mut torque_sum, mut amps_sum, mut speed_sum, mut run_n) = (0.0, 0.0, 0.0, 0u64);
-    let (mut err_sin, mut err_cos) = (0.0, 0.0);
-    let p = rig.plant.motor.pole_pairs as f64;
-    let k = (p / probe.sensor_periods) as f32;
+    let (mut speed_sum, mut run_n) = (0.0, 0u64);
+    let mut current = CurrentVector::new(&rig.plant.motor);
     let mut adapt_start: Option<(f64, f64)> = None;
     let mut spectrum = Recorder::new(sc, &rig.plant.sensor, duration_s);
     let (mut adapt_s, mut adapt_revs) = (None, None);
@@ -183,16 +182,13 @@ pub fn run_boot<const H: usize, const U: usize>(
                     r.add(&s);
                 }
                 if s.truth.t_s >= run_from {
-                    let i = rig.plant.currents_ab();
-                    torque_sum += s.torque_nm;
-                    amps_sum += i[0].hypot(i[1]);
                     speed_sum += s.truth.omega_rad_s;
                     run_n += 1;
-                    let a = rig.command.alignment;
-                    let th_e = drive::align::electrical_angle(&a, k, s.estimate.theta_e_rad);
-                    let e = th_e as f64 - p * s.truth.theta_rad;
-                    err_sin += e.sin();
-                    err_cos += e.cos();
+                    // The plant at the end of the period just driven: its rotor angle and
+                    // currents there, and the period's mean torque (as the emulator
+                    // pairs them at each sampling instant).
+                    let p = &rig.plant;
+                    current.add(p.theta_rad(), p.currents_ab(), s.torque_nm);
                 }
             }
             _ => {}
@@ -222,9 +218,11 @@ pub fn run_boot<const H: usize, const U: usize>(
             .map(|(k, v)| (crate::scenario::path_name(k), v.re, v.im))
             .collect(),
         alignment,
-        run_angle_error_e_rad: (in_run && run_n > 0).then(|| err_sin.atan2(err_cos)),
-        run_torque_per_amp: (in_run && run_n > 0 && amps_sum > 0.0)
-            .then(|| torque_sum / amps_sum / kt),
+        run_angle_error_e_rad: current
+            .stats()
+            .filter(|_| in_run)
+            .map(|c| c.angle_error_e_rad),
+        run_torque_per_amp: current.stats().filter(|_| in_run).map(|c| c.torque_per_amp),
         run_speed_rad_s: (in_run && run_n > 0).then(|| speed_sum / run_n as f64),
         missed_periods: rig.missed_periods,
         streamed: rig.streamed().to_vec(),
