@@ -228,7 +228,7 @@ fn centred(errors: &mut [f64], n: f64) -> f64 {
 /// period (`log[k - 1]` for period k, counted from 1 like the firmware's `ticks`, whose
 /// `t_ms` is `ticks·1000/PWM`).
 ///
-/// Records come at 100 Hz, a few per revolution: binning them by angle would publish
+/// Records come every 11 ms, a few per revolution: binning them by angle would publish
 /// the noise of nearly empty bins. The error is fitted instead by harmonics
 /// 1..=`harmonics` of the rotor angle (least squares), whose pk-pk is reported with
 /// what the fit leaves; the raw sensor's error at the same periods gets the same fit.

@@ -332,6 +332,20 @@ pub struct Losses {
 }
 
 impl Losses {
+    /// Two captures' losses together (e.g. the boots of one scenario, each its own
+    /// capture).
+    pub fn plus(&self, o: &Losses) -> Losses {
+        Losses {
+            handoffs_dropped: self.handoffs_dropped + o.handoffs_dropped,
+            updates_dropped: self.updates_dropped + o.updates_dropped,
+            updates_late: self.updates_late + o.updates_late,
+            events_dropped: self.events_dropped + o.events_dropped,
+            frames_lost: self.frames_lost + o.frames_lost,
+            boots: self.boots + o.boots,
+            uncounted_lines: self.uncounted_lines + o.uncounted_lines,
+        }
+    }
+
     /// Nothing lost, and every line counted.
     pub fn is_none(&self) -> bool {
         self.handoffs_dropped == 0

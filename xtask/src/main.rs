@@ -5,6 +5,7 @@
 
 mod docs;
 mod isr;
+mod mutants;
 mod qemu;
 mod regs;
 
@@ -21,7 +22,7 @@ pub(crate) const FIRMWARE: &str = "drive-fw";
 /// The emulator image of the core (target only, built by `xtask qemu`).
 const QEMU_IMAGE: &str = "mras-qemu";
 /// The firmware-in-the-loop emulator (GPL-2.0, links Unicorn); its tests run in release.
-const EMULATOR: &str = "drive-emu";
+pub(crate) const EMULATOR: &str = "drive-emu";
 /// Budgets of the size report: growth is a decision, not an accident. The part has
 /// 256 KiB in the bank the code runs from (memory.x); 96 KiB leaves room for the
 /// application beside a core that chooses its bank from the data (the size today:
@@ -34,7 +35,8 @@ cargo xtask <command>
 
   ci            everything CI checks: fmt, clippy (host and target), host tests,
                 cross-build of the portable crates and the firmware, size report,
-                the emulator tests, and `docs --check` (which runs `perf`)
+                the emulator tests, `mutants`, and `docs --check` (which runs
+                `perf`)
   test-host     host tests only
   build-cross   release cross-build of the portable crates and the firmware, size report
   size          size report of the firmware (flash and static RAM against budgets);
@@ -77,6 +79,10 @@ cargo xtask <command>
                 docs/figures/perf.md and the pages that show it; fails if a build
                 fails isr-check (each is scanned before it runs) or misses a control
                 period
+  mutants       deliberately broken firmware (the `mutant-*` features of drive-fw:
+                the correction's sign, the electrical offset, a control interrupt of
+                1.5 periods, a starved update queue), each run on the emulator test
+                meant to catch it: fails unless every one is caught for its reason
   regs          regenerate the emulator's STM32G474 register table (hil-sim/emu/src/
                 regs_g474.rs) from the stm32g4 PAC's sources
   regs --check  fail if the committed register table differs from what the PAC generates
@@ -99,6 +105,9 @@ fn main() -> ExitCode {
         Some("cycles") => docs::generate(&["cycles"]),
         Some("regs") => regs::main(&args[1..]),
         Some("emu") => emu(&["power-up"]),
+        Some("mutants") => setup()
+            .and_then(|_| emu_setup())
+            .and_then(|_| mutants::check()),
         Some("emu-report") => docs::generate(&["emu-report"]),
         Some("perf") => docs::generate(&["perf"]),
         Some("-h" | "--help" | "help") | None => {
@@ -420,6 +429,8 @@ fn ci() -> Result<()> {
     let mut c = cargo();
     c.args(["test", "--release", "--locked", "-p", EMULATOR]);
     run(c)?;
+    // The same tests fail on firmware broken on purpose: the checks can fail.
+    mutants::check()?;
     // Every generated figure of the docs: the pages against the committed figure
     // files, then the generators CI can afford rerun and compared, `perf` among them
     // (every build commissions to Run without a missed control period).

@@ -80,7 +80,7 @@ pub const APPLICATION_SPEED_RAD_S: f32 = 10.0 * core::f32::consts::TAU;
 pub const SPEED_BANDWIDTH_HZ: f32 = 10.0;
 
 /// Supervisor rate as a divisor of the control rate (1 kHz); the stream is every
-/// `drive::supervisor::RECORD_DIVIDER`-th supervisor step (100 Hz).
+/// `drive::supervisor::RECORD_DIVIDER`-th supervisor step (every 11 ms).
 pub const SUPERVISOR_DIVIDER: u32 = PWM_HZ / 1000;
 // The supervisor runs at exactly 1 kHz, and ARR fits TIM1's 16 bits, at any PWM_HZ.
 const _: () = assert!(PWM_HZ.is_multiple_of(1000) && SYSCLK_HZ / (2 * PWM_HZ) <= u16::MAX as u32);

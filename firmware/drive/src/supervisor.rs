@@ -32,8 +32,11 @@ enum Awaiting {
     Refined { generation: u8 },
 }
 
-/// A record every this many supervisor steps (100 Hz at a 1 kHz supervisor).
-pub const RECORD_DIVIDER: u32 = 10;
+/// A record every this many supervisor steps: every 11 ms at a 1 kHz supervisor (about
+/// 91 Hz). A prime number of milliseconds, so that at a round speed (10 rev/s, say)
+/// successive records fall on many rotor angles instead of the same ten: a host that
+/// scores the streamed θ̂ against a reference encoder sees the whole revolution.
+pub const RECORD_DIVIDER: u32 = 11;
 
 /// Events one step holds besides a boot fault: twice the most a step of the
 /// commissioning produces (an event of the state's request or of a store, and the state

@@ -197,7 +197,7 @@ fn power_up(elf: Option<PathBuf>, out: PathBuf) -> Result<()> {
         run.raw_error_pkpk_rad * 1e3
     );
     println!(
-        "  MRAS residual in Adapt at first → in Run: {:.2} → {:.3} mrad (the firmware's own measure, streamed)",
+        "  MRAS residual in Adapt at first → in Run: {:.2} → {:.3} mrad (the firmware's own measure, streamed: not an angle error)",
         run.residual_first_rad * 1e3,
         run.residual_run_rad * 1e3
     );
@@ -229,6 +229,17 @@ fn power_up(elf: Option<PathBuf>, out: PathBuf) -> Result<()> {
             );
         }
     }
+    for (b, e) in run.estimate.iter().enumerate() {
+        println!(
+            "  boot {}, Run, the streamed θ̂ against the rotor (plant): {}",
+            b + 1,
+            scenarios::describe_estimate(e)
+        );
+    }
+    println!(
+        "  lost (the stream's counters and seq gaps): {}",
+        o.losses.describe()
+    );
     if o.violations.is_empty() {
         println!("  hardware rules: none broken");
     }

@@ -15,7 +15,7 @@ use crate::Emu;
 use anyhow::{bail, Context, Result};
 use hil_sim::plant_truth::{self, CurrentVector, CurrentVectorStats, EstimateScore, PeriodTruth};
 use hil_sim::scenario::Probe;
-use hil_sim::stream::{self, Item};
+use hil_sim::stream::{self, Item, Losses};
 use std::fmt::Write as _;
 
 /// Every scenario, in the order of docs/performance.md.
@@ -77,6 +77,9 @@ pub struct Outcome {
     pub notes: Vec<(String, String)>,
     /// Rules the firmware broke (the models' counters), empty when none.
     pub violations: Vec<String>,
+    /// What the stream says was lost: the drive's own counters (samples, updates,
+    /// events) and the frames missing from `seq`, summed over the boots.
+    pub losses: Losses,
     pub emulated_s: f64,
     pub wall_s: f64,
 }
@@ -174,6 +177,9 @@ impl Outcome {
         out.boots = parts.iter().map(|o| o.boots).sum();
         out.hard_faults = parts.iter().map(|o| o.hard_faults).sum();
         out.nmis = parts.iter().map(|o| o.nmis).sum();
+        out.losses = parts
+            .iter()
+            .fold(Losses::default(), |a, o| a.plus(&o.losses));
         out.emulated_s = parts.iter().map(|o| o.emulated_s).sum();
         out
     }
@@ -198,6 +204,7 @@ impl Outcome {
 /// The firmware's stream: states per boot (a new boot starts at the banner) and events.
 fn read_stream(emu: &Emu, out: &mut Outcome) -> Result<()> {
     let d = stream::decode(&emu.elf, &emu.m().rtt.bytes).context("decoding the RTT stream")?;
+    out.losses = d.losses();
     let mut boot = 0usize;
     let mut seen_banner = false;
     out.states = vec![Vec::new()];
@@ -445,13 +452,20 @@ fn run_until(
     let m = emu.m();
     bail!(
         "{what} not seen within {limit_s} s of emulated time\n  states: {}\n  other log lines: {}\n  \
-         boots: {}, HardFaults: {:?}, pc now {:#010x}, control interrupts: {}\n  rules broken:\n    {}",
+         boots: {}, HardFaults: {:?}, pc now {:#010x}, control interrupts: {}\n  \
+         missed control periods: {}{}\n  lost (stream): {}\n  rules broken:\n    {}",
         o.state_lines().join("; "),
         o.events.iter().filter(|e| e.kind == "log" || e.kind == "mras-fault").map(|e| e.text.clone()).collect::<Vec<_>>().join(" | "),
         m.stats.boots.len(),
         m.stats.hard_faults,
         emu.pc(),
         m.stats.isr_count_total,
+        m.stats.missed_control(),
+        missed_lines(&m.stats.missed, 3)
+            .iter()
+            .map(|l| format!("\n    {l}"))
+            .collect::<String>(),
+        o.losses.describe(),
         violations(emu).join("\n    ")
     )
 }
@@ -500,6 +514,15 @@ pub fn run(name: &str, elf: &[u8]) -> Result<Outcome> {
                         describe_current(c),
                     ));
                 }
+            }
+            for (b, e) in p.estimate.iter().enumerate() {
+                p.outcome.notes.push((
+                    format!(
+                        "boot {}: the streamed θ̂ against the rotor in Run (plant)",
+                        b + 1
+                    ),
+                    describe_estimate(e),
+                ));
             }
             return Ok(p.outcome);
         }
@@ -707,6 +730,19 @@ fn describe_current(c: &CurrentVectorStats) -> String {
     )
 }
 
+/// The streamed θ̂ against the rotor, beside the raw sensor's error at the same periods.
+pub fn describe_estimate(e: &EstimateScore) -> String {
+    format!(
+        "spatial error {:.1} mrad pk-pk raw → {:.3} mrad pk-pk θ̂ ({:.0}x; harmonics 1..{} of the rotor angle fitted to {} records, {:.3} mrad RMS left by the fit)",
+        e.raw_pk_pk_rad * 1e3,
+        e.estimate_pk_pk_rad * 1e3,
+        e.raw_pk_pk_rad / e.estimate_pk_pk_rad,
+        e.harmonics,
+        e.records,
+        e.estimate_residual_rms_rad * 1e3
+    )
+}
+
 /// The main job's power-up: both boots with their streams and the errors.
 pub struct PowerUp {
     pub outcome: Outcome,
@@ -718,6 +754,9 @@ pub struct PowerUp {
     /// Per boot, over Run (from [`RUN_SETTLE_S`] after entering it to the end): the
     /// current the bridge drove against the true rotor's q axis, from the plant.
     pub run_current: [Option<CurrentVectorStats>; 2],
+    /// Per boot, over the same window: the θ̂ the records streamed against the rotor
+    /// at their control periods, beside the raw sensor's error at the same periods.
+    pub estimate: [EstimateScore; 2],
     /// The flash the first boot left (its calibration stored).
     pub commissioned: crate::cpu::KeptFlash,
 }
@@ -743,6 +782,11 @@ pub fn remounted_power_up(
     let c = run_current(&emu, &o, 0);
     Ok((o, c))
 }
+
+/// How long each power-up runs once the stream says Run: enough records (one every
+/// `drive::supervisor::RECORD_DIVIDER` ms) after [`RUN_SETTLE_S`] to fit the θ̂ score's
+/// 16 harmonics of the rotor angle twice over.
+pub const RUN_WINDOW_S: f64 = 1.2;
 
 /// Run measures start this long after the stream says Run (the speed ramp to the
 /// application speed of a loaded boot included, the hand-over from commissioning not).
@@ -783,6 +827,32 @@ fn run_periods<'a>(emu: &'a Emu, o: &Outcome, boot: usize) -> &'a [PeriodTruth] 
     log.get(from..).unwrap_or(&[])
 }
 
+/// The `(t_ms, θ̂)` of boot `boot`'s records from [`RUN_SETTLE_S`] after the stream's
+/// Run to the end.
+fn run_records(emu: &Emu, o: &Outcome, boot: usize) -> Result<Vec<(u32, f32)>> {
+    let Some(run_ms) = o.entered(boot, "Run") else {
+        bail!("boot {}: no Run to score θ̂ in", boot + 1);
+    };
+    let from_ms = run_ms + (RUN_SETTLE_S * 1e3).round() as u32;
+    let d = stream::decode(&emu.elf, &emu.m().rtt.bytes)?;
+    Ok(d.items
+        .iter()
+        .filter_map(|i| match i {
+            Item::Line(l) if l.kind == "mras" => l.record().ok(),
+            _ => None,
+        })
+        .filter(|r| r.state == drive::commissioning::State::Run && r.t_ms >= from_ms)
+        .map(|r| (r.t_ms, r.theta_rad))
+        .collect())
+}
+
+/// The streamed θ̂ of boot `boot`'s Run against the rotor (plant).
+fn run_estimate(emu: &Emu, o: &Outcome, boot: usize) -> Result<EstimateScore> {
+    let records = run_records(emu, o, boot)?;
+    score_estimates(emu, boot, &records)
+        .with_context(|| format!("scoring the {} streamed θ̂ of Run", records.len()))
+}
+
 /// The current vector over a boot's Run (plant).
 fn run_current(emu: &Emu, o: &Outcome, boot: usize) -> Option<CurrentVectorStats> {
     let mut cv = CurrentVector::new(&emu.m().board.plant.motor);
@@ -797,17 +867,19 @@ pub fn power_up_run(elf: &[u8]) -> Result<PowerUp> {
     let t0 = std::time::Instant::now();
     let mut emu = fresh(elf, None)?;
     run_until_state(&mut emu, "Run", 4.0)?;
-    emu.run_for(0.5)?;
+    emu.run_for(RUN_WINDOW_S)?;
     let first = finish("power-up", &emu, t0, Vec::new())?;
     let (first_res, run_res) = residuals(&emu)?;
     let raw = plant_truth::raw_error_pk_pk_rad(run_periods(&emu, &first, 0), &probe(&emu));
     let current_1 = run_current(&emu, &first, 0);
+    let estimate_1 = run_estimate(&emu, &first, 0).context("boot 1")?;
     let commissioned = emu.flash();
     let mut again = fresh(elf, Some(commissioned.clone()))?;
     run_until_state(&mut again, "Run", 2.0)?;
-    again.run_for(0.3)?;
+    again.run_for(RUN_WINDOW_S)?;
     let second = finish("power-up", &again, t0, Vec::new())?;
     let current_2 = run_current(&again, &second, 0);
+    let estimate_2 = run_estimate(&again, &second, 0).context("boot 2")?;
     let outcome = Outcome::merged(&[first, second]);
     Ok(PowerUp {
         outcome,
@@ -816,6 +888,7 @@ pub fn power_up_run(elf: &[u8]) -> Result<PowerUp> {
         residual_first_rad: first_res,
         residual_run_rad: run_res,
         run_current: [current_1, current_2],
+        estimate: [estimate_1, estimate_2],
         commissioned,
     })
 }

@@ -24,11 +24,23 @@ fn run(name: &str) -> Outcome {
     o
 }
 
-/// What every scenario must show: the budgets of `budget.rs` (no missed control
+/// What every scenario must show: nothing lost (the drive's own drop counters and the
+/// stream's `seq`, read from the stream), and the budgets of `budget.rs` (no missed control
 /// period, no HardFault, no hardware rule broken, every control interrupt within its
 /// share of the period, masked stretches and the adaptation task's deadline; a build's
 /// known failures as listed there).
 fn healthy(o: &Outcome) {
+    assert!(
+        o.losses.is_none(),
+        "{}: the stream says it lost: {}",
+        o.name,
+        o.losses.describe()
+    );
+    within_budget(o);
+}
+
+/// The budgets alone (see [`healthy`]).
+fn within_budget(o: &Outcome) {
     let v = budget::evaluate(&o.budget_measures(SensorBoard::Kmz41));
     let failed: Vec<String> = v
         .iter()
@@ -91,32 +103,64 @@ fn erased_flash_commissions_to_run_then_the_next_power_up_loads() {
     );
 }
 
-/// The drive's angle at the plant, in Run, both boots: the current the bridge drives
-/// against the true rotor's q axis (never what the firmware reports). Measured on this
-/// release ELF: mean +2.1 / +4.4 mrad electrical, pk-pk over the rotor angle 11.1 /
-/// 16.6 mrad, torque per amp 0.9999 (commissioned / loaded boot). Bounds at about 2x:
-/// mean within 10 mrad, pk-pk within 35 mrad; torque per amp at least 0.999 (the cost
-/// of a 45 mrad error). An electrical offset 0.3 rad off gives 300 mrad and 0.955; a
-/// correction of the wrong sign doubles the raw sensor's error (asserted here to be
-/// over 100 mrad mechanical, over 400 mrad electrical pk-pk), far past both. The
-/// offset case is run here too: the calibration loaded on a sensor remounted since
-/// measures -296 mrad and 0.957.
+/// The drive at the plant, in Run, both boots, from what the plant did (never from what
+/// the firmware says of itself): the current the bridge drives against the true
+/// rotor's q axis, and the θ̂ the records stream against the true rotor angle at their
+/// control periods. The figures this release ELF gives are published by
+/// `cargo xtask docs emu-report` (docs/figures/emu-report.md, the power-up's notes);
+/// the bounds sit at about twice them: the current's mean angle within 10 mrad
+/// electrical and its pk-pk over the rotor angle within 20 mrad, torque per amp at
+/// least 0.999 (the cost of a 45 mrad error), θ̂'s spatial error within 1 mrad pk-pk
+/// and at least 180x below the raw sensor's. A drive commuting 0.3 rad off gives
+/// 300 mrad and 0.955; a correction of the wrong sign doubles the raw sensor's error
+/// (over 100 mrad mechanical here), far past both (`cargo xtask mutants` builds both).
+/// The offset case also runs here: the calibration loaded on a sensor remounted since.
 #[test]
-fn in_run_the_current_is_on_the_rotors_q_axis_at_the_plant() {
+fn in_run_the_current_and_the_streamed_angle_follow_the_rotor_at_the_plant() {
     let p = scenarios::power_up_run(&elf()).unwrap_or_else(|e| panic!("{e:#}"));
     assert!(
         p.raw_error_pkpk_rad > 0.1,
         "raw {} rad",
         p.raw_error_pkpk_rad
     );
+    assert!(
+        p.outcome.losses.is_none(),
+        "lost: {}",
+        p.outcome.losses.describe()
+    );
+    // Every measure, then one verdict naming each that is off.
+    let mut off = Vec::new();
     for (b, c) in p.run_current.iter().enumerate() {
         let c = c.unwrap_or_else(|| panic!("boot {}: no Run window", b + 1));
         eprintln!("boot {}: {c:?}", b + 1);
         assert!(c.periods > 2_000, "boot {}: {c:?}", b + 1);
-        assert!(c.angle_error_e_rad.abs() < 10e-3, "boot {}: {c:?}", b + 1);
-        assert!(c.angle_error_e_pk_pk_rad < 35e-3, "boot {}: {c:?}", b + 1);
-        assert!(c.torque_per_amp > 0.999, "boot {}: {c:?}", b + 1);
+        if c.angle_error_e_rad.abs() >= 10e-3 || c.angle_error_e_pk_pk_rad >= 20e-3 {
+            off.push(format!(
+                "boot {}: the current's electrical angle error at the plant: mean {:+.1} mrad, pk-pk {:.1} mrad",
+                b + 1,
+                c.angle_error_e_rad * 1e3,
+                c.angle_error_e_pk_pk_rad * 1e3
+            ));
+        }
+        if c.torque_per_amp <= 0.999 {
+            off.push(format!(
+                "boot {}: torque per amp at the plant: {:.4} of Kt",
+                b + 1,
+                c.torque_per_amp
+            ));
+        }
     }
+    for (b, e) in p.estimate.iter().enumerate() {
+        eprintln!("boot {}: {}", b + 1, scenarios::describe_estimate(e));
+        if e.estimate_pk_pk_rad >= 1e-3 || e.raw_pk_pk_rad <= 180.0 * e.estimate_pk_pk_rad {
+            off.push(format!(
+                "boot {}: the streamed θ̂ against the rotor at the plant: {}",
+                b + 1,
+                scenarios::describe_estimate(e)
+            ));
+        }
+    }
+    assert!(off.is_empty(), "{}", off.join("\n"));
     // The same bounds fail a drive whose electrical offset is 0.3 rad wrong: the
     // stored calibration loaded on a board whose sensor was remounted 0.3/p rad since.
     let p_pairs = drive_emu::board::Board::commissioning(1)
@@ -263,7 +307,22 @@ fn a_power_cut_during_the_store_tears_the_record_and_the_next_power_up_commissio
 #[test]
 fn a_host_that_stops_reading_rtt_costs_no_control_period() {
     let o = run("rtt-host-stops");
-    healthy(&o);
+    within_budget(&o);
+    // Frames that found the up-buffer full are lost whole, and the stream's `seq`
+    // counts them; the drive itself lost nothing.
+    let l = o.losses;
+    assert!(l.frames_lost > 10, "{}", l.describe());
+    assert_eq!(
+        (
+            l.handoffs_dropped,
+            l.updates_dropped,
+            l.updates_late,
+            l.events_dropped
+        ),
+        (0, 0, 0, 0),
+        "{}",
+        l.describe()
+    );
     let during = number(&o, "control periods while the host did not read (1 s)");
     // One control period per PWM period: the rate the firmware programmed (170 MHz).
     assert_eq!(during as u64, 170_000_000 / o.period_cycles);

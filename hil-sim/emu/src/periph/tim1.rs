@@ -63,7 +63,8 @@ pub struct Tim1 {
     acc_ticks: u64,
     mark: u64,
     moe_dropped: bool,
-    /// Update events and over/underflows, for the one-update-per-period rule.
+    /// Update events of the counter (not UG) and over/underflows, for the
+    /// one-update-per-period rule.
     pub updates: u64,
     pub peaks: u64,
     /// MOE written 1 while the break was active (refused by hardware).
@@ -223,7 +224,9 @@ impl Tim1 {
         if regs.bit(CR1, CR1_UDIS) && !forced {
             return;
         }
-        self.updates += 1;
+        // The rule counts the counter's own update events; a UG (init, after each reset)
+        // is the firmware's, once per start.
+        self.updates += u64::from(!forced);
         self.arr = regs.get(ARR);
         for k in 0..4 {
             self.ccr[k] = regs.get(CCR1 + 4 * k as u32);
