@@ -962,6 +962,11 @@ pub fn report(outcomes: &[Outcome], elf_note: &str) -> String {
         for l in missed_lines(&o.missed, 5) {
             let _ = writeln!(s, "- {l}");
         }
+        let _ = writeln!(
+            s,
+            "- lost, as the stream counts it (the drive's drop counters, gaps in `seq`): {}",
+            o.losses.describe()
+        );
         if o.violations.is_empty() {
             let _ = writeln!(s, "- rules broken: none");
         }
