@@ -28,7 +28,7 @@
 use anyhow::{anyhow, Context, Result};
 use m4_cycles::{Flow, Function, Image, Insn};
 use std::collections::{HashMap, HashSet};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// The control interrupt, and the adaptation task it hands every sample to (RTIC binds it
 /// to USART3's vector): neither may reach f64 soft-float, a panic or an unprovable jump.
@@ -350,15 +350,6 @@ fn scan(image: &Image, root: &str) -> Result<Findings> {
             .count(),
         problems,
     })
-}
-
-/// The default build's ELF (`cargo xtask build-cross`), what `isr-check` and `ci` scan.
-pub fn release_elf() -> PathBuf {
-    crate::root()
-        .join("target")
-        .join(crate::TARGET)
-        .join("release")
-        .join(crate::FIRMWARE)
 }
 
 /// Scan the firmware ELF `elf`; error (listing every problem) if any.

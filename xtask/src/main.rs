@@ -97,7 +97,7 @@ fn main() -> ExitCode {
         Some("size") => docs::generate(&["size"]),
         Some("isr-check") => setup()
             .and_then(|_| build_cross())
-            .and_then(|_| isr::check(&isr::release_elf())),
+            .and_then(|_| isr::check(&release_elf())),
         Some("flash") => setup().and_then(|_| flash()),
         Some("docs") => docs::main(&args[1..]),
         Some("bench-accuracy") => bench_accuracy(&args[1..]).and_then(|_| docs::render_pages()),
@@ -147,6 +147,15 @@ pub(crate) fn root() -> PathBuf {
             .unwrap_or_else(|| PathBuf::from("."))
     })
     .clone()
+}
+
+/// The release firmware ELF the cross build writes (and `cargo xtask flash` flashes).
+pub(crate) fn release_elf() -> PathBuf {
+    root()
+        .join("target")
+        .join(TARGET)
+        .join("release")
+        .join(FIRMWARE)
 }
 
 pub(crate) fn cargo() -> Command {
@@ -239,11 +248,7 @@ fn build_cross() -> Result<String> {
 fn size_report() -> Result<String> {
     use object::{Object, ObjectSection, SectionFlags, SectionKind};
     const SHF_ALLOC: u64 = 0x2;
-    let elf = root()
-        .join("target")
-        .join(TARGET)
-        .join("release")
-        .join(FIRMWARE);
+    let elf = release_elf();
     let data = std::fs::read(&elf).with_context(|| elf.display().to_string())?;
     let file = object::File::parse(&*data).with_context(|| elf.display().to_string())?;
     let (mut flash, mut ram) = (0u64, 0u64);
@@ -364,11 +369,7 @@ fn perf(report: Option<&Path>) -> Result<()> {
     emu_setup()?;
     let dir = root().join("target").join("perf");
     std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
-    let built = root()
-        .join("target")
-        .join(TARGET)
-        .join("release")
-        .join(FIRMWARE);
+    let built = release_elf();
     let mut builds = Vec::new();
     for (label, features, name, board) in PERF_BUILDS.iter().rev() {
         let mut c = cross_build(FIRMWARE);
@@ -422,7 +423,7 @@ fn ci() -> Result<()> {
     c.args(["--", "-D", "warnings"]);
     run(c)?;
     build_cross()?;
-    isr::check(&isr::release_elf())?;
+    isr::check(&release_elf())?;
     qemu::bit_exact()?;
     test_host()?;
     // The release firmware on the emulated board: the scenarios and the rule models.

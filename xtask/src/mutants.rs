@@ -8,7 +8,7 @@
 //! (it did not build, the test did not run), fails this command: a check that passes
 //! whatever the firmware does is what this exists to find.
 
-use crate::{cargo, cross_build, root, run, EMULATOR, FIRMWARE, TARGET};
+use crate::{cargo, cross_build, release_elf, root, run, EMULATOR, FIRMWARE};
 use anyhow::{bail, Context, Result};
 use std::process::Stdio;
 
@@ -52,17 +52,8 @@ const MUTANTS: [Mutant; 4] = [
     },
 ];
 
-/// Build every mutant, run its test, and fail unless each is caught as expected. The
-/// default release ELF is rebuilt last, so that other commands keep using it.
-pub fn check() -> Result<()> {
-    let dir = root().join("target").join("mutants");
-    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
-    let built = root()
-        .join("target")
-        .join(TARGET)
-        .join("release")
-        .join(FIRMWARE);
-    // The test binary once, before the mutants (so a build error is not taken for a kill).
+/// `cargo test` of the emulator's scenario tests (release, as CI runs them).
+fn scenario_tests() -> std::process::Command {
     let mut c = cargo();
     c.args([
         "test",
@@ -72,8 +63,19 @@ pub fn check() -> Result<()> {
         EMULATOR,
         "--test",
         "scenarios",
-        "--no-run",
     ]);
+    c
+}
+
+/// Build every mutant, run its test, and fail unless each is caught as expected. The
+/// default release ELF is rebuilt last, so that other commands keep using it.
+pub fn check() -> Result<()> {
+    let dir = root().join("target").join("mutants");
+    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
+    let built = release_elf();
+    // The test binary once, before the mutants (so a build error is not taken for a kill).
+    let mut c = scenario_tests();
+    c.arg("--no-run");
     run(c)?;
     let mut report = Vec::new();
     let mut survivors = Vec::new();
@@ -83,19 +85,8 @@ pub fn check() -> Result<()> {
         run(c)?;
         let elf = dir.join(format!("{FIRMWARE}-{}", m.feature));
         std::fs::copy(&built, &elf).with_context(|| elf.display().to_string())?;
-        let mut c = cargo();
-        c.args([
-            "test",
-            "--release",
-            "--locked",
-            "-p",
-            EMULATOR,
-            "--test",
-            "scenarios",
-            m.test,
-            "--",
-            "--exact",
-        ]);
+        let mut c = scenario_tests();
+        c.args([m.test, "--", "--exact"]);
         c.env("DRIVE_EMU_ELF", &elf);
         c.stdout(Stdio::piped()).stderr(Stdio::piped());
         eprintln!("\nxtask mutants: {} ({}) ...", m.feature, m.broken);
