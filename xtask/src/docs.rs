@@ -66,7 +66,7 @@ const GENERATORS: [Generator; 11] = [
     Generator {
         name: "emu-report",
         command: "cargo xtask emu-report",
-        sections: &["emu-report"],
+        sections: &["emu-report", "emu-scenarios"],
         data: &[],
         in_ci: InCi::Rerun,
     },
@@ -199,9 +199,10 @@ fn run_generator(g: &Generator, out: &Path, check: bool) -> Result<()> {
         }
         "perf" => crate::perf(Some(&file("perf.md"))),
         "emu-report" => {
-            let report = file("emu-report.md");
+            let (report, details) = (file("emu-report.md"), file("emu-scenarios.md"));
             let report = report.to_str().context("a non-UTF-8 path")?;
-            crate::emu(&["scenarios", "--report", report])
+            let details = details.to_str().context("a non-UTF-8 path")?;
+            crate::emu(&["scenarios", "--report", report, "--details", details])
         }
         "cycles" => {
             crate::setup()?;

@@ -85,6 +85,8 @@ pub fn check() -> Result<()> {
         run(c)?;
         let elf = dir.join(format!("{FIRMWARE}-{}", m.feature));
         std::fs::copy(&built, &elf).with_context(|| elf.display().to_string())?;
+        // Every build CI makes is scanned, these too.
+        crate::isr::check(&elf)?;
         let mut c = scenario_tests();
         c.args([m.test, "--", "--exact"]);
         c.env("DRIVE_EMU_ELF", &elf);

@@ -163,6 +163,16 @@ impl Verdict {
         }
     }
 
+    /// The measured figure as the report prints it.
+    pub fn measured_text(&self) -> String {
+        self.fmt_value(self.measured)
+    }
+
+    /// The budget as the report prints it.
+    pub fn limit_text(&self) -> String {
+        self.fmt_value(self.limit)
+    }
+
     pub fn describe(&self) -> String {
         let (m, l) = (self.fmt_value(self.measured), self.fmt_value(self.limit));
         let what = self.check.label();

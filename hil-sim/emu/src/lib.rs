@@ -9,6 +9,7 @@ pub mod cpu;
 pub mod elf;
 pub mod machine;
 pub mod nvic;
+pub mod perf_report;
 pub mod periph;
 pub mod profile;
 pub mod regfile;

@@ -31,9 +31,12 @@ enum Cmd {
     Scenarios {
         #[arg(long)]
         elf: Option<PathBuf>,
-        /// Write the markdown report (docs/figures/emu-report.md) here.
+        /// Write the table (docs/figures/emu-report.md) here.
         #[arg(long)]
         report: Option<PathBuf>,
+        /// Write each scenario's details (docs/figures/emu-scenarios.md) here.
+        #[arg(long)]
+        details: Option<PathBuf>,
         names: Vec<String>,
     },
     /// Per firmware build: the commissioning power-up to Run, then the control
@@ -77,7 +80,12 @@ fn main() -> Result<()> {
             window_s,
             report,
         } => perf(&builds, &n1_builds, window_s, report),
-        Cmd::Scenarios { elf, report, names } => {
+        Cmd::Scenarios {
+            elf,
+            report,
+            details,
+            names,
+        } => {
             let (path, bytes) = read_elf(elf)?;
             let names: Vec<String> = if names.is_empty() {
                 scenarios::ALL.iter().map(|s| s.to_string()).collect()
@@ -105,8 +113,12 @@ fn main() -> Result<()> {
                 |n| n.to_string_lossy().into_owned(),
             );
             let note = format!("Firmware: the release `{name}` ELF of this checkout.");
-            let text = scenarios::report(&outcomes, &note);
-            publish(report, &text)
+            if report.is_none() && details.is_none() {
+                println!("{}", scenarios::report(&outcomes, &note));
+                return Ok(());
+            }
+            publish(report, &scenarios::report_table(&outcomes))?;
+            publish(details, &scenarios::report_details(&outcomes, &note))
         }
     }
 }
@@ -130,10 +142,10 @@ fn perf(
     report: Option<PathBuf>,
 ) -> Result<()> {
     use drive_emu::budget;
+    use drive_emu::perf_report::{self, Built};
     use scenarios::SensorBoard;
-    let mut text = budget::budgets_text();
-    text.push('\n');
     let mut failed = Vec::new();
+    let mut measured = Vec::new();
     let all = builds
         .iter()
         .map(|b| (b, SensorBoard::Kmz41))
@@ -145,8 +157,8 @@ fn perf(
         let (path, bytes) = read_elf(Some(PathBuf::from(path)))?;
         eprintln!("drive-emu: perf {label} ({}) ...", path.display());
         let p = scenarios::perf_run(&bytes, window_s, sensor).with_context(|| label.to_string())?;
-        let mut table = scenarios::perf_table(&p, label);
         // Where the firmware was at each missed period: the inlined chain's functions.
+        let mut missed_at = Vec::new();
         for (ms, _, pc) in p.missed.iter().take(5) {
             if let Ok(c) = m4_cycles::chains_of_elf(&bytes, &[*pc]) {
                 let names: Vec<String> = c
@@ -155,22 +167,34 @@ fn perf(
                     .flatten()
                     .map(|f| format!("`{}`", f.function))
                     .collect();
-                table.push_str(&format!(
-                    "- the code running at the missed period at {ms:.2} ms ({pc:#010x}, innermost first): {}\n",
+                missed_at.push(format!(
+                    "the code running at the missed period at {ms:.2} ms ({pc:#010x}, innermost first): {}",
                     names.join(" ← ")
                 ));
             }
         }
+        let mut table = scenarios::perf_table(&p, label);
+        for l in &missed_at {
+            table.push_str(&format!("- {l}\n"));
+        }
         eprintln!("{table}\n  {:.1} s wall", p.wall_s);
-        text.push_str(&table);
-        text.push('\n');
         for v in budget::evaluate(&p.budget_measures())
             .iter()
             .filter(|v| v.fails())
         {
             failed.push(format!("{label}: {}", v.describe()));
         }
+        measured.push((label.to_string(), p, missed_at));
     }
+    let built: Vec<Built> = measured
+        .iter()
+        .map(|(label, perf, missed_at)| Built {
+            label,
+            perf,
+            missed_at: missed_at.clone(),
+        })
+        .collect();
+    let text = perf_report::report(&built);
     publish(report, &text)?;
     if !failed.is_empty() {
         anyhow::bail!("over budget:\n  {}", failed.join("\n  "));
