@@ -370,10 +370,13 @@ impl<const E: usize> Supervisor<E> {
                     }
                     Err(e) => {
                         self.load = LoadStatus::Unavailable;
-                        events.push(Event::NotLoaded {
-                            t_ms,
-                            reason: e.name(),
-                        });
+                        // A failed read names the flash's own error (a double ECC
+                        // error of a torn write, say), as a failed store does.
+                        let reason = match e.reason() {
+                            calib_record::Rejected::Flash(f) => f.name(),
+                            r => r.name(),
+                        };
+                        events.push(Event::NotLoaded { t_ms, reason });
                     }
                 }
             }

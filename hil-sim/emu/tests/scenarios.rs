@@ -287,7 +287,7 @@ fn a_power_cut_during_the_store_tears_the_record_and_the_next_power_up_commissio
     let first = states(&o, 0);
     assert_eq!(first.last(), Some(&"Store"), "{first:?}");
     assert!(!event_in(&o, 0, "mras-stored", ""));
-    assert!(event_in(&o, 1, "mras-not-loaded", "reason=Flash"));
+    assert!(event_in(&o, 1, "mras-not-loaded", "reason=EccDouble"));
     assert!(!event_in(&o, 1, "mras-loaded", ""));
     assert!(!o.has_event("mras-fault", ""), "no fault: {:#?}", o.events);
     let ecc = o
