@@ -519,7 +519,8 @@ mod tests {
         assert_eq!(f.reachable_instructions, 8 + 2 + 2 + 3);
     }
 
-    /// The case: `it ne; blxne r3` in a routine the handler calls.
+    /// `it ne; blxne r3` in a routine the handler calls: a conditional call through a
+    /// register is indirect whatever the condition.
     #[test]
     fn a_conditional_indirect_call_in_an_it_block_fails_naming_it() {
         let p = image(
@@ -824,7 +825,7 @@ mod tests {
         o.write().unwrap()
     }
 
-    /// The case on an ELF file: the check reads the symbols and the mapping
+    /// `blxne r3` on an ELF file: the check reads the symbols and the mapping
     /// symbols and fails naming `blxne r3`; without it, the same file passes.
     #[test]
     fn check_fails_on_an_elf_whose_handler_reaches_blxne_r3() {
