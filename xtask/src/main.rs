@@ -52,7 +52,7 @@ cargo xtask <command>
                 docs/figures/cycles.md and the pages that show it
   docs [GEN..]  every generated figure of the docs: runs the generators (all, or
                 those named: size perf emu-report cycles bench-accuracy scenarios
-                commissioning laws core ripple-ci ripple; ~15 min for all) into
+                commissioning laws core ripple-ci ripple; minutes for all) into
                 docs/figures/, then splices them into README.md and docs/*.md
   docs --render splice the pages from the committed figure files only (after a
                 template or prose edit; seconds)
@@ -70,15 +70,18 @@ cargo xtask <command>
                 powering up again with the stored calibration; CSV and plots in
                 target/emu (installs Debian cmake and libclang-dev if missing)
   emu-report    every firmware-in-the-loop scenario; regenerates
-                docs/figures/emu-report.md and the pages that show it
+                docs/figures/emu-report.md and emu-scenarios.md and the pages that
+                show them
   perf          the control interrupt by stage at 20 and 40 kHz, and at 20 kHz with
                 an N = 1 sensor and the bank from the data: cross-builds the three
                 (target/perf/drive-fw-20k, -40k, -n1), commissions each to Run on
                 the emulator (the last with an N = 1 sensor), measures 0.5 s of Run
                 (instructions and estimated Cortex-M4 cycles per stage); regenerates
                 docs/figures/perf.md and the pages that show it; fails if a build
-                fails isr-check (each is scanned before it runs) or misses a control
-                period
+                fails isr-check (each is scanned before it runs) or the gate of
+                hil-sim/emu/src/budget.rs (a HardFault, a broken rule, a missed
+                period, an interrupt, masked stretch or adaptation-task run over
+                budget)
   mutants       deliberately broken firmware (the `mutant-*` features of drive-fw:
                 the correction's sign, the electrical offset, a control interrupt of
                 1.5 periods, a starved update queue), each run on the emulator test
