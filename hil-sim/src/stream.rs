@@ -169,7 +169,7 @@ impl Line {
         coef[..coefs.len()].copy_from_slice(&coefs);
         let f32_at = |key: &str| f32_of(key, one(key)?);
         // Fields a firmware from before the loss counters and θ̂ does not send.
-        let newer = !self.values("handoffs_dropped").is_empty();
+        let newer = self.has_loss_counters();
         let counter = |key: &str| if newer { uint(key, u32::MAX) } else { Ok(0) };
         Ok(Record {
             t_ms: uint("t_ms", u32::MAX)?,

@@ -308,9 +308,8 @@ impl<T: Trig> ControlPeriod<T> {
     /// ([`Snapshot::updates_late`]).
     #[inline(always)]
     pub fn apply(&mut self, u: &InjectionUpdate) -> bool {
-        // The front's own test, strict: due before the coming period index + 1.
-        let coming = self.tracker.index().wrapping_add(1);
-        let late = (u.apply_at.wrapping_sub(coming) as i32) < 0;
+        // The front's own test (`due_in(coming) <= 0`), strict.
+        let late = u.due_in(self.tracker.index().wrapping_add(1)) < 0;
         let applied = self.tracker.apply(u);
         self.updates_late = self.updates_late.saturating_add((applied && late) as u32);
         applied

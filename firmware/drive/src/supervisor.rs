@@ -83,7 +83,7 @@ impl<const E: usize> Events<E> {
 
     /// In stream order: the boot fault, then the step's.
     pub fn iter(&self) -> impl Iterator<Item = &Event> + '_ {
-        self.boot.iter().chain(self.list.iter())
+        self.into_iter()
     }
 
     pub fn len(&self) -> usize {
@@ -146,7 +146,7 @@ impl<const E: usize> Output<E> {
     }
 
     fn line_count(&self) -> u32 {
-        (self.paths.is_some() as usize + self.events.len() + self.record.is_some() as usize) as u32
+        self.lines().count() as u32
     }
 }
 

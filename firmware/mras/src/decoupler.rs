@@ -352,6 +352,16 @@ pub struct InjectionUpdate {
     pub change: Change,
 }
 
+impl InjectionUpdate {
+    /// Periods from `coming` (the index of the period about to run) to the one this is
+    /// in force from, with wrapping indices: ≤ 0 when it is due now, < 0 when it was due
+    /// earlier (late).
+    #[inline(always)]
+    pub fn due_in(&self, coming: u32) -> i32 {
+        self.apply_at.wrapping_sub(coming) as i32
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Change {
     /// Path `path`'s new term, `coef + coef_p` (path order).

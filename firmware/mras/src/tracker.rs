@@ -624,8 +624,7 @@ impl<T: Trig> Front<T> {
     /// it). A late one (its task missed the deadline) is applied at once.
     #[inline(always)]
     pub fn apply(&mut self, u: &InjectionUpdate) -> bool {
-        // Wrapping comparison: due when apply_at - (index + 1) is "not positive".
-        let due = (u.apply_at.wrapping_sub(self.index.wrapping_add(1)) as i32) <= 0;
+        let due = u.due_in(self.index.wrapping_add(1)) <= 0;
         if due {
             match u.change {
                 Change::Term { path, value } => self.inject.set(path as usize, value),
