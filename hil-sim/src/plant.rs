@@ -449,7 +449,8 @@ impl Plant {
     }
 
     /// The largest phase current magnitude of an αβ current (the comparator watches all
-    /// three phases).
+    /// three phases; a NaN phase is passed over by `max`, an all-NaN current gives NaN,
+    /// which trips nothing).
     fn phase_peak_a(ia: f64, ib: f64) -> f64 {
         ia.abs()
             .max((0.5 * ia - 0.5 * SQRT3 * ib).abs())
@@ -512,19 +513,14 @@ impl Plant {
             }
             // The over-current comparator on any phase (a NaN current does not trip it).
             let level = self.break_level_a;
-            if ia.abs() > level
-                || (0.5 * ia - 0.5 * SQRT3 * ib).abs() > level
-                || (0.5 * ia + 0.5 * SQRT3 * ib).abs() > level
-            {
+            let peak = Self::phase_peak_a(ia, ib);
+            if peak > level {
                 self.tripped = true;
                 open |= self.break_opens_bridge;
                 if !over && crossing.is_none() {
                     // A rising edge: linear between the substep's ends (at its start
                     // when the level moved below a current that was already there).
-                    let (peak, peak_before) = (
-                        Self::phase_peak_a(ia, ib),
-                        Self::phase_peak_a(before.0, before.1),
-                    );
+                    let peak_before = Self::phase_peak_a(before.0, before.1);
                     let f = ((level - peak_before) / (peak - peak_before)).clamp(0.0, 1.0);
                     let tc = (n as f64 + if f.is_finite() { f } else { 0.0 }) * h;
                     crossing = Some(tc);

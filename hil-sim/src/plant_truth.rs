@@ -4,11 +4,12 @@
 //! hil-sim's rig and the emulator (which runs the release firmware) feed the same
 //! functions, so a figure means the same thing in both.
 
+use crate::exact::wrap_pi;
 use crate::plant::{MotorParams, Truth};
 use crate::scenario::Probe;
 use mras_sim::SpatialError;
 use nalgebra::{DMatrix, DVector};
-use std::f64::consts::{PI, TAU};
+use std::f64::consts::TAU;
 
 /// The plant at one control period's sampling instant.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -18,10 +19,6 @@ pub struct PeriodTruth {
     pub i_ab: [f64; 2],
     /// The mean electrical torque of the period that ended at the instant (N·m).
     pub torque_nm: f64,
-}
-
-fn wrap_pi(x: f64) -> f64 {
-    (x + PI).rem_euclid(TAU) - PI
 }
 
 /// The current vector the bridge drives against the true rotor's q axis, over the
@@ -112,12 +109,10 @@ impl CurrentVector {
 /// ±π/N), averaged by rotor angle (360 bins, the constant offset removed), pk-pk: what
 /// the sensor would cost uncorrected, measured the way hil-sim's windows do.
 pub fn raw_error_pk_pk_rad(periods: &[PeriodTruth], probe: &Probe) -> f64 {
-    let n = probe.sensor_periods;
     let mut e = SpatialError::<360>::new();
     for p in periods {
-        let th = p.truth.theta_rad;
-        let (x, y) = (p.truth.x as f64, p.truth.y as f64);
-        e.add(th, wrap_pi(y.atan2(x) - n * probe.magnet_rad(th)) / n);
+        let t = &p.truth;
+        e.add(t.theta_rad, probe.raw_error_rad(t.theta_rad, t.x, t.y));
     }
     e.pk_pk_rad()
 }
@@ -267,10 +262,8 @@ pub fn score_estimates(
             return Err(ScoreError::NotFinite { t_ms });
         }
         let th = p.truth.theta_rad;
-        let magnet = probe.magnet_rad(th);
-        let (x, y) = (p.truth.x as f64, p.truth.y as f64);
         thetas.push(th);
-        raw.push(wrap_pi(y.atan2(x) - n * magnet) / n);
+        raw.push(probe.raw_error_rad(th, p.truth.x, p.truth.y));
         est.push(wrap_pi(n * (theta_hat as f64 - th)) / n);
     }
     centred(&mut raw, n);
@@ -294,6 +287,7 @@ mod tests {
     use crate::sensor::Mount;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+    use std::f64::consts::PI;
 
     const PWM_HZ: f64 = 20_000.0;
 

@@ -634,10 +634,16 @@ impl Probe {
     pub fn errors_rad(&self, s: &Step) -> (f64, f64) {
         let n = self.sensor_periods;
         let truth = self.magnet_rad(s.truth.theta_rad);
-        let (x, y) = (s.truth.x as f64, s.truth.y as f64);
-        let raw = wrap_pi(y.atan2(x) - n * truth) / n;
+        let raw = self.raw_error_rad(s.truth.theta_rad, s.truth.x, s.truth.y);
         let est = wrap_pi(n * (s.estimate.theta_unwrapped_rad() - truth)) / n;
         (raw, est)
+    }
+
+    /// The raw sensor's angle error (mechanical rad, within ±π/N) of its true vector
+    /// `(x, y)` at rotor angle `theta_rad`.
+    pub fn raw_error_rad(&self, theta_rad: f64, x: f32, y: f32) -> f64 {
+        let n = self.sensor_periods;
+        wrap_pi((y as f64).atan2(x as f64) - n * self.magnet_rad(theta_rad)) / n
     }
 }
 
