@@ -313,7 +313,7 @@ impl Machine {
             }
         }
         if n == nvic::irq(USART3_IRQ) {
-            self.stats.task_entered_at = Some((self.cycles, self.stats.isr_count_total));
+            self.stats.task_entered_at = Some(self.cycles);
             self.stats.task_serving = self.stats.task_pend.take();
         }
         if n == nvic::NMI {
@@ -341,11 +341,7 @@ impl Machine {
                     let c = self.cycles - c0;
                     st.isr_cycles_sum += c;
                     st.charge(Stage::EntryExit, 0, cost);
-                    if c > st.isr_cycles_max {
-                        st.isr_cycles_max = c;
-                        st.isr_cycles_max_at = self.now;
-                        st.isr_max_stages = st.stage_now;
-                    }
+                    st.isr_cycles_max = st.isr_cycles_max.max(c);
                     if c > st.isr_longest.cycles {
                         st.isr_longest = crate::stats::Longest {
                             cycles: c,
@@ -365,13 +361,12 @@ impl Machine {
         }
         if done == Some(nvic::irq(USART3_IRQ)) {
             let st = &mut self.stats;
-            if let Some((c0, isrs0)) = st.task_entered_at.take() {
+            if let Some(c0) = st.task_entered_at.take() {
                 let c = self.cycles - c0;
                 if c > st.task_cycles_max {
                     st.task_cycles_max = c;
                     st.task_max_at = self.now;
                 }
-                st.task_periods_max = st.task_periods_max.max(st.isr_count_total - isrs0);
             }
             if let Some(k) = st.task_serving.take() {
                 let entered = st.isr_entries - k;

@@ -245,11 +245,9 @@ fn power_up(elf: Option<PathBuf>, out: PathBuf) -> Result<()> {
     for (b, c) in run.run_current.iter().enumerate() {
         if let Some(c) = c {
             println!(
-                "  boot {}, Run, at the plant: the current {:+.1} mrad electrical off the rotor's q axis (pk-pk {:.1} mrad over the rotor angle), torque per amp {:.4} of Kt",
+                "  boot {}, Run, the current against the rotor's q axis (plant): {}",
                 b + 1,
-                c.angle_error_e_rad * 1e3,
-                c.angle_error_e_pk_pk_rad * 1e3,
-                c.torque_per_amp
+                scenarios::describe_current(c)
             );
         }
     }

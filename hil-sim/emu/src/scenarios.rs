@@ -720,7 +720,8 @@ fn torn_store(elf: &[u8], t0: std::time::Instant) -> Result<Outcome> {
     Ok(out)
 }
 
-fn describe_current(c: &CurrentVectorStats) -> String {
+/// The current the bridge drove against the rotor's q axis, measured at the plant.
+pub fn describe_current(c: &CurrentVectorStats) -> String {
     format!(
         "mean angle error {:+.1} mrad electrical, pk-pk over the rotor angle {:.1} mrad, torque per amp {:.4} (at {:.2} A mean)",
         c.angle_error_e_rad * 1e3,
@@ -1075,9 +1076,9 @@ pub struct Perf {
     pub longest_isr: (u64, f64),
     pub masked_max_run: u64,
     /// The adaptation task's longest run before Run and in the window: est. cycles
-    /// (preemptions included), control interrupts during it, when it ended (ms).
-    pub powerup_task_max: (u64, u64, f64),
-    pub task_max: (u64, u64, f64),
+    /// (preemptions included), when it ended (ms).
+    pub powerup_task_max: (u64, f64),
+    pub task_max: (u64, f64),
     /// Over the whole run: the most control interrupts entered from a sample to the
     /// return of the task run that served it (when, ms), and the runs past the deadline.
     pub task_interrupts_max: (u64, f64),
@@ -1134,17 +1135,14 @@ pub fn perf_run(elf: &[u8], window_s: f64, sensor: SensorBoard) -> Result<Perf> 
     let st = &emu.m().stats;
     let powerup_masked_max = (st.masked_max, st.masked_max_at as f64 / TICK_HZ * 1e3);
     let powerup_isr_max = (st.isr_instrs_max, st.isr_cycles_max);
-    let task_max = |st: &crate::stats::Stats| {
-        (
-            st.task_cycles_max,
-            st.task_periods_max,
-            st.task_max_at as f64 / TICK_HZ * 1e3,
-        )
-    };
+    let task_max =
+        |st: &crate::stats::Stats| (st.task_cycles_max, st.task_max_at as f64 / TICK_HZ * 1e3);
     let powerup_task_max = task_max(st);
+    // The power-up's longest interrupt: the run's, as no window has started yet.
     let powerup_isr_max_at = {
         let (k, c) = st
-            .isr_max_stages
+            .isr_longest
+            .stages
             .iter()
             .enumerate()
             .max_by_key(|(_, s)| s.1)
@@ -1153,7 +1151,7 @@ pub fn perf_run(elf: &[u8], window_s: f64, sensor: SensorBoard) -> Result<Perf> 
             .iter()
             .find(|s| **s as usize == k)
             .map_or("?", |s| s.label());
-        (st.isr_cycles_max_at as f64 / TICK_HZ * 1e3, label, c)
+        (st.isr_longest.at as f64 / TICK_HZ * 1e3, label, c)
     };
     emu.m_mut().stats.restart_window();
     emu.run_for(window_s)?;
@@ -1314,7 +1312,7 @@ pub fn perf_table(p: &Perf, title: &str) -> String {
         },
         p.task_deadline_misses,
         p.powerup_task_max.0,
-        p.powerup_task_max.2,
+        p.powerup_task_max.1,
         p.task_max.0,
     );
     for (ms, why, _) in p.missed.iter().take(5) {

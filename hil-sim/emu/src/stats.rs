@@ -89,24 +89,20 @@ pub struct Stats {
     pub isr_cycles_sum: u64,
     pub isr_cycles_max: u64,
     pub isr_cycles_entered_at: Option<u64>,
-    /// The longest interrupt in the window (by cycles): when it returned (ticks), and
-    /// its stages.
-    pub isr_cycles_max_at: u64,
-    pub isr_max_stages: [(u64, u64); STAGE_COUNT],
-    /// The longest interrupt of the whole run (power-up, every boot), never restarted.
+    /// The longest interrupt of the whole run (power-up, every boot; by cycles), never
+    /// restarted: before the first window it is also that window's longest.
     pub isr_longest: Longest,
     /// Per stage: (instructions, cycles) of the interrupt under way, summed over the
     /// window, and the largest of one interrupt.
     pub stage_now: [(u64, u64); STAGE_COUNT],
     pub stage_sum: [(u64, u64); STAGE_COUNT],
     pub stage_max: [(u64, u64); STAGE_COUNT],
-    /// The adaptation task (USART3) under way: est. cycles and control interrupts
-    /// completed at its entry; over the window, its longest run from entry to return
-    /// (est. cycles, the control interrupts that preempted it included), how many
-    /// control periods that run spanned, and when it ended (ticks).
-    pub task_entered_at: Option<(u64, u64)>,
+    /// The adaptation task (USART3) under way: est. cycles at its entry; over the
+    /// window, its longest run from entry to return (est. cycles, the control interrupts
+    /// that preempted it included) and when it ended (ticks). Its deadline is measured
+    /// by the `task_pend` figures below.
+    pub task_entered_at: Option<u64>,
     pub task_cycles_max: u64,
-    pub task_periods_max: u64,
     pub task_max_at: u64,
     /// The deadline: the oldest pend of the task not yet served (the control
     /// interrupt's entry count when it handed the sample over), the pend the run under
@@ -156,7 +152,6 @@ impl Stats {
         self.stage_max = Default::default();
         self.latency_max = 0;
         self.task_cycles_max = 0;
-        self.task_periods_max = 0;
         self.masked_max = 0;
         self.masked_since = None;
     }
