@@ -363,6 +363,22 @@ const PERF_BUILDS: [(&str, &[&str], &str, &str); 3] = [
     ),
 ];
 
+/// The release firmware built with `cargo` arguments `features` and copied aside to
+/// `target/<dir>/<name>` (every build links to the same path), then scanned by
+/// `isr-check`: every build CI makes is, before anything runs it. Callers rebuild the
+/// default build last, so that the release ELF other commands use stays that one.
+pub(crate) fn build_aside(features: &[&str], dir: &str, name: &str) -> Result<PathBuf> {
+    let mut c = cross_build(FIRMWARE);
+    c.args(features);
+    run(c)?;
+    let dir = root().join("target").join(dir);
+    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
+    let out = dir.join(name);
+    std::fs::copy(release_elf(), &out).with_context(|| out.display().to_string())?;
+    isr::check(&out)?;
+    Ok(out)
+}
+
 /// Every build cross-built (each copied aside: they link to the same path) and scanned
 /// by `isr-check`, then each commissioned to Run on the emulator and measured by stage;
 /// `report` regenerates that document's section. The default build is rebuilt last, so
@@ -370,18 +386,9 @@ const PERF_BUILDS: [(&str, &[&str], &str, &str); 3] = [
 fn perf(report: Option<&Path>) -> Result<()> {
     setup()?;
     emu_setup()?;
-    let dir = root().join("target").join("perf");
-    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
-    let built = release_elf();
     let mut builds = Vec::new();
     for (label, features, name, board) in PERF_BUILDS.iter().rev() {
-        let mut c = cross_build(FIRMWARE);
-        c.args(*features);
-        run(c)?;
-        let out = dir.join(name);
-        std::fs::copy(&built, &out).with_context(|| out.display().to_string())?;
-        // The control interrupt of every build CI measures, proven before it runs.
-        isr::check(&out)?;
+        let out = build_aside(features, "perf", name)?;
         builds.push((*board, format!("{label}={}", out.display())));
     }
     builds.reverse();

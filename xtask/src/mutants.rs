@@ -8,7 +8,7 @@
 //! (it did not build, the test did not run), fails this command: a check that passes
 //! whatever the firmware does is what this exists to find.
 
-use crate::{cargo, cross_build, release_elf, root, run, EMULATOR, FIRMWARE};
+use crate::{build_aside, cargo, cross_build, run, EMULATOR, FIRMWARE};
 use anyhow::{bail, Context, Result};
 use std::process::Stdio;
 
@@ -70,9 +70,6 @@ fn scenario_tests() -> std::process::Command {
 /// Build every mutant, run its test, and fail unless each is caught as expected. The
 /// default release ELF is rebuilt last, so that other commands keep using it.
 pub fn check() -> Result<()> {
-    let dir = root().join("target").join("mutants");
-    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
-    let built = release_elf();
     // The test binary once, before the mutants (so a build error is not taken for a kill).
     let mut c = scenario_tests();
     c.arg("--no-run");
@@ -80,13 +77,8 @@ pub fn check() -> Result<()> {
     let mut report = Vec::new();
     let mut survivors = Vec::new();
     for m in &MUTANTS {
-        let mut c = cross_build(FIRMWARE);
-        c.args(["--features", m.feature]);
-        run(c)?;
-        let elf = dir.join(format!("{FIRMWARE}-{}", m.feature));
-        std::fs::copy(&built, &elf).with_context(|| elf.display().to_string())?;
-        // Every build CI makes is scanned, these too.
-        crate::isr::check(&elf)?;
+        let name = format!("{FIRMWARE}-{}", m.feature);
+        let elf = build_aside(&["--features", m.feature], "mutants", &name)?;
         let mut c = scenario_tests();
         c.args([m.test, "--", "--exact"]);
         c.env("DRIVE_EMU_ELF", &elf);
