@@ -81,8 +81,8 @@ pub struct MotorParams {
     pub cogging: Vec<Cogging>,
     pub load_steps: Vec<LoadStep>,
     /// Phase a and b current-sensor offsets (A) and relative gain errors (§V.C).
-    pub current_offset_a: [f64; 2],
-    pub current_gain_error: [f64; 2],
+    pub current_offset_a: [f64; 3],
+    pub current_gain_error: [f64; 3],
 }
 
 impl Default for MotorParams {
@@ -101,8 +101,8 @@ impl Default for MotorParams {
             viscous_nm_s_rad: 1.0e-5,
             cogging: Vec::new(),
             load_steps: Vec::new(),
-            current_offset_a: [0.0; 2],
-            current_gain_error: [0.0; 2],
+            current_offset_a: [0.0; 3],
+            current_gain_error: [0.0; 3],
         }
     }
 }
@@ -210,6 +210,8 @@ pub struct Plant {
     i_ab: [f64; 2],
     /// αβ voltage applied during the period under way (duties of the previous one).
     v_ab_applied: [f64; 2],
+    /// The duties of the bridge output last given (None: bridge off).
+    duties_applied: Option<[f32; 3]>,
     /// Bridge on during the period under way.
     enabled: bool,
     /// The over-current comparator's level on any phase current (A) and whether it has
@@ -305,6 +307,7 @@ impl Plant {
             omega_rm: 0.0,
             i_ab: [0.0; 2],
             v_ab_applied: [0.0; 2],
+            duties_applied: None,
             enabled: false,
             break_level_a: 2.0 * motor.i_max_a,
             tripped: false,
@@ -347,19 +350,32 @@ impl Plant {
         self.i_ab
     }
 
+    /// The duties of the bridge output last given (None: bridge off): with
+    /// [`Self::advance_applied`], those of the period just integrated.
+    pub fn duties_applied(&self) -> Option<[f32; 3]> {
+        self.duties_applied
+    }
+
     pub fn torque_nm(&self) -> f64 {
         self.last_torque_nm
     }
 
     /// Measured phase currents a, b → counts, with the current sensors' offset and gain
     /// errors.
-    fn current_counts(&self) -> (u16, u16) {
+    fn current_counts(&self) -> [u16; 3] {
         let m = &self.motor;
-        let ia = self.i_ab[0];
-        let ib = -0.5 * self.i_ab[0] + 0.5 * SQRT3 * self.i_ab[1];
-        let ia_m = (1.0 + m.current_gain_error[0]) * ia + m.current_offset_a[0];
-        let ib_m = (1.0 + m.current_gain_error[1]) * ib + m.current_offset_a[1];
-        (self.current_adc.counts(ia_m), self.current_adc.counts(ib_m))
+        let i = self.phase_currents_a();
+        [0, 1, 2].map(|k| {
+            self.current_adc
+                .counts((1.0 + m.current_gain_error[k]) * i[k] + m.current_offset_a[k])
+        })
+    }
+
+    /// Phase currents a, b, c (A) at the end of the last period.
+    pub fn phase_currents_a(&self) -> [f64; 3] {
+        let [al, be] = self.i_ab;
+        let b = -0.5 * al + 0.5 * SQRT3 * be;
+        [al, b, -al - b]
     }
 
     fn load_torque_nm(&self, t: f64) -> f64 {
@@ -377,12 +393,13 @@ impl Plant {
         // The sensor's converter codes: the counts less mid-scale (same count size).
         let (qx, qy) = self.sensor.sample_codes(t, self.theta_rm, self.omega_rm);
         let mid = 1i32 << (self.sensor_bits - 1);
-        let (ia, ib) = self.current_counts();
+        let [ia, ib, ic] = self.current_counts();
         let sample = drive::control::Sample {
             x: (qx + mid) as u16,
             y: (qy + mid) as u16,
             ia,
             ib,
+            ic,
             overcurrent: self.tripped,
             cycles: 0,
         };
@@ -403,6 +420,7 @@ impl Plant {
         let open = !out.enable || !self.enabled;
         self.integrate_period(open);
         self.enabled = out.enable;
+        self.duties_applied = out.enable.then_some(out.duties);
         self.v_ab_applied = if out.enable {
             duties_to_ab(&out.duties, self.motor.vdc_v)
         } else {
@@ -415,6 +433,7 @@ impl Plant {
     /// enable as the timer really drove them): for a modelled timer that owns the delay.
     pub fn advance_applied(&mut self, applied: &drive::control::Output) {
         self.enabled = applied.enable;
+        self.duties_applied = applied.enable.then_some(applied.duties);
         self.v_ab_applied = if applied.enable {
             duties_to_ab(&applied.duties, self.motor.vdc_v)
         } else {
@@ -791,12 +810,12 @@ mod tests {
             ..MotorParams::default()
         };
         let mut off = m.clone();
-        off.current_offset_a = [0.2, 0.0];
+        off.current_offset_a = [0.2, 0.0, 0.0];
         let r_off = torque_ripple(off, SensorModel::ideal(2), p);
         let r_off_2p = torque_ripple(m.clone(), SensorModel::ideal(2), p);
         assert!(r_off > 10.0 * r_off_2p.max(1e-6), "{r_off} vs {r_off_2p}");
         let mut gain = m.clone();
-        gain.current_gain_error = [0.05, -0.05];
+        gain.current_gain_error = [0.05, -0.05, 0.0];
         let r_gain = torque_ripple(gain.clone(), SensorModel::ideal(2), 2 * p);
         let r_gain_p = torque_ripple(gain, SensorModel::ideal(2), p);
         assert!(r_gain > 10.0 * r_gain_p.max(1e-6), "{r_gain} vs {r_gain_p}");

@@ -19,6 +19,8 @@ pub struct PeriodTruth {
     pub i_ab: [f64; 2],
     /// The mean electrical torque of the period that ended at the instant (N·m).
     pub torque_nm: f64,
+    /// The duties the bridge applied in that period (None: bridge off).
+    pub duties: Option<[f32; 3]>,
 }
 
 /// The current vector the bridge drives against the true rotor's q axis, over the
@@ -328,6 +330,7 @@ mod tests {
                     },
                     i_ab: [0.0; 2],
                     torque_nm: 0.0,
+                    duties: None,
                 }
             })
             .collect()

@@ -132,6 +132,7 @@ pub fn drive_config(
         speed_bandwidth_hz: control.bandwidth_hz as f32,
         application_loop: control.mode,
         application_bandwidth_hz: control.bandwidth_hz as f32,
+        max_modulation: 1.0,
         supervisor_divider: divider,
     })
 }

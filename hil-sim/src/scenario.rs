@@ -290,8 +290,8 @@ pub struct MotorToml {
     pub viscous_nm_s_rad: f64,
     pub cogging: Vec<CoggingToml>,
     pub load_steps: Vec<LoadStepToml>,
-    pub current_offset_a: [f64; 2],
-    pub current_gain_error: [f64; 2],
+    pub current_offset_a: [f64; 3],
+    pub current_gain_error: [f64; 3],
 }
 
 impl Default for MotorToml {
@@ -310,8 +310,8 @@ impl Default for MotorToml {
             viscous_nm_s_rad: d.viscous_nm_s_rad,
             cogging: Vec::new(),
             load_steps: Vec::new(),
-            current_offset_a: [0.0; 2],
-            current_gain_error: [0.0; 2],
+            current_offset_a: [0.0; 3],
+            current_gain_error: [0.0; 3],
         }
     }
 }

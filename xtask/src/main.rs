@@ -344,6 +344,14 @@ fn emu(args: &[&str]) -> Result<()> {
     run(c)
 }
 
+/// The `fast-run` build (Run near the voltage limit) at `target/fast-run/`, where the
+/// emulator's high-modulation test finds it; the default build rebuilt after it.
+pub(crate) fn fast_run_aside() -> Result<PathBuf> {
+    let out = build_aside(&["--features", "fast-run"], "fast-run", "drive-fw-fast-run")?;
+    run(cross_build(FIRMWARE))?;
+    Ok(out)
+}
+
 /// The firmware builds `perf` measures: (label, cargo features, ELF name, the
 /// `drive-emu perf` option that names the board it runs on: `--n1-build` for the
 /// N = 1 sensor).
@@ -436,7 +444,10 @@ fn ci() -> Result<()> {
     isr::check(&release_elf())?;
     qemu::bit_exact()?;
     test_host()?;
-    // The release firmware on the emulated board: the scenarios and the rule models.
+    // The release firmware on the emulated board: the scenarios and the rule models;
+    // the high-modulation test also runs the `fast-run` build (set aside, then the
+    // default rebuilt so the release ELF stays the default build).
+    fast_run_aside()?;
     let mut c = cargo();
     c.args(["test", "--release", "--locked", "-p", EMULATOR]);
     run(c)?;

@@ -1,8 +1,9 @@
-//! ADC1 and ADC2 in dual injected-simultaneous mode, triggered by TIM1 TRGO2: the
-//! sensor's X and Y are converted at the same instant (ADC1 JSQ1 = X, ADC2 JSQ1 = Y),
-//! followed by the phase currents (JSQ2). RM0440 §21 "Analog-to-digital converters".
+//! ADC1 and ADC2 in dual injected-simultaneous mode, triggered by TIM1 TRGO2 just
+//! after the counter peak: slot by slot (`board_map::INJECTED_SEQUENCE`) the shunts of
+//! phases U and V, then W and the bus voltage, while the low sides conduct; then the
+//! sensor's X and Y at the same instant. RM0440 §21 "Analog-to-digital converters".
 
-use crate::board::pins;
+use board_map::{Adc, Signal, INJECTED_SEQUENCE, SLOT_SAMPLING_HALF_CYCLES};
 use cortex_m::peripheral::DWT;
 use drive::control::Sample;
 use stm32g4xx_hal::stm32::{ADC1, ADC12_COMMON, ADC2, RCC};
@@ -80,6 +81,70 @@ fn power_up_and_calibrate(adc: &stm32g4xx_hal::stm32::adc1::RegisterBlock, n: u8
     }
 }
 
+// `read` takes the data registers in this order.
+const _: () = assert!(
+    matches!(INJECTED_SEQUENCE[0], (Signal::CurrentU, Signal::CurrentV))
+        && matches!(INJECTED_SEQUENCE[1], (Signal::CurrentW, Signal::BusVoltage))
+        && matches!(INJECTED_SEQUENCE[2], (Signal::SensorX, Signal::SensorY))
+);
+
+/// The channels ADC `adc` converts, slot by slot.
+const fn sequence(adc: Adc) -> [u8; 3] {
+    let mut out = [0; 3];
+    let mut k = 0;
+    while k < 3 {
+        let (s1, s2) = INJECTED_SEQUENCE[k];
+        out[k] = board_map::channel(match adc {
+            Adc::Adc1 => s1,
+            Adc::Adc2 => s2,
+        });
+        k += 1;
+    }
+    out
+}
+
+/// SMPR1 and SMPR2 (§21.7.6, 3 bits per channel: 0-9 in SMPR1, 10-18 in SMPR2) with
+/// each channel of ADC `adc`'s sequence at its slot's sampling time.
+const fn smpr(adc: Adc) -> (u32, u32) {
+    let seq = sequence(adc);
+    let (mut r1, mut r2) = (0u32, 0u32);
+    let mut k = 0;
+    while k < 3 {
+        let code = board_map::smp_code(SLOT_SAMPLING_HALF_CYCLES[k]) as u32;
+        let ch = seq[k] as u32;
+        if ch < 10 {
+            r1 |= code << (3 * ch);
+        } else {
+            r2 |= code << (3 * (ch - 10));
+        }
+        k += 1;
+    }
+    (r1, r2)
+}
+
+/// ES0431 (STM32G47x/G48x errata): the first conversion after the ADC is enabled may
+/// be wrong. One software-started regular conversion of `channel`, read and dropped,
+/// before TIM1's trigger is armed (§21.4.15 ADSTART, §21.4.18 EOC).
+fn discard_first_conversion(adc: &stm32g4xx_hal::stm32::adc1::RegisterBlock, n: u8, channel: u8) {
+    // SAFETY: L = 0 (one conversion) and a channel number of the board (1..=18).
+    adc.sqr1()
+        .write(|w| unsafe { w.l().bits(0).sq1().bits(channel) });
+    adc.cr().modify(|_, w| w.adstart().set_bit());
+    let t0 = DWT::cycle_count();
+    while adc.isr().read().eoc().bit_is_clear() {
+        if cycles_since(t0) > STEP_TIMEOUT_CYCLES {
+            defmt::panic!(
+                "ADC{=u8}: the discarded first conversion did not end within 1 ms",
+                n
+            );
+        }
+    }
+    // Reading DR clears EOC; EOS too is cleared before the injected sequence runs.
+    let _ = adc.dr().read();
+    adc.isr()
+        .write(|w| w.eos().clear_bit_by_one().eoc().clear_bit_by_one());
+}
+
 impl Adcs {
     /// Configured, not converting: [`Start`] arms the trigger.
     pub fn new(adc1: ADC1, adc2: ADC2, common: ADC12_COMMON) -> (Self, Start) {
@@ -95,27 +160,31 @@ impl Adcs {
         common
             .ccr()
             .write(|w| w.ckmode().sync_div4().dual().dual_j());
-        for (adc, n) in [(&*adc1, 1), (&*adc2, 2)] {
+        for (adc, which) in [(&*adc1, Adc::Adc1), (&*adc2, Adc::Adc2)] {
+            let n = which.index() as u8 + 1;
             power_up_and_calibrate(adc, n);
-            // 24.5 ADC cycles (0.58 µs): the sensor amplifier's source impedance.
-            adc.smpr1().modify(|_, w| {
-                w.smp1().cycles24_5().smp2().cycles24_5();
-                w.smp6().cycles24_5().smp7().cycles24_5()
-            });
+            discard_first_conversion(adc, n, sequence(which)[0]);
+            // §21.7.6: each slot's sampling time (`SLOT_SAMPLING_HALF_CYCLES`); the two
+            // channels of a slot get the same one, as simultaneous conversions must.
+            let (smpr1, smpr2) = smpr(which);
+            // SAFETY: every 3-bit SMP field holds a defined encoding (`board_map::smp_code`).
+            adc.smpr1().write(|w| unsafe { w.bits(smpr1) });
+            adc.smpr2().write(|w| unsafe { w.bits(smpr2) });
         }
-        // §21.4.12: injected sequence of two conversions; the master's trigger (TIM1
-        // TRGO2, rising edge) starts both ADCs.
-        // SAFETY: channel numbers 1..=18 and JL = 1 (two conversions) are valid values.
+        // §21.4.12: injected sequences of three conversions (JL = 2) of equal length on
+        // both ADCs; the master's trigger (TIM1 TRGO2, rising edge) starts both.
+        let [x1, x2, x3] = sequence(Adc::Adc1);
+        let [y1, y2, y3] = sequence(Adc::Adc2);
+        // SAFETY: channel numbers 1..=18 (board-map's, checked against ST's pin data)
+        // and JL = 2 are valid values.
         adc1.jsqr().write(|w| unsafe {
-            w.jl().set(1);
+            w.jl().set(2);
             w.jextsel().tim1_trgo2().jexten().bits(0b01);
-            w.jsq1().bits(pins::SENSOR_X_ADC1_CHANNEL);
-            w.jsq2().bits(pins::CURRENT_A_ADC1_CHANNEL)
+            w.jsq1().bits(x1).jsq2().bits(x2).jsq3().bits(x3)
         });
         adc2.jsqr().write(|w| unsafe {
-            w.jl().set(1);
-            w.jsq1().bits(pins::SENSOR_Y_ADC2_CHANNEL);
-            w.jsq2().bits(pins::CURRENT_B_ADC2_CHANNEL)
+            w.jl().set(2);
+            w.jsq1().bits(y1).jsq2().bits(y2).jsq3().bits(y3)
         });
         // End of the injected sequence on the master raises ADC1_2.
         adc1.ier().write(|w| w.jeosie().set_bit());
@@ -123,14 +192,16 @@ impl Adcs {
     }
 
     /// Read the sequence and acknowledge the interrupt (counts; the hardware flags of the
-    /// sample are the caller's).
+    /// sample are the caller's). The bus voltage (ADC2 JDR2) fills the slot beside
+    /// phase W, keeping the two sequences of equal length; the control does not use it.
     #[inline]
     pub fn read(&self) -> Sample {
         let s = Sample {
-            x: self.adc1.jdr1().read().jdata().bits(),
-            ia: self.adc1.jdr2().read().jdata().bits(),
-            y: self.adc2.jdr1().read().jdata().bits(),
-            ib: self.adc2.jdr2().read().jdata().bits(),
+            ia: self.adc1.jdr1().read().jdata().bits(),
+            ib: self.adc2.jdr1().read().jdata().bits(),
+            ic: self.adc1.jdr2().read().jdata().bits(),
+            x: self.adc1.jdr3().read().jdata().bits(),
+            y: self.adc2.jdr3().read().jdata().bits(),
             overcurrent: false,
             cycles: 0,
         };

@@ -33,17 +33,48 @@ pub const CONTROL_PERIOD_S: f32 = 1.0 / PWM_HZ as f32;
 /// §28.6.20). Check against the gate driver and MOSFETs of the shield.
 pub const DEAD_TIME_TICKS: u8 = 85;
 
-/// Pins (all AF6 for TIM1 on the STM32G474, DS12288 table 13):
-/// TIM1_CH1 PA8, CH2 PA9, CH3 PA10; CH1N PA7, CH2N PB0, CH3N PB1; BKIN PA6 (active low,
-/// over-current comparator of the shield).
-/// Sensor X: PA0 = ADC1_IN1; sensor Y: PA1 = ADC2_IN2 (sampled simultaneously).
-/// Phase current a: PC0 = ADC1_IN6; phase current b: PC1 = ADC2_IN7.
-pub mod pins {
-    pub const SENSOR_X_ADC1_CHANNEL: u8 = 1;
-    pub const SENSOR_Y_ADC2_CHANNEL: u8 = 2;
-    pub const CURRENT_A_ADC1_CHANNEL: u8 = 6;
-    pub const CURRENT_B_ADC2_CHANNEL: u8 = 7;
-}
+/// The ADCs' clock in timer ticks: synchronous HCLK/4 (adc.rs, CKMODE = 11).
+pub const ADC_CLOCK_TICKS: u32 = 4;
+/// From TRGO2 to the start of the first sampling window (RM0440 §21.4.x latency of
+/// the injected trigger in synchronous clock mode), in ticks.
+pub const ADC_TRIGGER_LATENCY_TICKS: u32 = 3 * ADC_CLOCK_TICKS;
+/// Ticks from the first current slot's sampling start to the second's sampling end:
+/// slot 1's sampling + 12.5-cycle conversion, then slot 2's sampling.
+const CURRENT_SPAN_TICKS: u32 = ((board_map::SLOT_SAMPLING_HALF_CYCLES[0] as u32 + 25)
+    + board_map::SLOT_SAMPLING_HALF_CYCLES[1] as u32)
+    * ADC_CLOCK_TICKS
+    / 2;
+/// Ticks a shunt needs after its low side turns on: dead time, then the shield's
+/// settling (board_map::current_sense::SETTLE_NS).
+const SHUNT_SETTLE_TICKS: u32 =
+    DEAD_TIME_TICKS as u32 + board_map::current_sense::SETTLE_NS * (SYSCLK_HZ / 1_000_000) / 1000;
+/// Around the peak a phase's low side conducts from `-(ARR - CCR_before) + settle` to
+/// `ARR - CCR_after` (ticks from the peak). The current conversions start `k + latency`
+/// after the peak and span `CURRENT_SPAN_TICKS`; centring them in the window gives
+/// the shortest half-window that still lets both slots read: SHUNT_HALF_WINDOW_MIN_TICKS.
+pub const ADC_TRIGGER_AFTER_PEAK_TICKS: u32 =
+    (SHUNT_SETTLE_TICKS - CURRENT_SPAN_TICKS) / 2 - ADC_TRIGGER_LATENCY_TICKS;
+/// A phase is read only if `ARR - CCR` is at least this before and after the peak:
+/// at 20 kHz a duty up to 1 - this/ARR; the two lowest duties of SVPWM stay below
+/// 0.94 over the linear range (drive::control::phases_to_read).
+pub const SHUNT_HALF_WINDOW_MIN_TICKS: u32 =
+    ADC_TRIGGER_AFTER_PEAK_TICKS + ADC_TRIGGER_LATENCY_TICKS + CURRENT_SPAN_TICKS;
+/// The voltage limit as a fraction of Vdc/√3 that keeps the two shunts read inside
+/// their windows: SVPWM's lower two duties reach 1/2 + m·√3/4 (plus 0.007 for the
+/// vector turning between the halves of the window at 100 Hz electrical), and must stay
+/// at or below 1 - SHUNT_HALF_WINDOW_MIN_TICKS/ARR. 1 at 20 kHz; 0.94 at 40 kHz.
+pub const MAX_MODULATION: f32 = {
+    let d_max = 1.0 - SHUNT_HALF_WINDOW_MIN_TICKS as f32 / PWM_ARR as f32;
+    let m = (d_max - 0.5 - 0.007) / (0.25 * 1.732_050_8);
+    if m > 1.0 {
+        1.0
+    } else {
+        m
+    }
+};
+
+/// Pins, ADC channels and the shields' analog front ends: `board_map` (one table,
+/// checked against ST's pin data, that the emulator wires its board from too).
 
 /// Sensor front end: counts at zero and at the nominal amplitude (KMZ41 bridge through
 /// the shield's amplifier, biased at mid-supply). Measure yours: docs/hardware.md step 3.
@@ -75,7 +106,12 @@ pub const VDC_V: f32 = 24.0;
 pub const I_MAX_A: f32 = 10.0;
 pub const CURRENT_BANDWIDTH_HZ: f32 = 1000.0;
 /// Speed held in Run by this firmware's placeholder application (mechanical rad/s).
+/// With the feature `fast-run`, 25 rev/s: a back-EMF of 12.6 V, about 91 % of the
+/// linear voltage limit Vdc/√3 at 24 V (the emulator's high-modulation test).
+#[cfg(not(feature = "fast-run"))]
 pub const APPLICATION_SPEED_RAD_S: f32 = 10.0 * core::f32::consts::TAU;
+#[cfg(feature = "fast-run")]
+pub const APPLICATION_SPEED_RAD_S: f32 = 25.0 * core::f32::consts::TAU;
 /// Speed loop used during commissioning (PI, double pole).
 pub const SPEED_BANDWIDTH_HZ: f32 = 10.0;
 
@@ -139,6 +175,7 @@ pub fn drive_config() -> Option<drive::control::DriveConfig> {
         // The placeholder application holds a speed; replace with your motion loop.
         application_loop: drive::motion::LoopMode::Velocity,
         application_bandwidth_hz: SPEED_BANDWIDTH_HZ,
+        max_modulation: MAX_MODULATION,
         supervisor_divider: SUPERVISOR_DIVIDER,
     })
 }

@@ -1,7 +1,7 @@
 //! TIM1: centre-aligned complementary PWM with dead time and break input, TRGO2 for the
 //! ADCs, MOE as the safe-state switch (RM0440 §28 "Advanced-control timers").
 
-use crate::board::{DEAD_TIME_TICKS, PWM_ARR};
+use crate::board::{ADC_TRIGGER_AFTER_PEAK_TICKS, DEAD_TIME_TICKS, PWM_ARR};
 use stm32g4xx_hal::stm32::{RCC, TIM1};
 
 pub struct Pwm {
@@ -34,13 +34,17 @@ impl Pwm {
             w.oc1m().pwm_mode1().oc1pe().enabled();
             w.oc2m().pwm_mode1().oc2pe().enabled()
         });
-        // Channel 4 in PWM mode 2 with CCR4 = ARR - 1: OC4REF rises just before the
-        // counter peak, where the low-side switches conduct (shunt currents valid).
+        // Channel 4 in PWM mode 1 with CCR4 = ARR - k: OC4REF (active while CNT < CCR4,
+        // §28.3.x PWM mode) rises on the down-count k ticks after the counter peak, so
+        // that the shunt conversions sit inside the low sides' conduction around the
+        // peak (board::ADC_TRIGGER_AFTER_PEAK_TICKS says how k follows from dead time,
+        // settling and the ADC's timing).
         tim.ccmr2_output().write(|w| {
             w.oc3m().pwm_mode1().oc3pe().enabled();
-            w.oc4m().pwm_mode2().oc4pe().enabled()
+            w.oc4m().pwm_mode1().oc4pe().enabled()
         });
-        tim.ccr4().write(|w| w.ccr().set(PWM_ARR as u32 - 1));
+        tim.ccr4()
+            .write(|w| w.ccr().set(PWM_ARR as u32 - ADC_TRIGGER_AFTER_PEAK_TICKS));
         for ccr in [tim.ccr1(), tim.ccr2(), tim.ccr3()] {
             ccr.write(|w| w.ccr().set(PWM_ARR as u32 / 2));
         }

@@ -65,6 +65,9 @@ pub struct DriveConfig {
     pub sensor_y: ChannelScaling,
     pub current: CurrentSensing,
     pub current_bandwidth_hz: f32,
+    /// The current loop's voltage limit as a fraction of Vdc/√3, in (0, 1]: what the
+    /// board's shunt sampling allows ([`crate::foc::CurrentLoopParams::max_modulation`]).
+    pub max_modulation: f32,
     /// The speed loop of [`Setpoint::Speed`] (commissioning).
     pub speed_bandwidth_hz: f32,
     /// The application's loop of [`Setpoint::Application`].
@@ -83,9 +86,13 @@ pub struct Sample {
     /// Sensor X and Y, sampled at the same instant (counts).
     pub x: u16,
     pub y: u16,
-    /// Phase currents a and b (counts).
+    /// Phase currents a, b and c (counts): each shunt's amplifier, read near the counter
+    /// peak. A shunt sees its phase current only while its low side conducts; the
+    /// control period uses the two phases whose low sides conducted longest
+    /// ([`phases_to_read`]) and reconstructs the third.
     pub ia: u16,
     pub ib: u16,
+    pub ic: u16,
     /// The break input fired (hardware has already cleared MOE).
     pub overcurrent: bool,
     /// The previous control interrupt's cycle count, 0 when not measured.
@@ -135,8 +142,8 @@ pub struct ControlPeriod<T: Trig> {
     ripple_active: bool,
     latched: Option<Fault>,
     release: u8,
-    current_zero: [f32; 2],
-    zero_sum: [u32; 2],
+    current_zero: [f32; 3],
+    zero_sum: [u32; 3],
     zero_count: u32,
     currents_ready: bool,
     currents_implausible: bool,
@@ -153,6 +160,31 @@ pub struct ControlPeriod<T: Trig> {
     last_xy: (f32, f32),
     last_fault: Option<Fault>,
     last_currents_a: (f32, f32),
+    /// Duties in force around the peak the next sample is taken at: before it, and
+    /// after it (loaded there from the preload).
+    duties_before: [f32; 3],
+    duties_after: [f32; 3],
+}
+
+/// The phase whose shunt is not read: the one whose low side conducts least around the
+/// counter peak, i.e. the highest duty before or after it (the duties change at the
+/// peak). The other two are read and the third reconstructed (i_a + i_b + i_c = 0).
+/// With min-max SVPWM the two lower duties stay at or below 1/2 + √3/4 ≈ 0.933 over
+/// the whole linear range (a little more for a vector turning between the two halves
+/// of the window), so their low sides conduct at least about 6 % of the period.
+#[inline]
+pub fn phases_to_read(before: &[f32; 3], after: &[f32; 3]) -> usize {
+    let d = [0, 1, 2].map(|k| mras::max_f32(before[k], after[k]));
+    if crate::mutant::current_phases_fixed() {
+        return 2;
+    }
+    if d[0] >= d[1] && d[0] >= d[2] {
+        0
+    } else if d[1] >= d[2] {
+        1
+    } else {
+        2
+    }
 }
 
 fn positive(v: f32, field: &'static str) -> Result<(), ConfigError> {
@@ -216,6 +248,12 @@ impl DriveConfig {
                 "motion loops at most a fifth of the current loop's bandwidth",
             ));
         }
+        if !(self.max_modulation > 0.0 && self.max_modulation <= 1.0) {
+            return Err(ConfigError::new(
+                "drive.max_modulation",
+                "must be in (0, 1]: a fraction of the linear voltage range",
+            ));
+        }
         if self.supervisor_divider == 0 {
             return Err(ConfigError::new("drive.supervisor_divider", "must be >= 1"));
         }
@@ -240,6 +278,7 @@ impl<T: Trig> ControlPeriod<T> {
                 l_h: m.l_h,
                 flux_wb: m.flux_wb,
                 vdc_v: m.vdc_v,
+                max_modulation: cfg.max_modulation,
                 bandwidth_hz: cfg.current_bandwidth_hz,
             }),
             speed: MotionLoop::new(LoopMode::Velocity, cfg.speed_bandwidth_hz, m.inertia_kg_m2),
@@ -265,8 +304,8 @@ impl<T: Trig> ControlPeriod<T> {
             ripple_active: false,
             latched: None,
             release: 0,
-            current_zero: [cfg.current.zero_counts as f32; 2],
-            zero_sum: [0; 2],
+            current_zero: [cfg.current.zero_counts as f32; 3],
+            zero_sum: [0; 3],
             zero_count: 0,
             currents_ready: false,
             currents_implausible: false,
@@ -279,6 +318,8 @@ impl<T: Trig> ControlPeriod<T> {
             last_xy: (0.0, 0.0),
             last_fault: None,
             last_currents_a: (0.0, 0.0),
+            duties_before: [0.5; 3],
+            duties_after: [0.5; 3],
             cfg,
             tracker,
         })
@@ -358,7 +399,7 @@ impl<T: Trig> ControlPeriod<T> {
         } else {
             self.shift_base = None;
         }
-        let currents = self.currents(s.ia, s.ib);
+        let currents = self.currents(s);
         let fault = if s.overcurrent {
             Some(Fault::OverCurrent)
         } else {
@@ -376,7 +417,7 @@ impl<T: Trig> ControlPeriod<T> {
             }
         }
         if cmd.setpoint == Setpoint::Off && cmd.calibrate_currents {
-            self.measure_current_zero(s.ia, s.ib);
+            self.measure_current_zero(s);
         }
 
         // A countdown, not `ticks % divider`: no division (and no panic path) per period.
@@ -473,6 +514,8 @@ impl<T: Trig> ControlPeriod<T> {
         let (va, vb) = inverse_park(vd, vq, trig.sin_cos(theta_e + lead));
         let (duties, _) = svpwm(va, vb, self.cfg.motor.vdc_v);
         self.torque_cmd_nm = self.torque_constant_nm_a * iq_ref;
+        self.duties_before = self.duties_after;
+        self.duties_after = duties;
         Output {
             duties,
             enable: true,
@@ -485,6 +528,8 @@ impl<T: Trig> ControlPeriod<T> {
         self.speed.reset();
         self.application.reset();
         self.torque_cmd_nm = 0.0;
+        self.duties_before = self.duties_after;
+        self.duties_after = [0.5; 3];
         Output {
             duties: [0.5; 3],
             enable: false,
@@ -499,38 +544,55 @@ impl<T: Trig> ControlPeriod<T> {
         mras::min_f32(mras::max_f32(i_a, -m), m)
     }
 
-    /// Phase currents a, b (A). A channel at a rail is beyond the measurable current.
-    fn currents(&self, ia: u16, ib: u16) -> Result<(f32, f32), Fault> {
+    /// Phase currents a, b (A) from the two shunts that saw them ([`phases_to_read`]),
+    /// the third phase reconstructed. A read channel at a rail is beyond the measurable
+    /// current; the unread one shows no current and is not judged.
+    fn currents(&self, s: &Sample) -> Result<(f32, f32), Fault> {
         let c = &self.cfg.current;
+        // Beyond the converter's range on any channel: a misconfigured ADC, read or not.
+        if s.ia > c.max_counts || s.ib > c.max_counts || s.ic > c.max_counts {
+            return Err(Fault::AdcOutOfRange);
+        }
         let amps = |counts: u16, zero: f32| {
-            if counts > c.max_counts {
-                Err(Fault::AdcOutOfRange)
-            } else if counts == 0 || counts == c.max_counts {
+            if counts == 0 || counts == c.max_counts {
                 Err(Fault::OverCurrent)
             } else {
                 Ok((counts as f32 - zero) * c.amps_per_count)
             }
         };
-        Ok((
-            amps(ia, self.current_zero[0])?,
-            amps(ib, self.current_zero[1])?,
-        ))
+        let z = &self.current_zero;
+        Ok(
+            match phases_to_read(&self.duties_before, &self.duties_after) {
+                0 => {
+                    let (ib, ic) = (amps(s.ib, z[1])?, amps(s.ic, z[2])?);
+                    (-ib - ic, ib)
+                }
+                1 => {
+                    let (ia, ic) = (amps(s.ia, z[0])?, amps(s.ic, z[2])?);
+                    (ia, -ia - ic)
+                }
+                _ => (amps(s.ia, z[0])?, amps(s.ib, z[1])?),
+            },
+        )
     }
 
-    fn measure_current_zero(&mut self, ia: u16, ib: u16) {
+    fn measure_current_zero(&mut self, s: &Sample) {
         if self.currents_ready {
             return;
         }
-        self.zero_sum[0] += ia as u32;
-        self.zero_sum[1] += ib as u32;
+        for (sum, counts) in self.zero_sum.iter_mut().zip([s.ia, s.ib, s.ic]) {
+            *sum += counts as u32;
+        }
         self.zero_count += 1;
         if self.zero_count >= CURRENT_ZERO_SAMPLES {
             let c = &self.cfg.current;
             let n = self.zero_count as f32;
-            self.current_zero = [self.zero_sum[0] as f32 / n, self.zero_sum[1] as f32 / n];
+            self.current_zero = self.zero_sum.map(|sum| sum as f32 / n);
             let off = |z: f32| libm::fabsf(z - c.zero_counts as f32);
-            self.currents_implausible = off(self.current_zero[0]) > c.zero_tolerance_counts as f32
-                || off(self.current_zero[1]) > c.zero_tolerance_counts as f32;
+            self.currents_implausible = self
+                .current_zero
+                .iter()
+                .any(|&z| off(z) > c.zero_tolerance_counts as f32);
             self.currents_ready = true;
         }
     }
@@ -669,7 +731,7 @@ impl<T: Trig> ControlPeriod<T> {
     }
 
     /// The current sensors' measured zero (counts).
-    pub fn current_zero_counts(&self) -> [f32; 2] {
+    pub fn current_zero_counts(&self) -> [f32; 3] {
         self.current_zero
     }
 }

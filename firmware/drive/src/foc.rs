@@ -89,6 +89,10 @@ pub struct CurrentLoopParams {
     /// Permanent-magnet flux linkage ψ (V·s).
     pub flux_wb: f32,
     pub vdc_v: f32,
+    /// The voltage limit as a fraction of the linear SVPWM range Vdc/√3 (0 < m <= 1):
+    /// below 1 where the shunts need a longer low-side window than full modulation
+    /// leaves (a fast PWM rate).
+    pub max_modulation: f32,
     pub bandwidth_hz: f32,
 }
 
@@ -114,7 +118,7 @@ impl CurrentLoop {
             p,
             d: pi,
             q: pi,
-            v_max: p.vdc_v * INV_SQRT3,
+            v_max: p.max_modulation * p.vdc_v * INV_SQRT3,
         }
     }
 
@@ -199,6 +203,7 @@ mod tests {
             l_h: 0.5e-3,
             flux_wb: 0.02,
             vdc_v: 24.0,
+            max_modulation: 1.0,
             bandwidth_hz: 1000.0,
         };
         let mut c = CurrentLoop::new(p);

@@ -49,3 +49,12 @@ fn flip_correction(mut est: Estimate, (x, y): (f32, f32), sensor_periods: f32) -
     est.theta_rad = wrap(est.theta_rad - 2.0 * correction / sensor_periods);
     est
 }
+
+/// Whether the control period reads phases a and b whatever the duties (the scheme of a
+/// board that samples two fixed shunts at the counter peak). With
+/// `mutant-fixed-current-phases` it does: above about 0.9 duty on a or b its shunt no
+/// longer conducts when it is read.
+#[inline(always)]
+pub fn current_phases_fixed() -> bool {
+    cfg!(feature = "mutant-fixed-current-phases")
+}

@@ -198,16 +198,19 @@ impl Board {
             truth: self.last.1,
             i_ab: self.plant.currents_ab(),
             torque_nm: self.plant.torque_nm(),
+            duties: self.plant.duties_applied(),
         }
     }
 
     /// The analog front end: what ADC `adc` (0 = ADC1) converts on `channel`.
     pub fn channel(s: &Sample, adc: usize, channel: u32) -> u16 {
         match (adc, channel) {
-            (0, 1) => s.x,
-            (0, 6) => s.ia,
-            (1, 2) => s.y,
+            (0, 1) => s.ia,
+            (0, 6) => s.ic,
+            (0, 11) => s.x,
             (1, 7) => s.ib,
+            (1, 2) => 1500,
+            (1, 5) => s.y,
             // Unwired inputs read near zero.
             _ => 0,
         }

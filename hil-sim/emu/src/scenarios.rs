@@ -894,6 +894,84 @@ pub fn power_up_run(elf: &[u8]) -> Result<PowerUp> {
     })
 }
 
+/// How hard the bridge is driven over a window of periods (plant): the modulation
+/// index |v| / (Vdc/√3) of the applied duties, and the highest duty among each
+/// period's two lower ones (the shunts a three-shunt board reads).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Modulation {
+    pub periods: u64,
+    pub mean: f64,
+    pub max: f64,
+    pub lower_two_duty_max: f64,
+    /// The highest duty of any phase.
+    pub duty_max: f64,
+}
+
+/// [`Modulation`] of the periods with the bridge on; None if there are none.
+pub fn modulation(periods: &[PeriodTruth], vdc_v: f64) -> Option<Modulation> {
+    let limit = vdc_v / 3f64.sqrt();
+    let mut m = Modulation {
+        periods: 0,
+        mean: 0.0,
+        max: 0.0,
+        lower_two_duty_max: 0.0,
+        duty_max: 0.0,
+    };
+    for d in periods.iter().filter_map(|p| p.duties) {
+        let [va, vb] = hil_sim::plant::duties_to_ab(&d, vdc_v);
+        let k = va.hypot(vb) / limit;
+        let mut sorted = d.map(f64::from);
+        sorted.sort_by(f64::total_cmp);
+        m.periods += 1;
+        m.mean += k;
+        m.max = m.max.max(k);
+        m.lower_two_duty_max = m.lower_two_duty_max.max(sorted[1]);
+        m.duty_max = m.duty_max.max(sorted[2]);
+    }
+    (m.periods > 0).then(|| Modulation {
+        mean: m.mean / m.periods as f64,
+        ..m
+    })
+}
+
+/// A commissioning power-up to Run and [`RUN_WINDOW_S`] of Run, measured at the plant:
+/// the current against the rotor's q axis and the modulation. Run on the `fast-run`
+/// build it drives the bridge near its voltage limit.
+pub struct RunAtPlant {
+    pub outcome: Outcome,
+    pub current: Option<CurrentVectorStats>,
+    pub modulation: Option<Modulation>,
+    pub speed_rad_s: f64,
+}
+
+pub fn run_at_plant(elf: &[u8]) -> Result<RunAtPlant> {
+    let t0 = std::time::Instant::now();
+    let mut emu = fresh(elf, None)?;
+    run_until_state(&mut emu, "Run", 4.0)?;
+    emu.run_for(RUN_WINDOW_S)?;
+    let outcome = finish("run-at-plant", &emu, t0, Vec::new())?;
+    let periods = run_periods(&emu, &outcome, 0);
+    let vdc_v = emu.m().board.plant.motor.vdc_v;
+    let speed_rad_s = periods.last().map_or(0.0, |p| p.truth.omega_rad_s);
+    Ok(RunAtPlant {
+        current: run_current(&emu, &outcome, 0),
+        modulation: modulation(periods, vdc_v),
+        speed_rad_s,
+        outcome,
+    })
+}
+
+/// One line: the modulation of a window.
+pub fn describe_modulation(m: &Modulation) -> String {
+    format!(
+        "modulation {:.1} % mean, {:.1} % max of Vdc/√3; duties up to {:.3}, the lower two up to {:.3}",
+        m.mean * 100.0,
+        m.max * 100.0,
+        m.duty_max,
+        m.lower_two_duty_max
+    )
+}
+
 /// The streamed MRAS residual: the first record in Adapt with a residual, the last in Run.
 fn residuals(emu: &Emu) -> Result<(f64, f64)> {
     let d = stream::decode(&emu.elf, &emu.m().rtt.bytes)?;
