@@ -106,12 +106,13 @@ pub const VDC_V: f32 = 24.0;
 pub const I_MAX_A: f32 = 10.0;
 pub const CURRENT_BANDWIDTH_HZ: f32 = 1000.0;
 /// Speed held in Run by this firmware's placeholder application (mechanical rad/s).
-/// With the feature `fast-run`, 25 rev/s: a back-EMF of 12.6 V, about 91 % of the
-/// linear voltage limit Vdc/√3 at 24 V (the emulator's high-modulation test).
+/// With the feature `fast-run`, 24 rev/s: a back-EMF of 12.1 V, with the load's current
+/// about 91 % of the linear voltage limit Vdc/√3 at 24 V (the emulator's
+/// high-modulation test).
 #[cfg(not(feature = "fast-run"))]
 pub const APPLICATION_SPEED_RAD_S: f32 = 10.0 * core::f32::consts::TAU;
 #[cfg(feature = "fast-run")]
-pub const APPLICATION_SPEED_RAD_S: f32 = 25.0 * core::f32::consts::TAU;
+pub const APPLICATION_SPEED_RAD_S: f32 = 24.0 * core::f32::consts::TAU;
 /// Speed loop used during commissioning (PI, double pole).
 pub const SPEED_BANDWIDTH_HZ: f32 = 10.0;
 

@@ -21,6 +21,9 @@ pub const CURRENT_A_PER_COUNT: f64 = -0.0161;
 /// HSI16 and never starts it; a firmware that does gets this frequency.
 pub const NUCLEO_G474RE_HSE_HZ: f64 = 24.0e6;
 
+/// The DC bus the emulated bench supplies to the shield (V).
+pub const BENCH_SUPPLY_V: f64 = 24.0;
+
 pub struct Board {
     pub plant: Plant,
     /// The PWM period the plant integrates per step (ticks): the timer's, once the
@@ -51,7 +54,9 @@ impl Board {
     /// The `commissioning` scenario's motor with the sensor of scenario `sensor_of`.
     fn with_sensor_of(sensor_of: &str, seed: u64) -> anyhow::Result<Self> {
         let sc = Scenario::load("commissioning")?;
-        let motor = sc.file.motor.to_params()?;
+        let mut motor = sc.file.motor.to_params()?;
+        // The bench supply of docs/hardware.md (the shield takes 10-48 V).
+        motor.vdc_v = BENCH_SUPPLY_V;
         // The sensor amplifier: the scenario's converter (12 bits over ±1.5 units), so
         // that its worst sensor (amplitude 1.2, offsets 0.1, harmonics) stays in range.
         let sp = Scenario::load(sensor_of)?.file.sensor.to_params()?;
