@@ -202,7 +202,17 @@ fn run_generator(g: &Generator, out: &Path, check: bool) -> Result<()> {
             let (report, details) = (file("emu-report.md"), file("emu-scenarios.md"));
             let report = report.to_str().context("a non-UTF-8 path")?;
             let details = details.to_str().context("a non-UTF-8 path")?;
-            crate::emu(&["scenarios", "--report", report, "--details", details])
+            let fast = crate::fast_run_aside()?;
+            let fast = fast.to_str().context("a non-UTF-8 path")?;
+            crate::emu(&[
+                "scenarios",
+                "--report",
+                report,
+                "--details",
+                details,
+                "--fast-elf",
+                fast,
+            ])
         }
         "cycles" => {
             crate::setup()?;

@@ -37,6 +37,10 @@ enum Cmd {
         /// Write each scenario's details (docs/figures/emu-scenarios.md) here.
         #[arg(long)]
         details: Option<PathBuf>,
+        /// The `fast-run` build (Run near the voltage limit): the details then end with
+        /// its Run at the plant beside the release ELF's.
+        #[arg(long)]
+        fast_elf: Option<PathBuf>,
         names: Vec<String>,
     },
     /// Per firmware build: the commissioning power-up to Run, then the control
@@ -84,6 +88,7 @@ fn main() -> Result<()> {
             elf,
             report,
             details,
+            fast_elf,
             names,
         } => {
             let (path, bytes) = read_elf(elf)?;
@@ -117,8 +122,16 @@ fn main() -> Result<()> {
                 println!("{}", scenarios::report(&outcomes, &note));
                 return Ok(());
             }
+            let mut text = scenarios::report_details(&outcomes, &note);
+            if let Some(fast) = fast_elf {
+                let (_, fast_bytes) = read_elf(Some(fast))?;
+                eprintln!("drive-emu: Run at the plant, the release and the fast-run builds ...");
+                let low = scenarios::run_at_plant(&bytes)?;
+                let high = scenarios::run_at_plant(&fast_bytes)?;
+                text.push_str(&scenarios::modulation_report(&low, &high));
+            }
             publish(report, &scenarios::report_table(&outcomes))?;
-            publish(details, &scenarios::report_details(&outcomes, &note))
+            publish(details, &text)
         }
     }
 }
