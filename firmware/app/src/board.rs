@@ -73,8 +73,8 @@ pub const MAX_MODULATION: f32 = {
     }
 };
 
-/// Pins, ADC channels and the shields' analog front ends: `board_map` (one table,
-/// checked against ST's pin data, that the emulator wires its board from too).
+// Pins, ADC channels and the shield's analog front ends: `board_map` (one table,
+// checked against ST's pin data, that the emulator wires its board from too).
 
 /// Sensor front end: counts at zero and at the nominal amplitude (KMZ41 bridge through
 /// the shield's amplifier, biased at mid-supply). Measure yours: docs/hardware.md step 3.
