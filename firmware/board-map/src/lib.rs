@@ -153,7 +153,9 @@ pub struct PinUse {
     pub signal: Signal,
     pub pin: Pin,
     pub function: Function,
-    /// The NUCLEO-G474RE header position (ST morpho CN7/CN10, Arduino name if any).
+    /// The NUCLEO-G474RE header position (ST morpho CN7/CN10, Arduino name if any), as
+    /// zephyrproject-rtos/zephyr boards/st/nucleo_g474re/{st_morpho,arduino_r3}_connector.dtsi
+    /// and oxifoc give them.
     pub connector: &'static str,
     /// Where the pin's use on the board is documented.
     pub source: &'static str,
