@@ -1,18 +1,18 @@
-//! The board: NUCLEO-G474RE with an X-NUCLEO-IHM08M1-class three-phase inverter shield
-//! and a KMZ41/KMZ60-class analog sin/cos sensor. The one owner of the clock tree, the
-//! pin map and the electrical ratings: [`setup`] brings them up and hands the app its
-//! peripherals. Verify the pin map against your shield's schematic before the first
-//! power-up (docs/hardware.md).
+//! The board: NUCLEO-G474RE with an X-NUCLEO-IHM08M1 three-phase inverter shield and a
+//! KMZ41/KMZ60-class analog sin/cos sensor. The one owner of the clock tree and the
+//! electrical ratings; the pin map and the analog front ends are data in `board_map`,
+//! which [`setup`] applies: it brings them up and hands the app its peripherals. Set the
+//! shield's jumpers before the first power-up (docs/hardware.md).
 
 use crate::calibration::Flash;
 use crate::pwm::Pwm;
-use stm32g4xx_hal::gpio::GpioExt;
+use board_map::{Function, PinUse, Pull, Tim1Signal};
 use stm32g4xx_hal::independent_watchdog::IndependentWatchdog;
 use stm32g4xx_hal::pwr::{PwrExt, VoltageScale};
 use stm32g4xx_hal::rcc::{
     Config as RccConfig, PllConfig, PllMDiv, PllNMul, PllRDiv, PllSrc, RccExt,
 };
-use stm32g4xx_hal::stm32::{Peripherals, ADC1, ADC12_COMMON, ADC2, RCC};
+use stm32g4xx_hal::stm32::{Peripherals, ADC1, ADC12_COMMON, ADC2, GPIOA, GPIOB, GPIOC, RCC};
 
 /// SYSCLK from HSI16 through the PLL: 16 MHz / M 4 × N 85 / R 2 = 170 MHz, range 1 boost
 /// (RM0440 §7.2.4, §6.1.5).
@@ -77,9 +77,9 @@ pub const MAX_MODULATION: f32 = {
 // checked against ST's pin data, that the emulator wires its board from too).
 
 /// Sensor front end: counts at zero and at the nominal amplitude (KMZ41 bridge through
-/// the shield's amplifier, biased at mid-supply). Measure yours: docs/hardware.md step 3.
-pub const SENSOR_OFFSET_COUNTS: u16 = 2048;
-pub const SENSOR_AMPLITUDE_COUNTS: u16 = 1600;
+/// an amplifier biased at mid-supply). Measure yours: docs/hardware.md step 3.
+pub const SENSOR_OFFSET_COUNTS: u16 = board_map::sensor::OFFSET_COUNTS;
+pub const SENSOR_AMPLITUDE_COUNTS: u16 = board_map::sensor::AMPLITUDE_COUNTS;
 /// Sensor periods per mechanical revolution (KMZ41 over a diametral magnet: 2; with the
 /// feature `sensor-n1`, an on-axis magnet or Hall array: 1).
 #[cfg(not(feature = "sensor-n1"))]
@@ -87,12 +87,13 @@ pub const SENSOR_PERIODS: u16 = 2;
 #[cfg(feature = "sensor-n1")]
 pub const SENSOR_PERIODS: u16 = 1;
 
-/// Current sensing: shunt amplifier gain in A per count, nominal zero at mid-scale (the
-/// zero is measured at start-up with the bridge off). The sign is the board's: ST's
-/// three-shunt boards read `i = zero - counts` (low-side shunts); confirm with a known
-/// DC current at bring-up (docs/hardware.md, step 4) before closing the current loop.
-pub const CURRENT_ZERO_COUNTS: u16 = 2048;
-pub const CURRENT_A_PER_COUNT: f32 = -0.0161;
+/// Current sensing: A per count with the board's sign, and the nominal zero (the zero
+/// is measured at start-up with the bridge off): the IHM08M1's 10 mΩ shunts and ×5.18
+/// amplifiers, `i = (zero - counts) · 15.55 mA` (board_map::current_sense). Confirm the
+/// sign with a known DC current at bring-up (docs/hardware.md, step 4) before closing
+/// the current loop.
+pub const CURRENT_ZERO_COUNTS: u16 = board_map::current_sense::ZERO_COUNTS;
+pub const CURRENT_A_PER_COUNT: f32 = board_map::current_sense::AMPS_PER_COUNT;
 /// A measured zero further than this from the nominal means broken current sensing.
 pub const CURRENT_ZERO_TOLERANCE_COUNTS: u16 = 200;
 
@@ -265,7 +266,8 @@ pub fn setup(dp: Peripherals, cp: &mut cortex_m::Peripherals) -> Board {
         q: None,
         p: None,
     };
-    let mut rcc = dp
+    // The clock tree only: the GPIO clocks are enabled with the pins (`setup_pins`).
+    let _rcc = dp
         .RCC
         .constrain()
         .freeze(RccConfig::pll().pll_cfg(pll).boost(true), pwr);
@@ -274,30 +276,10 @@ pub fn setup(dp: Peripherals, cp: &mut cortex_m::Peripherals) -> Board {
     // from the moment the pins become AF6, never floating (pwm.rs).
     let pwm = Pwm::new(dp.TIM1);
 
-    // Pin map (`pins`): TIM1 outputs and break on AF6, sensor and currents analog.
-    let gpioa = dp.GPIOA.split(&mut rcc);
-    let gpiob = dp.GPIOB.split(&mut rcc);
-    let gpioc = dp.GPIOC.split(&mut rcc);
-    let break_pin = gpioa.pa6.into_alternate::<6>();
-    let _pwm_pins = (
-        gpioa.pa8.into_alternate::<6>(),
-        gpioa.pa9.into_alternate::<6>(),
-        gpioa.pa10.into_alternate::<6>(),
-        gpioa.pa7.into_alternate::<6>(),
-        gpiob.pb0.into_alternate::<6>(),
-        gpiob.pb1.into_alternate::<6>(),
-    );
-    let _analog = (
-        gpioa.pa0.into_analog(),
-        gpioa.pa1.into_analog(),
-        gpioc.pc0.into_analog(),
-        gpioc.pc1.into_analog(),
-    );
-    // A break may have latched while BKIN's pin was not yet on AF6 (a low input is
-    // active). 1 µs covers the break filter (8 timer clocks) after the pin switch;
-    // then clear it, unless the comparator holds the input active.
-    cortex_m::asm::delay(SYSCLK_HZ / 1_000_000);
-    pwm.clear_boot_break(break_pin.is_low());
+    // Pin map (`board_map::PINS`): TIM1 outputs and break on AF6, currents, bus voltage
+    // and sensor analog.
+    let bkin_low = setup_pins(&dp.GPIOA, &dp.GPIOB, &dp.GPIOC);
+    pwm.clear_boot_break(bkin_low);
 
     #[cfg(feature = "cordic")]
     let trig = crate::cordic::Cordic::new(dp.CORDIC);
@@ -318,4 +300,141 @@ pub fn setup(dp: Peripherals, cp: &mut cortex_m::Peripherals) -> Board {
         adc: (dp.ADC1, dp.ADC2, dp.ADC12_COMMON),
         watchdog_reset,
     }
+}
+
+/// One pin's configuration from its line of `board_map::PINS`, written mode last: the
+/// pull, speed and alternate function are in place while the pin is still analog (its
+/// reset state: high impedance, pulls disconnected) and all take effect with the MODER
+/// write, so the pin is never seen half configured (a BKIN without its pull-up).
+#[derive(Clone, Copy)]
+struct PinConfig {
+    number: u32,
+    /// GPIOx_MODER: 10 alternate function, 11 analog (RM0440 §9.4.1).
+    mode: u32,
+    /// GPIOx_PUPDR: 00 none, 01 pull-up, 10 pull-down (§9.4.4).
+    pull: u32,
+    /// GPIOx_OSPEEDR: 10 high speed for the gate-driver outputs (§9.4.3).
+    speed: Option<u32>,
+    /// GPIOx_AFRL/AFRH: the alternate function number (§9.4.9, §9.4.10).
+    af: Option<u32>,
+}
+
+impl PinConfig {
+    const fn of(u: &PinUse) -> Self {
+        let number = u.pin.number as u32;
+        match u.function {
+            Function::Tim1 { signal, af, pull } => Self {
+                number,
+                mode: 0b10,
+                pull: match pull {
+                    Pull::None => 0b00,
+                    Pull::Up => 0b01,
+                    Pull::Down => 0b10,
+                },
+                speed: if signal.is_output() { Some(0b10) } else { None },
+                af: Some(af as u32),
+            },
+            Function::Analog { .. } => Self {
+                number,
+                mode: 0b11,
+                pull: 0b00,
+                speed: None,
+                af: None,
+            },
+        }
+    }
+}
+
+/// Writes one pin's registers on a port: pull, speed, alternate function, then mode.
+/// The three ports are distinct register-block types in the PAC, one expansion each.
+macro_rules! configure_pin {
+    ($port:expr, $c:expr) => {{
+        let (port, c) = ($port, $c);
+        let shift2 = 2 * c.number;
+        // SAFETY (all writes): read-modify-write of this pin's own field, every value a
+        // defined encoding (PinConfig), during init with nothing else running.
+        port.pupdr()
+            .modify(|r, w| unsafe { w.bits((r.bits() & !(0b11 << shift2)) | (c.pull << shift2)) });
+        if let Some(speed) = c.speed {
+            port.ospeedr().modify(|r, w| unsafe {
+                w.bits((r.bits() & !(0b11 << shift2)) | (speed << shift2))
+            });
+        }
+        if let Some(af) = c.af {
+            let shift4 = 4 * (c.number % 8);
+            if c.number < 8 {
+                port.afrl().modify(|r, w| unsafe {
+                    w.bits((r.bits() & !(0xF << shift4)) | (af << shift4))
+                });
+            } else {
+                port.afrh().modify(|r, w| unsafe {
+                    w.bits((r.bits() & !(0xF << shift4)) | (af << shift4))
+                });
+            }
+        }
+        port.moder()
+            .modify(|r, w| unsafe { w.bits((r.bits() & !(0b11 << shift2)) | (c.mode << shift2)) });
+    }};
+}
+
+/// Configures every pin of `board_map::PINS` (after TIM1: its outputs hold their off
+/// level from the moment they become AF). The break input first, its pull-up set while
+/// the pin is still analog, so BKIN never floats once it is TIM1's; then the gate
+/// outputs and the analog inputs. Returns whether BKIN reads low (active) after the
+/// break filter has seen the pin.
+fn setup_pins(gpioa: &GPIOA, gpiob: &GPIOB, gpioc: &GPIOC) -> bool {
+    // SAFETY: init-time clock enables through the PAC; nothing else runs.
+    let rcc = unsafe { &*RCC::ptr() };
+    // RM0440 §7.4 (RCC_AHB2ENR): the ports' clocks, read back before the first GPIO
+    // access (ST's "delay after an RCC peripheral clock enabling").
+    rcc.ahb2enr().modify(|_, w| {
+        w.gpioaen()
+            .set_bit()
+            .gpioben()
+            .set_bit()
+            .gpiocen()
+            .set_bit()
+    });
+    let _ = rcc.ahb2enr().read();
+
+    let is_break = |u: &PinUse| {
+        matches!(
+            u.function,
+            Function::Tim1 {
+                signal: Tim1Signal::Bkin,
+                ..
+            }
+        )
+    };
+    let configure = |u: &PinUse| {
+        let c = PinConfig::of(u);
+        match u.pin.port {
+            b'A' => configure_pin!(gpioa, c),
+            b'B' => configure_pin!(gpiob, c),
+            b'C' => configure_pin!(gpioc, c),
+            // board-map's pins are on ports A-C (tests/st_pin_database.rs).
+            _ => panic!("a pin outside ports A-C"),
+        }
+    };
+    board_map::PINS
+        .iter()
+        .filter(|u| is_break(u))
+        .for_each(configure);
+    board_map::PINS
+        .iter()
+        .filter(|u| !is_break(u))
+        .for_each(configure);
+
+    // A break may have latched while BKIN's pin was not yet on AF6 (a low input is
+    // active). 1 µs covers the break filter (8 timer clocks) after the pin switch;
+    // then the pin's level (GPIOx_IDR, §9.4.5) says whether the comparator holds it.
+    cortex_m::asm::delay(SYSCLK_HZ / 1_000_000);
+    let bkin = board_map::pin_use(board_map::Signal::OverCurrent).pin;
+    let idr = match bkin.port {
+        b'A' => gpioa.idr().read().bits(),
+        b'B' => gpiob.idr().read().bits(),
+        b'C' => gpioc.idr().read().bits(),
+        _ => panic!("a pin outside ports A-C"),
+    };
+    idr & (1 << bkin.number) == 0
 }
