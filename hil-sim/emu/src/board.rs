@@ -215,7 +215,7 @@ impl Board {
             (0, 11) => s.x,
             (1, 7) => s.ib,
             (1, 2) => 1500,
-            (1, 5) => s.y,
+            (1, 13) => s.y,
             // Unwired inputs read near zero.
             _ => 0,
         }
