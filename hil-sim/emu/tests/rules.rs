@@ -154,12 +154,19 @@ fn rcr_0_updates_at_peak_and_valley_rcr_1_once_per_period() {
     assert_eq!(updates_per_period(1), 1.0);
 }
 
+/// The comparator's pin (board_map: PA6) on AF6 (TIM1_BKIN), with the internal
+/// pull-up when `pull_up` (the IHM08M1 has none of its own).
+fn bkin_pin(m: &mut Machine, pull_up: bool) {
+    m.mmio_write(AHB2ENR, 4, 1);
+    let moder = m.mmio_read(0x4800_0000, 4) & !(0b11 << 12);
+    m.mmio_write(0x4800_0000, 4, moder | 0b10 << 12);
+    m.mmio_write(0x4800_0020, 4, 6 << 24);
+    m.mmio_write(0x4800_000C, 4, u32::from(pull_up) << 12);
+}
+
 fn break_clears_moe(bkine: bool) -> bool {
     let mut m = machine();
-    // PA6 on AF6 (TIM1_BKIN).
-    m.mmio_write(AHB2ENR, 4, 1);
-    m.mmio_write(0x4800_0000, 4, 0b10 << 12);
-    m.mmio_write(0x4800_0020, 4, 6 << 24);
+    bkin_pin(&mut m, true);
     pwm(&mut m, 1, bkine);
     assert!(Tim1::moe(&m.regs));
     m.board.plant.break_level_a = -1.0; // any current trips the comparator
@@ -317,9 +324,7 @@ fn the_adaptation_task_returning_after_its_update_is_due_misses_its_deadline() {
 /// level just above the standing current.
 fn overcurrent_bench(bkf: u32) -> Machine {
     let mut m = machine();
-    m.mmio_write(AHB2ENR, 4, 1);
-    m.mmio_write(0x4800_0000, 4, 0b10 << 12);
-    m.mmio_write(0x4800_0020, 4, 6 << 24);
+    bkin_pin(&mut m, true);
     pwm(&mut m, 1, true);
     let bdtr = 85 | 1 << 12 | 1 << 10 | 1 << 11 | bkf << 16;
     m.mmio_write(tim1::BDTR, 4, bdtr);
