@@ -140,7 +140,8 @@ pub enum Trigger {
     /// Not ready, JADSTART clear, or listening to another trigger: the trigger is lost
     /// and no flag says so.
     NotArmed,
-    /// A sequence started; the previous one was unread (JEOS set) or still converting.
+    /// A sequence started, the previous one unread (JEOS set); or, with `converting`,
+    /// the trigger was ignored (§21.4.18) because the previous one still converts.
     Started { unread: bool, converting: bool },
 }
 
@@ -423,12 +424,17 @@ impl Adcs {
         let Some(clk) = Self::clock_ticks(regs).filter(|_| armed) else {
             return Trigger::NotArmed;
         };
-        self.triggers += 1;
         let dual = regs.get(COMMON_CCR) & 0x1F == DUAL_INJECTED_SIMULTANEOUS;
         let found = Trigger::Started {
             unread: regs.bit(ADC1 + ISR, ISR_JEOS),
             converting: self.conv[0].pending.is_some(),
         };
+        if self.conv[0].pending.is_some() {
+            // §21.4.18: "Any hardware triggers which occur while a conversion is
+            // ongoing are ignored."
+            return found;
+        }
+        self.triggers += 1;
         let slave = dual && Self::ready(regs, 1);
         if slave {
             let (c1, c2) = (
