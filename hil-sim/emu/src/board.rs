@@ -1,20 +1,38 @@
-//! The board around the MCU: the NUCLEO-G474RE with a three-phase inverter shield and
-//! an analog sin/cos sensor, wired as the firmware's `board.rs` says (PA0 = ADC1_IN1
-//! sensor X, PA1 = ADC2_IN2 sensor Y, PC0 = ADC1_IN6 current a, PC1 = ADC2_IN7 current
-//! b, PA6 = the over-current comparator on TIM1_BKIN), driving hil-sim's plant. The
-//! scaling constants are the board's hardware (amplifier gains), which the firmware's
-//! board constants describe: they are repeated here as the physical side.
+//! The board around the MCU: the NUCLEO-G474RE with the X-NUCLEO-IHM08M1 three-shunt
+//! inverter shield and an analog sin/cos sensor, wired from `board_map` (the table the
+//! firmware configures itself from): which signal each (ADC, channel) converts, the
+//! comparator's pin on TIM1_BKIN and who pulls it up, the shunt amplifier's scaling and
+//! offset, the bus divider; driving hil-sim's plant.
+//!
+//! The shunt inputs: the amplifier of phase p shows the phase current only while p's
+//! low side conducts (dead time included) over the whole sampling window, and has
+//! settled (`current_sense::SETTLE_NS` after the low side turned on); otherwise the
+//! amplifier's zero plus the ringing of the last switching edge. Every input carries a
+//! small deterministic noise.
 
-use crate::periph::{flash, TICK_HZ};
+use crate::periph::tim1::{OutRegs, Tim1};
+use crate::periph::{flash, ticks, TICK_HZ};
 use crate::regfile::RegFile;
+use board_map::{Function, Signal, Tim1Signal};
 use drive::control::{Output, Sample};
 use hil_sim::plant::{CurrentAdc, Plant, Truth};
 use hil_sim::plant_truth::PeriodTruth;
 use hil_sim::scenario::Scenario;
 
-/// The shield's current amplifier: A per count, zero at mid-scale, low-side shunts read
-/// inverted (ST's three-shunt boards).
-pub const CURRENT_A_PER_COUNT: f64 = -0.0161;
+/// The shield's current amplifier: A per count (signed: low-side shunts read inverted)
+/// and its zero, from `board_map::current_sense`.
+pub const CURRENT_A_PER_COUNT: f64 = board_map::current_sense::AMPS_PER_COUNT as f64;
+pub const CURRENT_ZERO_COUNTS: u16 = board_map::current_sense::ZERO_COUNTS;
+
+/// The ringing of a shunt amplifier's output after a switching edge: its amplitude
+/// (counts), decay time and frequency. Not from a datasheet: an oscillation of some tens
+/// of counts that has died out by `SETTLE_NS` (5 time constants ≈ 1 µs), the order of
+/// what ST's Motor Control SDK budgets as T_noise for this board.
+const RING_COUNTS: f64 = 40.0;
+const RING_TAU_S: f64 = 200.0e-9;
+const RING_HZ: f64 = 4.0e6;
+/// The converted inputs' noise: ±2 counts, deterministic (a hash of the instant).
+const NOISE_COUNTS: i64 = 2;
 
 /// The NUCLEO-G474RE's HSE: the 24 MHz crystal X3 (UM2505, the STM32G4 Nucleo-64 user
 /// manual; ST's own board support uses HSE_VALUE = 24 MHz). The firmware clocks from
@@ -36,6 +54,81 @@ pub struct Board {
     pub wrp2a_pages: Option<(u32, u32)>,
     /// The crystal on OSC_IN/OSC_OUT (Hz).
     pub hse_hz: f64,
+    /// The plant's αβ current at the start of the last step and when (ticks): with the
+    /// state at `plant_at`, the slope the shunts interpolate on.
+    i_before: ([f64; 2], u64),
+}
+
+/// What an analog input shows of the plant: one phase current, the bus, the sensor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Input {
+    Phase(usize),
+    Bus,
+    SensorX,
+    SensorY,
+}
+
+/// The TIM1 channel (0 = CH1) that drives the high side of a phase, from the board map.
+fn tim1_channel_of(high: Signal) -> Option<usize> {
+    match board_map::pin_use(high).function {
+        Function::Tim1 { signal, .. } => match signal {
+            Tim1Signal::Ch1 => Some(0),
+            Tim1Signal::Ch2 => Some(1),
+            Tim1Signal::Ch3 => Some(2),
+            _ => None,
+        },
+        Function::Analog { .. } => None,
+    }
+}
+
+/// The input ADC `adc` (0 = ADC1) converts on `channel`, from the board map.
+fn input_of(adc: usize, channel: u32) -> Option<Input> {
+    let pu = board_map::PINS.iter().find(|p| {
+        matches!(p.function, Function::Analog { adc: a, channel: c }
+            if a.index() == adc && c as u32 == channel)
+    })?;
+    Some(match pu.signal {
+        Signal::CurrentU => Input::Phase(tim1_channel_of(Signal::HighU)?),
+        Signal::CurrentV => Input::Phase(tim1_channel_of(Signal::HighV)?),
+        Signal::CurrentW => Input::Phase(tim1_channel_of(Signal::HighW)?),
+        Signal::BusVoltage => Input::Bus,
+        Signal::SensorX => Input::SensorX,
+        Signal::SensorY => Input::SensorY,
+        _ => return None,
+    })
+}
+
+/// The comparator's pin (TIM1_BKIN): its GPIO port base, pin number, alternate function.
+pub fn bkin_pin() -> (u32, u32, u32) {
+    let pu = board_map::pin_use(Signal::OverCurrent);
+    let af = match pu.function {
+        Function::Tim1 { af, .. } => af as u32,
+        Function::Analog { .. } => 0,
+    };
+    let base = 0x4800_0000 + 0x400 * pu.pin.port_index() as u32;
+    (base, pu.pin.number as u32, af)
+}
+
+/// The BKIN pin's level as the GPIO and the timer see it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BkinPin {
+    /// The pin reads low: the comparator pulls it low, or nothing pulls it up (a
+    /// released open-drain line with no pull-up floats: taken as low).
+    pub low: bool,
+    /// Released and nothing pulls it up.
+    pub floating: bool,
+    /// The pin is in its TIM1_BKIN alternate function (MODER = 10, AFR = the map's).
+    pub routed: bool,
+}
+
+/// A deterministic noise in [-NOISE_COUNTS, NOISE_COUNTS] for an instant and input.
+fn noise(t: u64, adc: usize, channel: u32) -> i64 {
+    let mut h = t ^ (adc as u64) << 56 ^ (channel as u64) << 48;
+    h = h.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    h ^= h >> 29;
+    h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    h ^= h >> 32;
+    (h % (2 * NOISE_COUNTS as u64 + 1)) as i64 - NOISE_COUNTS
 }
 
 impl Board {
@@ -67,8 +160,8 @@ impl Board {
         let mut plant = Plant::new(motor, sensor, 1.0 / pwm_hz, 0.3)?;
         plant.current_adc = CurrentAdc {
             amps_per_count: CURRENT_A_PER_COUNT,
-            zero_counts: 2048,
-            max_counts: 4095,
+            zero_counts: CURRENT_ZERO_COUNTS,
+            max_counts: board_map::current_sense::FULL_SCALE_COUNTS,
         };
         // The comparator drives BKIN; the timer model owns what the break does.
         plant.break_opens_bridge = false;
@@ -86,6 +179,7 @@ impl Board {
             last,
             wrp2a_pages: None,
             hse_hz: NUCLEO_G474RE_HSE_HZ,
+            i_before: ([0.0; 2], 0),
         }
     }
 
@@ -152,6 +246,7 @@ impl Board {
         if n == 0 {
             return;
         }
+        self.i_before = (self.plant.currents_ab(), self.plant_at);
         for _ in 1..n {
             self.plant.advance_applied(&Self::idle());
         }
@@ -178,6 +273,7 @@ impl Board {
     pub fn coast(&mut self, now: u64) -> bool {
         let mut moved = false;
         while now >= self.plant_at + 2 * self.period_ticks {
+            self.i_before = (self.plant.currents_ab(), self.plant_at);
             self.plant.advance_applied(&Self::idle());
             self.plant_at += self.period_ticks;
             moved = true;
@@ -207,17 +303,76 @@ impl Board {
         }
     }
 
-    /// The analog front end: what ADC `adc` (0 = ADC1) converts on `channel`.
-    pub fn channel(s: &Sample, adc: usize, channel: u32) -> u16 {
-        match (adc, channel) {
-            (0, 1) => s.ia,
-            (0, 6) => s.ic,
-            (0, 11) => s.x,
-            (1, 7) => s.ib,
-            (1, 2) => 1500,
-            (1, 13) => s.y,
-            // Unwired inputs read near zero.
-            _ => 0,
+    /// Phase currents a, b, c (A) at `t`: the plant's state at its last step, moved on
+    /// by the slope over that step (the plant is average-valued, a PWM period a step).
+    pub fn phase_currents_at(&self, t: u64) -> [f64; 3] {
+        let (i0, t0) = self.i_before;
+        let i1 = self.plant.currents_ab();
+        let span = self.plant_at.saturating_sub(t0).max(1) as f64;
+        let f = (t as f64 - self.plant_at as f64) / span;
+        let ab = [0, 1].map(|k| i1[k] + (i1[k] - i0[k]) * f.clamp(-1.0, 1.0));
+        let s3 = 3f64.sqrt() / 2.0;
+        [ab[0], -0.5 * ab[0] + s3 * ab[1], -0.5 * ab[0] - s3 * ab[1]]
+    }
+
+    /// The analog front end: what ADC `adc` (0 = ADC1) converts on `channel` over the
+    /// sampling window [`from`, `to`] (ticks), in counts, with the timer's outputs as
+    /// they are then.
+    pub fn input(
+        &self,
+        tim: &Tim1,
+        out: &OutRegs,
+        adc: usize,
+        channel: u32,
+        from: u64,
+        to: u64,
+    ) -> u16 {
+        use board_map::{bus_voltage, current_sense as cs};
+        let full = cs::FULL_SCALE_COUNTS as f64 + 1.0;
+        let n = noise(to, adc, channel);
+        let v = match input_of(adc, channel) {
+            None => return 0,
+            Some(Input::SensorX) => return self.last.0.x,
+            Some(Input::SensorY) => return self.last.0.y,
+            Some(Input::Bus) => {
+                let v_adc = self.plant.motor.vdc_v / bus_voltage::RATIO as f64;
+                (v_adc / cs::VREF_V as f64 * full).round() as i64 + n
+            }
+            Some(Input::Phase(p)) => {
+                let settle = ticks(cs::SETTLE_NS as f64 * 1e-9);
+                let low = tim.low_side(out, p, from, to, settle);
+                let zero = CURRENT_ZERO_COUNTS as i64;
+                if low.conducts {
+                    let i = self.phase_currents_at(to)[p];
+                    zero + (i / CURRENT_A_PER_COUNT).round() as i64 + n
+                } else {
+                    let ring = low.last_edge.map_or(0.0, |e| {
+                        let dt = to.saturating_sub(e) as f64 / TICK_HZ;
+                        RING_COUNTS
+                            * (-dt / RING_TAU_S).exp()
+                            * (2.0 * std::f64::consts::PI * RING_HZ * dt).sin()
+                    });
+                    zero + ring.round() as i64 + n
+                }
+            }
+        };
+        v.clamp(0, cs::FULL_SCALE_COUNTS as i64) as u16
+    }
+
+    /// The comparator's pin: the open-drain output (low while over its level, or
+    /// `glitch`) with the board's pull-up (`over_current::BOARD_PULL_UP`) or the pin's
+    /// own (GPIOx_PUPDR = 01); a pull-down or nothing leaves the released line low.
+    pub fn bkin(&self, regs: &RegFile, glitch: bool) -> BkinPin {
+        let (port, pin, af) = bkin_pin();
+        let moder = (regs.get(port) >> (2 * pin)) & 0b11;
+        let afr = (regs.get(port + 0x20 + 4 * (pin / 8)) >> (4 * (pin % 8))) & 0xF;
+        let pupdr = (regs.get(port + 0x0C) >> (2 * pin)) & 0b11;
+        let pulled_up = board_map::over_current::BOARD_PULL_UP || pupdr == 0b01;
+        let driven_low = self.plant.comparator_over() || glitch;
+        BkinPin {
+            low: driven_low || !pulled_up,
+            floating: !driven_low && !pulled_up && pupdr != 0b10,
+            routed: moder == 0b10 && afr == af,
         }
     }
 }

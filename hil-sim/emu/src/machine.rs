@@ -172,7 +172,20 @@ pub struct Machine {
     /// over the run), leaving it torn; the board is then off and runs no more.
     pub power_cut_at_program: Option<u32>,
     pub powered_off: bool,
+    /// The core halted by a debugger until then (ticks): no instructions, no
+    /// exceptions taken; TIM1 frozen if DBGMCU_APB2FZR.DBG_TIM1_STOP ([`Machine::halt_core`]).
+    pub halted_until: Option<u64>,
 }
+
+/// The over-current comparator's output glitches at a switching edge when a phase
+/// current is within this fraction of its level: the switching ringing on the shunt
+/// (the same that `current_sense::SETTLE_NS` lets die out) adds some tens of counts to
+/// the comparator's input, about a tenth of a trip level set near full scale.
+pub const GLITCH_MARGIN: f64 = 0.10;
+/// How long the glitch holds the output low (s): the first lobes of that ringing, a
+/// few hundred ns (shorter than the 1 µs it takes to settle). A break filter
+/// (BDTR.BKF) longer than this rejects it; a shorter one, or none, latches the break.
+pub const GLITCH_S: f64 = 300.0e-9;
 
 /// Is this halfword the first of a 32-bit Thumb-2 instruction (A6.1)?
 pub fn is_wide(hw: u16) -> bool {
@@ -240,6 +253,7 @@ impl Machine {
             pending_break: None,
             power_cut_at_program: None,
             powered_off: false,
+            halted_until: None,
         };
         m.reset_peripherals(ResetKind::PowerOn);
         m
@@ -497,6 +511,7 @@ impl Machine {
             self.adcs.next_event(),
             self.rcc.next_event(),
             self.pending_break.map(|b| b.1),
+            self.halted_until,
             self.busy_exit.map(|b| b.1),
             self.flash_ctl.next_event(),
             self.iwdg.expiry(&self.regs),
@@ -513,6 +528,10 @@ impl Machine {
 
     /// Process every event due by `now`.
     pub fn service_events(&mut self) {
+        if let Some(t) = self.halted_until.filter(|&t| t <= self.now) {
+            self.halted_until = None;
+            self.tim1.unfreeze(&self.regs, t);
+        }
         loop {
             let mut progressed = false;
             if let Some((t, e)) = self.tim1.next_event() {
@@ -563,7 +582,8 @@ impl Machine {
     /// polarity active low, the bridge opens the filter's latency after a crossing.
     /// The timer's kernel clock is the tick, as for its counter.
     fn arm_break_path(&mut self) {
-        let armed = misc::pa6_is_bkin(&self.regs) && Tim1::break_armed_for_low_pin(&self.regs);
+        let armed =
+            self.board.bkin(&self.regs, false).routed && Tim1::break_armed_for_low_pin(&self.regs);
         self.board.plant.break_path_delay_s =
             armed.then(|| Tim1::break_filter_s(&self.regs, TICK_HZ));
     }
@@ -600,10 +620,13 @@ impl Machine {
                 self.pending_break = Some((crossing, clear));
             }
         }
+        self.comparator_glitch(on);
         self.check_break();
-        let sample = self.board.sample();
-        let read = |adc: usize, ch: u32| crate::board::Board::channel(&sample, adc, ch);
-        let found = self.adcs.trgo2(&mut self.regs, t, &read);
+        let out = tim1::OutRegs::of(&self.regs);
+        let (board, tim) = (&self.board, &self.tim1);
+        let mut read =
+            |adc: usize, ch: u32, from: u64, to: u64| board.input(tim, &out, adc, ch, from, to);
+        let found = self.adcs.trgo2(&mut self.regs, t, &mut read);
         // As the hardware sees it: a trigger while the control interrupt still runs,
         // onto an unread or unfinished sequence, or lost on an ADC not armed once the
         // control interrupt has run.
@@ -633,13 +656,83 @@ impl Machine {
     /// when SYSCFG routes it): a break still active clears MOE.
     pub fn check_break(&mut self) {
         let over = self.board.plant.comparator_over();
-        let pin_low = over && misc::pa6_is_bkin(&self.regs);
         let lock = self.lockup && misc::lockup_to_break(&self.regs);
+        let pin_low = self.bkin_input_low();
         let active = tim1::Tim1::break_input(&self.regs, pin_low, lock);
         if over && !active && tim1::Tim1::moe(&self.regs) {
             self.tim1.breaks_unrouted += 1;
         }
         self.tim1.apply_break(&mut self.regs, self.now, active);
+    }
+
+    /// TIM1's BKIN input: the pin's level once it is in its alternate function. Before
+    /// that the timer's input is not connected to the pin; RM0440 does not say what it
+    /// reads then, and it is taken as low (active with BKP = 0), so that a break
+    /// enabled before the pin is configured latches BIF (the firmware's boot-time
+    /// clear). A routed pin left floating (no pull-up on the board or the pin) reads
+    /// low too: counted as `Tim1::bkin_floating` while the break is enabled.
+    fn bkin_input_low(&mut self) -> bool {
+        let pin = self.board.bkin(&self.regs, false);
+        let floating = pin.routed && pin.floating && self.regs.bit(tim1::BDTR, 1 << 12);
+        self.tim1.note_bkin_floating(floating);
+        !pin.routed || pin.low
+    }
+
+    /// A glitch of the comparator at the switching edges of the period just integrated
+    /// (see [`GLITCH_MARGIN`], [`GLITCH_S`]): through the break path, it latches the
+    /// break when the filter (BDTR.BKF) is shorter than the glitch.
+    fn comparator_glitch(&mut self, bridge_on: bool) {
+        let level = self.board.plant.break_level_a;
+        let i = self.board.plant.currents_ab();
+        let s3 = 3f64.sqrt() / 2.0;
+        let peak = i[0]
+            .abs()
+            .max((0.5 * i[0] - s3 * i[1]).abs())
+            .max((0.5 * i[0] + s3 * i[1]).abs());
+        let near = level > 0.0 && peak <= level && peak > level * (1.0 - GLITCH_MARGIN);
+        if !(bridge_on && near) {
+            return;
+        }
+        self.stats.comparator_glitches += 1;
+        let routed = self.board.bkin(&self.regs, true).routed;
+        if !(routed && Tim1::break_armed_for_low_pin(&self.regs)) {
+            return;
+        }
+        let filter_s = Tim1::break_filter_s(&self.regs, TICK_HZ);
+        if GLITCH_S > filter_s {
+            // The first edge of the period, taken at its start.
+            let edge = self.board.last_period_start();
+            self.stats.glitch_breaks += 1;
+            self.filtered_break(edge, edge + ticks(filter_s));
+        }
+    }
+
+    // ---- debug halt ----
+
+    /// A debugger halts the core for `ticks`: no instructions run and no exception is
+    /// taken (the CPU stalls), time, the peripherals and the plant go on. With
+    /// DBGMCU_APB2FZR.DBG_TIM1_STOP set, TIM1 stops counting and its outputs are
+    /// disabled as if MOE were reset (RM0440 §28.3.31 Debug mode): no trigger, the
+    /// motor coasts with the bridge off; without it the timer keeps switching on its
+    /// last duties. The core resumes by itself at the end.
+    pub fn halt_core(&mut self, ticks: u64) {
+        let until = self.now + ticks;
+        self.stall_until = self.stall_until.max(until);
+        self.halted_until = Some(until);
+        if self.regs.bit(tim1::DBGMCU_APB2FZR, tim1::DBG_TIM1_STOP) {
+            self.tim1.freeze(&self.regs, self.now);
+        }
+        self.stop = true;
+    }
+
+    /// Is the core halted by [`Machine::halt_core`]?
+    pub fn halted(&self) -> bool {
+        self.halted_until.is_some()
+    }
+
+    /// Does the bridge drive the motor now (TIM1 running, MOE set, not frozen)?
+    pub fn bridge_on(&self) -> bool {
+        self.tim1.bridge_on(&self.regs)
     }
 
     /// Level-sensitive interrupt lines into the NVIC.
@@ -684,6 +777,7 @@ impl Machine {
         match addr {
             a if (adc::ADC1..adc::ADC1 + 0x400).contains(&a) => {
                 self.adcs.update(&mut self.regs, self.now);
+                self.adcs.on_read(a);
             }
             tim1::CNT => {
                 let c = self.tim1.cnt(self.now);
@@ -691,10 +785,12 @@ impl Machine {
             }
             misc::CORDIC_RDATA => return self.cordic.read_result(&mut self.regs),
             misc::IWDG_SR => self.iwdg.update(&mut self.regs, self.now),
-            misc::GPIOA_IDR => {
-                // The comparator's open-drain output, pulled up: low on over-current.
-                let over = self.board.plant.comparator_over();
-                self.regs.set_bits(misc::GPIOA_IDR, misc::PA6, !over);
+            a if a == crate::board::bkin_pin().0 + 0x10 => {
+                // The comparator's open-drain output with its pull-up: low on
+                // over-current, or floating with none (read low).
+                let (port, pin, _) = crate::board::bkin_pin();
+                let low = self.board.bkin(&self.regs, false).low;
+                self.regs.set_bits(port + 0x10, 1 << pin, !low);
             }
             _ => {}
         }
@@ -740,13 +836,29 @@ impl Machine {
                 let latency = self.regs.get(flash::ACR) & 0xF;
                 self.rcc.on_write(&mut self.regs, addr, old, now, latency);
             }
-            a if a == adc::ADC1 + adc::CR => self.adcs.on_cr_write(&mut self.regs, 0, old, v, now),
-            a if a == adc::ADC2 + adc::CR => self.adcs.on_cr_write(&mut self.regs, 1, old, v, now),
-            a if (tim1::TIM1..tim1::TIM1 + 0x400).contains(&a) => {
-                let pin_low = self.board.plant.comparator_over() && misc::pa6_is_bkin(&self.regs);
-                let brk = tim1::Tim1::break_input(&self.regs, pin_low, false);
-                self.tim1.on_write(&mut self.regs, addr, old, now, brk);
+            a if a == adc::ADC1 + adc::CR || a == adc::ADC2 + adc::CR => {
+                let i = usize::from(a == adc::ADC2 + adc::CR);
+                let start = self.adcs.on_cr_write(&mut self.regs, i, old, v, now);
+                if start != adc::SoftStart::None {
+                    let out = tim1::OutRegs::of(&self.regs);
+                    let (board, tim) = (&self.board, &self.tim1);
+                    let mut read = |adc: usize, ch: u32, from: u64, to: u64| {
+                        board.input(tim, &out, adc, ch, from, to)
+                    };
+                    self.adcs
+                        .software_start(&mut self.regs, start, now, &mut read);
+                }
             }
+            adc::COMMON_CCR => self.adcs.on_common_write(&mut self.regs, old),
+            a if (tim1::TIM1..tim1::TIM1 + 0x400).contains(&a) => {
+                let pin_low = self.bkin_input_low();
+                let lock = self.lockup && misc::lockup_to_break(&self.regs);
+                let brk = tim1::Tim1::break_input(&self.regs, pin_low, lock);
+                self.tim1.on_write(&mut self.regs, addr, old, now, brk);
+                // A level: an active input latches as soon as the break is enabled.
+                self.check_break();
+            }
+            a if (misc::GPIOA..misc::GPIOA + 0x1C00).contains(&a) => self.check_break(),
             a if (flash::FLASH..flash::FLASH + 0x400).contains(&a) => {
                 // The code is linked for 0x0800_0000: bank 1, unless FB_MODE maps bank
                 // 2 there (the swap itself is not modelled and is reported).

@@ -340,6 +340,41 @@ pub fn violations_of(m: &Machine) -> Vec<String> {
             m.tim1.updates, peaks
         ));
     }
+    for (n, what) in [
+        (
+            a.late_results_read,
+            "wrong results of a conversion more than 1 ms after the last conversion or calibration read (ES0430 ADC erratum: do a dummy conversion first and drop it)",
+        ),
+        (
+            a.jexten_not_rising,
+            "TIM1 TRGO2 edges with JEXTEN other than 01, rising (§21.4.18 table 162)",
+        ),
+        (
+            a.common_write_refused,
+            "ADC_CCR CKMODE/DUAL writes with an ADC enabled, refused (§21.7.2)",
+        ),
+        (
+            a.dual_mismatch,
+            "dual injected-simultaneous triggers with sequences of different lengths or a pair of different sampling times (§21.4.31)",
+        ),
+    ] {
+        if n > 0 {
+            v.push(format!("ADC: {n} {what}"));
+        }
+    }
+    if m.tim1.bkin_floating > 0 {
+        v.push(format!(
+            "TIM1: BKIN floating ({}×): the comparator's open-drain line routed with the break enabled and no pull-up (board_map::over_current::BOARD_PULL_UP, GPIOx_PUPDR), read low: break",
+            m.tim1.bkin_floating
+        ));
+    }
+    if m.stats.glitch_breaks > 0 {
+        v.push(format!(
+            "TIM1: {} breaks latched by comparator glitches at switching edges (BDTR.BKF shorter than {} ns, §28.6.20)",
+            m.stats.glitch_breaks,
+            crate::machine::GLITCH_S * 1e9
+        ));
+    }
     if m.tim1.breaks_unrouted > 0 {
         v.push(format!(
             "TIM1: over-current on BKIN not routed to the break (AF1.BKINE = 0, §28.6.27): {} comparator trips ignored",

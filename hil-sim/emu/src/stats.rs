@@ -137,6 +137,10 @@ pub struct Stats {
     pub breaks: Vec<Break>,
     /// The last TRGO2 (ticks): the sampling instant.
     pub last_trigger: u64,
+    /// Comparator glitches at switching edges (a phase current near the trip level),
+    /// and breaks they latched through a break filter shorter than the glitch.
+    pub comparator_glitches: u64,
+    pub glitch_breaks: u64,
 }
 
 impl Stats {

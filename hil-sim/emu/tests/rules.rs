@@ -154,12 +154,21 @@ fn rcr_0_updates_at_peak_and_valley_rcr_1_once_per_period() {
     assert_eq!(updates_per_period(1), 1.0);
 }
 
+/// The comparator's pin (board_map: PA6) on AF6 (TIM1_BKIN), with the internal
+/// pull-up when `pull_up` (the IHM08M1 has none of its own).
+fn bkin_pin(m: &mut Machine, pull_up: bool) {
+    let en = m.mmio_read(AHB2ENR, 4);
+    m.mmio_write(AHB2ENR, 4, en | 1);
+    // The pull first, then the function: routed before its pull-up, the line floats.
+    m.mmio_write(0x4800_000C, 4, u32::from(pull_up) << 12);
+    m.mmio_write(0x4800_0020, 4, 6 << 24);
+    let moder = m.mmio_read(0x4800_0000, 4) & !(0b11 << 12);
+    m.mmio_write(0x4800_0000, 4, moder | 0b10 << 12);
+}
+
 fn break_clears_moe(bkine: bool) -> bool {
     let mut m = machine();
-    // PA6 on AF6 (TIM1_BKIN).
-    m.mmio_write(AHB2ENR, 4, 1);
-    m.mmio_write(0x4800_0000, 4, 0b10 << 12);
-    m.mmio_write(0x4800_0020, 4, 6 << 24);
+    bkin_pin(&mut m, true);
     pwm(&mut m, 1, bkine);
     assert!(Tim1::moe(&m.regs));
     m.board.plant.break_level_a = -1.0; // any current trips the comparator
@@ -317,9 +326,7 @@ fn the_adaptation_task_returning_after_its_update_is_due_misses_its_deadline() {
 /// level just above the standing current.
 fn overcurrent_bench(bkf: u32) -> Machine {
     let mut m = machine();
-    m.mmio_write(AHB2ENR, 4, 1);
-    m.mmio_write(0x4800_0000, 4, 0b10 << 12);
-    m.mmio_write(0x4800_0020, 4, 6 << 24);
+    bkin_pin(&mut m, true);
     pwm(&mut m, 1, true);
     let bdtr = 85 | 1 << 12 | 1 << 10 | 1 << 11 | bkf << 16;
     m.mmio_write(tim1::BDTR, 4, bdtr);
@@ -566,4 +573,367 @@ fn the_pll_locks_after_its_start_up_and_a_switch_waits_for_it() {
     assert_ne!(m.mmio_read(CR, 4) & 1 << 17, 0);
     m.mmio_write(CFGR, 4, 2);
     assert_eq!(m.rcc.sysclk_hz, 24_000_000);
+}
+
+// ---- the three-shunt board: conversion windows, shunt visibility, the ADC rules ----
+
+use board_map::{channel, current_sense, Signal};
+use drive_emu::periph::tim1::DBGMCU_APB2FZR;
+
+fn adc_base(i: u32) -> u32 {
+    0x5000_0000 + 0x100 * i
+}
+
+/// Both ADCs as the firmware sets them up: HCLK/4, dual injected simultaneous (`dual`),
+/// regulators settled, calibrated, enabled and ready; sampling 6.5 cycles for the
+/// currents and the bus, 24.5 for the sensor (board_map's slots).
+fn adcs_enabled(m: &mut Machine, dual: u32) {
+    m.mmio_write(AHB2ENR, 4, 1 << 13 | 1);
+    m.mmio_write(ADC_CCR, 4, 3 << 16 | dual);
+    for i in 0..2 {
+        let cr = adc_base(i) + 8;
+        m.mmio_write(cr, 4, 0);
+        m.mmio_write(cr, 4, 1 << 28);
+    }
+    wait(m, 25e-6);
+    for i in 0..2 {
+        m.mmio_write(adc_base(i) + 8, 4, 1 << 28 | 1 << 31);
+    }
+    wait(m, 5e-6);
+    for i in 0..2 {
+        m.mmio_write(adc_base(i) + 8, 4, 1 << 28 | 1);
+    }
+    wait(m, 2e-6);
+    let smp = |m: &mut Machine, i: u32, ch: u8, code: u32| {
+        let (reg, sh) = if ch < 10 {
+            (adc_base(i) + 0x14, 3 * ch as u32)
+        } else {
+            (adc_base(i) + 0x18, 3 * (ch as u32 - 10))
+        };
+        let v = m.mmio_read(reg, 4);
+        m.mmio_write(reg, 4, v | code << sh);
+    };
+    for (s, i, code) in [
+        (Signal::CurrentU, 0, 1),
+        (Signal::CurrentW, 0, 1),
+        (Signal::SensorX, 0, 3),
+        (Signal::CurrentV, 1, 1),
+        (Signal::BusVoltage, 1, 1),
+        (Signal::SensorY, 1, 3),
+    ] {
+        smp(m, i, channel(s), code);
+    }
+}
+
+/// The JSQR of board_map's three slots on ADC `i`, JEXTEN as given (TRGO2).
+fn jsqr(i: usize, jexten: u32) -> u32 {
+    let ch: Vec<u32> = board_map::INJECTED_SEQUENCE
+        .iter()
+        .map(|p| channel(if i == 0 { p.0 } else { p.1 }) as u32)
+        .collect();
+    2 | 8 << 2 | jexten << 7 | ch[0] << 9 | ch[1] << 15 | ch[2] << 21
+}
+
+/// A dummy injected conversion by software (ES0430), its result not read, then the
+/// sequence armed on TRGO2 with `jexten`.
+fn arm_injected(m: &mut Machine, dummy: bool, jexten: u32) {
+    for i in 0..2 {
+        m.mmio_write(adc_base(i as u32) + 0x4C, 4, jsqr(i, 0) & !(0x1F << 2));
+    }
+    if dummy {
+        m.mmio_write(ADC1_CR, 4, 1 << 28 | 1 | 1 << 3);
+        wait(m, 5e-6);
+        assert_eq!(
+            m.mmio_read(ADC1_CR, 4) & 1 << 3,
+            0,
+            "JADSTART cleared at the end"
+        );
+        m.mmio_write(ADC1_ISR, 4, 0x7FF);
+        m.mmio_write(adc_base(1), 4, 0x7FF);
+    }
+    for i in 0..2 {
+        m.mmio_write(adc_base(i as u32) + 0x4C, 4, jsqr(i, jexten));
+    }
+    m.mmio_write(ADC1_IER, 4, ISR_JEOS);
+    m.mmio_write(ADC1_CR, 4, 1 << 28 | 1 | 1 << 3);
+}
+
+const ARR: u32 = 4250;
+
+/// TIM1 as the three-shunt firmware runs it: PWM mode 1 on CH1-3 with their
+/// complementary outputs (dead time 85 ticks), CCR1-3 preloaded, updated at the peak
+/// (RCR = 1), TRGO2 = OC4REF in PWM mode 1 with CCR4 = ARR - k: `k` ticks after the peak.
+fn three_shunt_pwm(m: &mut Machine, ccr: [u32; 3], k: u32) {
+    bkin_pin(m, true);
+    pwm(m, 1, true);
+    m.mmio_write(tim1::CCMR2, 4, 0x6868);
+    m.mmio_write(tim1::CCR1 + 12, 4, ARR - k);
+    m.mmio_write(tim1::CCER, 4, 0x555);
+    for (j, c) in ccr.iter().enumerate() {
+        m.mmio_write(tim1::CCR1 + 4 * j as u32, 4, *c);
+    }
+    assert!(Tim1::moe(&m.regs));
+}
+
+/// The shunt reading of phase `p` (0 = U) in the last sequence, and what the phase
+/// current would read at its hold instant.
+fn shunt(m: &mut Machine, p: usize) -> (i64, i64) {
+    let (adc, slot) = [(0, 0), (1, 0), (0, 1)][p];
+    let v = m.mmio_read(adc_base(adc) + 0x80 + 4 * slot, 4) as i64;
+    // Latency 2.625 + 6.5 sampling cycles (+ 19 for the second slot) at 4 ticks each.
+    let hold = m.stats.last_trigger + 36 + 76 * slot as u64;
+    let i = m.board.phase_currents_at(hold)[p];
+    let zero = current_sense::ZERO_COUNTS as i64;
+    (
+        v,
+        zero + (i / current_sense::AMPS_PER_COUNT as f64).round() as i64,
+    )
+}
+
+fn three_shunt_bench(ccr: [u32; 3]) -> Machine {
+    let mut m = machine();
+    adcs_enabled(&mut m, 0b00101);
+    arm_injected(&mut m, true, 1);
+    three_shunt_pwm(&mut m, [2200, 2125, 2125], 20);
+    for _ in 0..40 {
+        wait(&mut m, PERIOD_S);
+    }
+    for (j, c) in ccr.iter().enumerate() {
+        m.mmio_write(tim1::CCR1 + 4 * j as u32, 4, *c);
+    }
+    for _ in 0..3 {
+        wait(&mut m, PERIOD_S);
+    }
+    m
+}
+
+#[test]
+fn a_shunt_reads_its_phase_current_only_while_its_low_side_conducts() {
+    let mut m = three_shunt_bench([2200, 2125, 2125]);
+    for p in 0..3 {
+        let (v, expected) = shunt(&mut m, p);
+        assert!((v - expected).abs() <= 3, "phase {p}: {v} vs {expected}");
+    }
+    let (_, u) = shunt(&mut m, 0);
+    assert!(
+        (u - current_sense::ZERO_COUNTS as i64).abs() > 60,
+        "a current to see: {u}"
+    );
+    // U's high side on almost the whole period: its low side never conducts around the
+    // peak (CCR1 = ARR - 10 is within the dead time), the amplifier shows no current.
+    let mut m = three_shunt_bench([ARR - 10, 2125, 2125]);
+    let (v, expected) = shunt(&mut m, 0);
+    let zero = current_sense::ZERO_COUNTS as i64;
+    assert!((v - zero).abs() <= 45, "U at zero and ringing: {v}");
+    assert!(
+        (expected - zero).abs() > 60,
+        "though a current flows: {expected}"
+    );
+    // V's low side turned on just before the window (CCR2 = ARR - 100: on 15 ticks
+    // before the peak, less than SETTLE_NS before sampling): not settled, no current.
+    let mut m = three_shunt_bench([2200, ARR - 100, 2125]);
+    let (v, expected) = shunt(&mut m, 1);
+    assert!(
+        (v - zero).abs() <= 45,
+        "V not settled: {v} (current {expected})"
+    );
+    assert!(violations_of(&m).is_empty(), "{:#?}", violations_of(&m));
+}
+
+#[test]
+fn a_conversion_late_after_calibration_reads_wrong_unless_a_dummy_conversion_went_first() {
+    for dummy in [false, true] {
+        let mut m = machine();
+        adcs_enabled(&mut m, 0b00101);
+        wait(&mut m, 2e-3);
+        arm_injected(&mut m, dummy, 1);
+        three_shunt_pwm(&mut m, [2125; 3], 20);
+        // The first sequence's end (JEOS), read before the next trigger.
+        while m.mmio_read(ADC1_ISR, 4) & ISR_JEOS == 0 {
+            wait(&mut m, 1e-6);
+        }
+        assert_eq!(m.adcs.triggers, 1);
+        shunt(&mut m, 0);
+        let a = m.adcs.violations;
+        assert!(a.late_conversions >= 2, "{a:?}");
+        assert_eq!(a.late_results_read, u32::from(!dummy), "dummy {dummy}");
+        let flagged = violations_of(&m).iter().any(|v| v.contains("ES0430"));
+        assert_eq!(flagged, !dummy);
+    }
+}
+
+#[test]
+fn only_a_rising_trigger_edge_is_the_firmwares() {
+    for (jexten, bad) in [(1, false), (2, true), (3, true)] {
+        let mut m = machine();
+        adcs_enabled(&mut m, 0b00101);
+        arm_injected(&mut m, true, jexten);
+        three_shunt_pwm(&mut m, [2125; 3], 20);
+        wait(&mut m, 3.0 * PERIOD_S);
+        assert_eq!(
+            m.adcs.violations.jexten_not_rising > 0,
+            bad,
+            "JEXTEN {jexten}"
+        );
+        assert_eq!(m.adcs.triggers > 0, jexten != 2, "JEXTEN {jexten}");
+    }
+}
+
+#[test]
+fn jadstart_is_gated_on_aden_not_adrdy() {
+    let mut m = machine();
+    calibrated_adc(&mut m);
+    m.mmio_write(ADC1_CR, 4, 1 << 28 | 1 << 3); // no ADEN: refused
+    assert_eq!(m.mmio_read(ADC1_CR, 4) & 1 << 3, 0);
+    wait(&mut m, 1e-6);
+    m.mmio_write(ADC1_CR, 4, 1 << 28 | 1);
+    m.mmio_write(ADC1_JSQR, 4, 8 << 2 | 1 << 7);
+    // ADEN set, ADRDY not yet: accepted.
+    assert_eq!(m.mmio_read(ADC1_ISR, 4) & 1, 0);
+    m.mmio_write(ADC1_CR, 4, 1 << 28 | 1 | 1 << 3);
+    assert_ne!(m.mmio_read(ADC1_CR, 4) & 1 << 3, 0);
+}
+
+#[test]
+fn ckmode_and_dual_are_refused_with_an_adc_enabled() {
+    let mut m = machine();
+    adcs_enabled(&mut m, 0b00101);
+    m.mmio_write(ADC_CCR, 4, 1 << 16);
+    assert_eq!(m.mmio_read(ADC_CCR, 4), 3 << 16 | 0b00101);
+    assert_eq!(m.adcs.violations.common_write_refused, 1);
+    assert!(violations_of(&m).iter().any(|v| v.contains("CKMODE")));
+    // Before ADEN it is the way to set them.
+    let mut m = machine();
+    m.mmio_write(AHB2ENR, 4, 1 << 13);
+    m.mmio_write(ADC_CCR, 4, 3 << 16 | 0b00101);
+    m.mmio_write(ADC_CCR, 4, 1 << 16);
+    assert_eq!(m.adcs.violations.common_write_refused, 0);
+}
+
+#[test]
+fn dual_simultaneous_sequences_must_match_in_length_and_sampling_times() {
+    for case in 0..3 {
+        let mut m = machine();
+        adcs_enabled(&mut m, 0b00101);
+        arm_injected(&mut m, true, 1);
+        match case {
+            1 => m.mmio_write(adc_base(1) + 0x4C, 4, jsqr(1, 1) & !3 | 1), // JL = 1
+            2 => {
+                // The sensor pair's Y at 6.5 cycles, X at 24.5.
+                let (reg, sh) = (adc_base(1) + 0x14, 3 * channel(Signal::SensorY) as u32);
+                let v = m.mmio_read(reg, 4) & !(7 << sh);
+                m.mmio_write(reg, 4, v | 1 << sh);
+            }
+            _ => {}
+        }
+        three_shunt_pwm(&mut m, [2125; 3], 20);
+        wait(&mut m, 2.0 * PERIOD_S);
+        assert_eq!(
+            m.adcs.violations.dual_mismatch > 0,
+            case != 0,
+            "case {case}"
+        );
+    }
+}
+
+// ---- BKIN: the pin, the boot break, glitches ----
+
+#[test]
+fn a_floating_bkin_line_breaks_and_is_reported() {
+    for pull_up in [true, false] {
+        let mut m = machine();
+        bkin_pin(&mut m, pull_up);
+        m.mmio_write(APB2ENR, 4, 1 << 11);
+        m.mmio_write(tim1::AF1, 4, 1); // BKINE
+        m.mmio_write(tim1::BDTR, 4, 1 << 12);
+        m.mmio_write(tim1::SR, 4, 0);
+        m.mmio_write(tim1::BDTR, 4, 1 << 12 | 1 << 15);
+        assert_eq!(Tim1::moe(&m.regs), pull_up, "pull-up {pull_up}");
+        assert_eq!(m.tim1.bkin_floating > 0, !pull_up);
+        assert_eq!(
+            violations_of(&m)
+                .iter()
+                .any(|v| v.contains("BKIN floating")),
+            !pull_up
+        );
+    }
+}
+
+#[test]
+fn the_break_latches_at_boot_before_the_pin_is_routed_and_the_firmware_clears_it() {
+    let mut m = machine();
+    m.mmio_write(APB2ENR, 4, 1 << 11);
+    m.mmio_write(tim1::AF1, 4, 1); // BKINE
+                                   // BKE before PA6 is on AF6: the timer's BKIN input is not the pin yet, read low.
+    m.mmio_write(tim1::BDTR, 4, 1 << 12);
+    assert_ne!(
+        m.mmio_read(tim1::SR, 4) & tim1::SR_BIF,
+        0,
+        "latched at boot"
+    );
+    assert_eq!(m.tim1.bif_sets, 1);
+    bkin_pin(&mut m, true);
+    // clear_boot_break: BIF written 0 (rc_w0).
+    m.mmio_write(tim1::SR, 4, !tim1::SR_BIF);
+    assert_eq!(m.mmio_read(tim1::SR, 4) & tim1::SR_BIF, 0);
+    assert_eq!(m.tim1.bif_clears, 1);
+    m.mmio_write(tim1::BDTR, 4, 1 << 12 | 1 << 15);
+    assert!(Tim1::moe(&m.regs));
+    assert!(violations_of(&m).is_empty(), "{:#?}", violations_of(&m));
+}
+
+#[test]
+fn comparator_glitches_near_the_level_break_only_through_a_short_filter() {
+    for (bkf, breaks) in [(0, true), (3, true), (15, false)] {
+        let mut m = overcurrent_bench(bkf);
+        let i = m.board.plant.currents_ab();
+        let peak = m.board.phase_currents_at(m.now).map(f64::abs);
+        let peak = peak.iter().cloned().fold(0.0, f64::max).max(i[0].abs());
+        m.board.plant.break_level_a = peak * 1.05;
+        for _ in 0..4 {
+            wait(&mut m, PERIOD_S);
+        }
+        assert!(m.stats.comparator_glitches > 0, "BKF {bkf}");
+        assert!(
+            !m.board.plant.comparator_over(),
+            "BKF {bkf}: under its level"
+        );
+        assert_eq!(m.stats.glitch_breaks > 0, breaks, "BKF {bkf}");
+        assert_eq!(Tim1::moe(&m.regs), !breaks, "BKF {bkf}");
+    }
+}
+
+// ---- the debug halt ----
+
+#[test]
+fn a_debug_halt_freezes_tim1_with_the_bridge_off_only_with_dbg_tim1_stop() {
+    for stop in [true, false] {
+        for halt_s in [1e-3, 100e-3] {
+            let mut m = three_shunt_bench([2200, 2125, 2125]);
+            if stop {
+                m.mmio_write(DBGMCU_APB2FZR, 4, tim1::DBG_TIM1_STOP);
+            }
+            let peaks = m.tim1.peaks;
+            m.halt_core(ticks(halt_s));
+            let mut steps = 0;
+            while m.halted() {
+                assert_eq!(m.bridge_on(), !stop, "stop {stop}, {halt_s} s");
+                wait(&mut m, 100e-6);
+                steps += 1;
+            }
+            assert!(steps >= 10);
+            let ran = m.tim1.peaks - peaks;
+            if stop {
+                assert!(ran <= 1, "the counter stopped: {ran} peaks");
+                // Coasting with the bridge open: no current.
+                assert_eq!(m.board.plant.currents_ab(), [0.0; 2]);
+            } else {
+                assert!(ran as f64 >= 0.9 * halt_s / PERIOD_S, "{ran} peaks");
+            }
+            // Resumed: the timer runs on with MOE as it was.
+            let p = m.tim1.peaks;
+            wait(&mut m, 3.0 * PERIOD_S);
+            assert!(m.tim1.peaks >= p + 2 && m.bridge_on());
+        }
+    }
 }

@@ -9,10 +9,33 @@ pub const COMMON_CCR: u32 = 0x5000_0308;
 pub const ISR: u32 = 0x00;
 pub const IER: u32 = 0x04;
 pub const CR: u32 = 0x08;
+const CFGR: u32 = 0x0C;
 const SMPR1: u32 = 0x14;
 const SMPR2: u32 = 0x18;
+const SQR1: u32 = 0x30;
+const DR: u32 = 0x40;
 const JSQR: u32 = 0x4C;
 const JDR1: u32 = 0x80;
+const ISR_EOC: u32 = 1 << 2;
+const ISR_EOS: u32 = 1 << 3;
+const CR_ADSTART: u32 = 1 << 2;
+/// ADC_CCR fields writable only with both ADCs disabled (RM0440 §21.7.2: "software is
+/// allowed to write these bits only when the ADCs are disabled"): CKMODE and DUAL.
+const CCR_LOCKED_WITH_ADEN: u32 = 0b11 << 16 | 0x1F;
+/// The trigger's latency to the start of sampling in synchronous clock mode
+/// (CKMODE ≠ 00, no jitter), in eighths of an ADC clock: 2.625 ADC clock cycles, as
+/// recalled from RM0440 §21.4.3's latency table (the table was not found in the
+/// reference pages at hand: check it).
+const TRIGGER_LATENCY_EIGHTHS: u64 = 21;
+/// ES0430 (STM32G471/473/474/483/484 errata; ES0431 is the G431/441 sheet with the same
+/// ADC limitation) "Wrong ADC result if conversion done late after calibration or
+/// previous conversion": a conversion more than 1 ms after the ADC's previous
+/// conversion or calibration may give a wrong result; workaround, a dummy conversion
+/// whose result is dropped.
+const ERRATUM_IDLE_S: f64 = 1.0e-3;
+/// How wrong: the errata gives no figure; modelled as a fixed error of 256 counts
+/// (6 % of full scale), far outside any noise, so that a used one shows.
+const ERRATUM_ERROR_COUNTS: i32 = 256;
 
 const ISR_ADRDY: u32 = 1 << 0;
 const ISR_JEOC: u32 = 1 << 5;
@@ -46,7 +69,35 @@ pub struct Converter {
     cal_ended_at: Option<u64>,
     rdy_at: Option<u64>,
     /// Conversion results and when the sequence ends.
-    pending: Option<(u64, [u16; 4], u32)>,
+    pending: Option<Pending>,
+    /// The end of the last conversion or calibration (for the errata's 1 ms).
+    last_activity: Option<u64>,
+    /// Results held in JDR1..4 (and DR, index 4) that the erratum made wrong.
+    wrong: [bool; 5],
+}
+
+/// A sequence under way.
+#[derive(Debug, Clone, Copy)]
+struct Pending {
+    end: u64,
+    vals: [u16; 4],
+    n: usize,
+    wrong: [bool; 4],
+    /// A regular (software) conversion: DR, EOC/EOS, ADSTART cleared.
+    regular: bool,
+    /// Started by software (JADSTART cleared at the end).
+    software: bool,
+}
+
+/// What an ADC_CR write asks the machine to start (it has the analog inputs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SoftStart {
+    None,
+    /// JADSTART with JEXTEN = 00: the injected sequence now (both ADCs in dual mode
+    /// when written on the master).
+    Injected(usize),
+    /// ADSTART with EXTEN = 00: the regular sequence now.
+    Regular(usize),
 }
 
 /// What broke a rule, counted for the tests.
@@ -58,6 +109,21 @@ pub struct AdcViolations {
     pub cal_without_regulator: u32,
     /// ADCAL or ADEN with no ADC clock (CKMODE = 0 and no kernel clock selected).
     pub no_clock: u32,
+    /// Conversions the ES0430 erratum hit (more than 1 ms after the ADC's previous
+    /// conversion or calibration): not a fault by itself (a dummy conversion is).
+    pub late_conversions: u32,
+    /// Wrong results of such conversions read by software (JDRx, DR): the dummy
+    /// conversion missing or its result used.
+    pub late_results_read: u32,
+    /// TIM1 TRGO2 edges with JEXTEN other than 01 (rising): 10 loses the trigger at the
+    /// rising edge, 11 converts at both edges (§21.4.18 table 162).
+    pub jexten_not_rising: u32,
+    /// ADC_CCR.CKMODE or DUAL written with an ADC enabled: refused (§21.7.2).
+    pub common_write_refused: u32,
+    /// Dual injected-simultaneous triggers with sequences of different lengths or a
+    /// simultaneous pair of different sampling times (§21.4.31: same length, and the
+    /// pair's conversions of equal duration, or the ADCs lose synchronism).
+    pub dual_mismatch: u32,
 }
 
 #[derive(Debug, Default, Clone)]
@@ -74,7 +140,8 @@ pub enum Trigger {
     /// Not ready, JADSTART clear, or listening to another trigger: the trigger is lost
     /// and no flag says so.
     NotArmed,
-    /// A sequence started; the previous one was unread (JEOS set) or still converting.
+    /// A sequence started, the previous one unread (JEOS set); or, with `converting`,
+    /// the trigger was ignored (§21.4.18) because the previous one still converts.
     Started { unread: bool, converting: bool },
 }
 
@@ -110,6 +177,7 @@ impl Adcs {
                 regs.set_bits(b + CR, CR_ADCAL, false);
                 c.cal_done_at = None;
                 c.cal_ended_at = Some(t);
+                c.last_activity = Some(t);
             }
             if let Some(_t) = c.rdy_at.filter(|&t| t <= now) {
                 regs.set_bits(b + ISR, ISR_ADRDY, true);
@@ -119,7 +187,14 @@ impl Adcs {
     }
 
     /// ADC_CR write of `v` (already applied with its rs semantics) at `now`.
-    pub fn on_cr_write(&mut self, regs: &mut RegFile, i: usize, old: u32, v: u32, now: u64) {
+    pub fn on_cr_write(
+        &mut self,
+        regs: &mut RegFile,
+        i: usize,
+        old: u32,
+        v: u32,
+        now: u64,
+    ) -> SoftStart {
         self.update(regs, now);
         let b = base(i);
         let clk = Self::clock_ticks(regs);
@@ -164,69 +239,230 @@ impl Adcs {
             regs.set_bits(b + CR, CR_ADEN | CR_ADDIS | CR_JADSTART, false);
             regs.set_bits(b + ISR, ISR_ADRDY, false);
         }
-        if v & CR_JADSTART != 0 && !regs.bit(b + ISR, ISR_ADRDY) {
-            // §21.4.15: JADSTART is only accepted with the ADC ready.
+        let cr = regs.get(b + CR);
+        let enabled = cr & CR_ADEN != 0 && cr & CR_ADDIS == 0;
+        if v & CR_JADSTART != 0 && !enabled {
+            // §21.6.3 (ADC_CR.JADSTART): software may set it only with ADEN = 1 and
+            // ADDIS = 0; ST gates on ADEN, not ADRDY.
             regs.set_bits(b + CR, CR_JADSTART, false);
         }
+        if v & CR_ADSTART != 0 && !enabled {
+            regs.set_bits(b + CR, CR_ADSTART, false);
+        }
+        let cr = regs.get(b + CR);
+        let rose = |bit: u32| v & bit != 0 && old & bit == 0 && cr & bit != 0;
+        // JEXTEN / EXTEN = 00: a software trigger starts the sequence at once.
+        if rose(CR_JADSTART) && (regs.get(b + JSQR) >> 7) & 0b11 == 0 {
+            return SoftStart::Injected(i);
+        }
+        if rose(CR_ADSTART) && (regs.get(b + CFGR) >> 10) & 0b11 == 0 {
+            return SoftStart::Regular(i);
+        }
+        SoftStart::None
     }
 
+    /// Enabled (ADEN): ST's gate for JADSTART and triggers; a trigger before ADRDY
+    /// starts converting once the ADC is ready.
     fn ready(regs: &RegFile, i: usize) -> bool {
-        let b = base(i);
-        regs.bit(b + CR, CR_ADEN) && regs.bit(b + ISR, ISR_ADRDY)
+        regs.bit(base(i) + CR, CR_ADEN)
     }
 
-    /// Conversion time of one channel: sampling + 12.5 clocks (§21.4.12), in ADC clocks
-    /// times two (half clocks).
-    fn conv_half_clocks(regs: &RegFile, i: usize, ch: u32) -> u64 {
+    /// Sampling time of a channel in half ADC clocks (SMPRx, §21.4.12, 2.5..640.5).
+    fn sample_half_clocks(regs: &RegFile, i: usize, ch: u32) -> u64 {
         let b = base(i);
         let smp = if ch < 10 {
             (regs.get(b + SMPR1) >> (3 * ch)) & 0b111
         } else {
-            (regs.get(b + SMPR2) >> (3 * (ch - 10))) & 0b111
+            (regs.get(b + SMPR2) >> (3 * (ch.min(19) - 10))) & 0b111
         };
-        let sample2 = [5, 13, 25, 49, 95, 185, 495, 1281][smp as usize];
-        sample2 + 25
+        [5, 13, 25, 49, 95, 185, 495, 1281][smp as usize]
+    }
+
+    /// The injected channels of ADC `i` (JSQ1..JSQ(JL+1)).
+    fn injected_channels(regs: &RegFile, i: usize) -> Vec<u32> {
+        let jsqr = regs.get(base(i) + JSQR);
+        let n = (jsqr & 0b11) as usize + 1;
+        (0..n)
+            .map(|k| (jsqr >> [9, 15, 21, 27][k]) & 0x1F)
+            .collect()
+    }
+
+    /// The regular channels of ADC `i` (SQ1.., the first four).
+    fn regular_channels(regs: &RegFile, i: usize) -> Vec<u32> {
+        let sqr1 = regs.get(base(i) + SQR1);
+        let n = ((sqr1 & 0xF) as usize + 1).min(4);
+        (0..n)
+            .map(|k| (sqr1 >> [6, 12, 18, 24][k]) & 0x1F)
+            .collect()
+    }
+
+    /// Convert `chans` on ADC `i` from the trigger at `t0`: each conversion samples over
+    /// its own window after the trigger latency (`sample(adc, channel, window start,
+    /// window end)`, the hold instant at the end) and takes its sampling time + 12.5
+    /// clocks (§21.4.12). Returns the end of the sequence.
+    fn convert(
+        &mut self,
+        regs: &RegFile,
+        i: usize,
+        chans: &[u32],
+        t0: u64,
+        clk: u64,
+        sample: &mut dyn FnMut(usize, u32, u64, u64) -> u16,
+    ) -> ([u16; 4], [bool; 4], u64) {
+        let idle = super::ticks(ERRATUM_IDLE_S);
+        // Times in eighths of a tick, to keep the half clocks exact.
+        let mut t8 = t0 * 8 + TRIGGER_LATENCY_EIGHTHS * clk;
+        let (mut vals, mut wrong) = ([0u16; 4], [false; 4]);
+        for (k, &ch) in chans.iter().enumerate().take(4) {
+            let smp = Self::sample_half_clocks(regs, i, ch);
+            let ws = t8 / 8;
+            let we = (t8 + smp * clk * 4) / 8;
+            let mut v = sample(i, ch, ws, we);
+            let c = &mut self.conv[i];
+            if c.last_activity.is_none_or(|a| ws > a + idle) {
+                self.violations.late_conversions += 1;
+                v = (v as i32 + ERRATUM_ERROR_COUNTS).clamp(0, 4095) as u16;
+                wrong[k] = true;
+            }
+            t8 += (smp + 25) * clk * 4;
+            c.last_activity = Some(t8.div_ceil(8));
+            vals[k] = v;
+        }
+        (vals, wrong, t8.div_ceil(8))
+    }
+
+    /// Start the sequences of a software trigger (see [`SoftStart`]).
+    pub fn software_start(
+        &mut self,
+        regs: &mut RegFile,
+        what: SoftStart,
+        now: u64,
+        sample: &mut dyn FnMut(usize, u32, u64, u64) -> u16,
+    ) {
+        let Some(clk) = Self::clock_ticks(regs) else {
+            return;
+        };
+        let dual = regs.get(COMMON_CCR) & 0x1F == DUAL_INJECTED_SIMULTANEOUS;
+        let (adcs, regular): (Vec<usize>, bool) = match what {
+            SoftStart::None => return,
+            SoftStart::Injected(0) if dual => (vec![0, 1], false),
+            SoftStart::Injected(i) => (vec![i], false),
+            SoftStart::Regular(i) => (vec![i], true),
+        };
+        for i in adcs {
+            if !regs.bit(base(i) + CR, CR_ADEN) {
+                continue;
+            }
+            let chans = if regular {
+                Self::regular_channels(regs, i)
+            } else {
+                Self::injected_channels(regs, i)
+            };
+            let t0 = self.conv[i].rdy_at.map_or(now, |r| r.max(now));
+            let (vals, wrong, end) = self.convert(regs, i, &chans, t0, clk, sample);
+            self.conv[i].pending = Some(Pending {
+                end,
+                vals,
+                n: chans.len().min(4),
+                wrong,
+                regular,
+                software: true,
+            });
+        }
+    }
+
+    /// An ADC_CCR write (applied): CKMODE and DUAL refused with an ADC enabled.
+    pub fn on_common_write(&mut self, regs: &mut RegFile, old: u32) {
+        let v = regs.get(COMMON_CCR);
+        let enabled = (0..2).any(|i| regs.bit(base(i) + CR, CR_ADEN));
+        if enabled && (v ^ old) & CCR_LOCKED_WITH_ADEN != 0 {
+            self.violations.common_write_refused += 1;
+            regs.set(
+                COMMON_CCR,
+                (v & !CCR_LOCKED_WITH_ADEN) | (old & CCR_LOCKED_WITH_ADEN),
+            );
+        }
+    }
+
+    /// A bus read of an ADC register: a wrong result (the erratum) read is counted.
+    pub fn on_read(&mut self, addr: u32) {
+        for i in 0..2 {
+            let off = addr.wrapping_sub(base(i));
+            let slot = match off {
+                DR => 4,
+                o if (JDR1..JDR1 + 16).contains(&o) => ((o - JDR1) / 4) as usize,
+                _ => continue,
+            };
+            if std::mem::take(&mut self.conv[i].wrong[slot]) {
+                self.violations.late_results_read += 1;
+            }
+        }
     }
 
     /// TIM1 TRGO2 rose at `now`: start the injected sequences that listen to it.
-    /// `sample(adc, channel)` is the analog front end at this instant, in counts.
+    /// `sample(adc, channel, from, to)` is the analog front end over the sampling
+    /// window [from, to] (ticks), in counts.
     pub fn trgo2(
         &mut self,
         regs: &mut RegFile,
         now: u64,
-        sample: &dyn Fn(usize, u32) -> u16,
+        sample: &mut dyn FnMut(usize, u32, u64, u64) -> u16,
     ) -> Trigger {
         self.update(regs, now);
         let jsqr = regs.get(ADC1 + JSQR);
-        let armed = Self::ready(regs, 0)
+        let jexten = (jsqr >> 7) & 0b11;
+        let listening = Self::ready(regs, 0)
             && regs.bit(ADC1 + CR, CR_JADSTART)
-            && (jsqr >> 7) & 0b11 != 0
+            && jexten != 0
             && (jsqr >> 2) & 0x1F == JEXTSEL_TIM1_TRGO2;
+        if listening && jexten != 0b01 {
+            self.violations.jexten_not_rising += 1;
+        }
+        // 10: falling edge only; the rising edge starts nothing (the falling edge is not
+        // modelled: those sequences are lost).
+        let armed = listening && jexten != 0b10;
         let Some(clk) = Self::clock_ticks(regs).filter(|_| armed) else {
             return Trigger::NotArmed;
         };
-        self.triggers += 1;
         let dual = regs.get(COMMON_CCR) & 0x1F == DUAL_INJECTED_SIMULTANEOUS;
         let found = Trigger::Started {
             unread: regs.bit(ADC1 + ISR, ISR_JEOS),
             converting: self.conv[0].pending.is_some(),
         };
+        if self.conv[0].pending.is_some() {
+            // §21.4.18: "Any hardware triggers which occur while a conversion is
+            // ongoing are ignored."
+            return found;
+        }
+        self.triggers += 1;
+        let slave = dual && Self::ready(regs, 1);
+        if slave {
+            let (c1, c2) = (
+                Self::injected_channels(regs, 0),
+                Self::injected_channels(regs, 1),
+            );
+            let same_times = c1.iter().zip(&c2).all(|(&a, &b)| {
+                Self::sample_half_clocks(regs, 0, a) == Self::sample_half_clocks(regs, 1, b)
+            });
+            if c1.len() != c2.len() || !same_times {
+                self.violations.dual_mismatch += 1;
+            }
+        }
         for i in 0..2 {
-            if i == 1 && !(dual && Self::ready(regs, 1)) {
+            if i == 1 && !slave {
                 continue;
             }
-            let b = base(i);
-            let jsqr = regs.get(b + JSQR);
-            let n = (jsqr & 0b11) as usize + 1;
-            let mut vals = [0u16; 4];
-            let mut half_clocks = 0;
-            for (k, v) in vals.iter_mut().enumerate().take(n) {
-                let ch = (jsqr >> [9, 15, 21, 27][k]) & 0x1F;
-                *v = sample(i, ch);
-                half_clocks += Self::conv_half_clocks(regs, i, ch);
-            }
-            let end = now + half_clocks * clk / 2;
-            self.conv[i].pending = Some((end, vals, n as u32));
+            let chans = Self::injected_channels(regs, i);
+            let t0 = self.conv[i].rdy_at.map_or(now, |r| r.max(now));
+            let (vals, wrong, end) = self.convert(regs, i, &chans, t0, clk, sample);
+            self.conv[i].pending = Some(Pending {
+                end,
+                vals,
+                n: chans.len(),
+                wrong,
+                regular: false,
+                software: false,
+            });
         }
         found
     }
@@ -235,24 +471,35 @@ impl Adcs {
     pub fn next_event(&self) -> Option<u64> {
         self.conv
             .iter()
-            .filter_map(|c| c.pending.map(|p| p.0))
+            .filter_map(|c| c.pending.map(|p| p.end))
             .min()
     }
 
-    /// Sequences that ended by `now`: data and flags (JEOC, JEOS). Returns whether the
-    /// ADC1_2 interrupt line is high.
+    /// Sequences that ended by `now`: data and flags (JEOC, JEOS; EOC, EOS for a regular
+    /// one).
     pub fn complete(&mut self, regs: &mut RegFile, now: u64) {
         for i in 0..2 {
             let b = base(i);
-            if let Some((t, vals, n)) = self.conv[i].pending {
-                if t <= now {
-                    for (k, v) in vals.iter().enumerate().take(n as usize) {
-                        regs.set(b + JDR1 + 4 * k as u32, *v as u32);
-                    }
-                    regs.set_bits(b + ISR, ISR_JEOC | ISR_JEOS, true);
-                    self.conv[i].pending = None;
+            let Some(p) = self.conv[i].pending.filter(|p| p.end <= now) else {
+                continue;
+            };
+            let c = &mut self.conv[i];
+            if p.regular {
+                regs.set(b + DR, p.vals[p.n - 1] as u32);
+                c.wrong[4] = p.wrong[p.n - 1];
+                regs.set_bits(b + ISR, ISR_EOC | ISR_EOS, true);
+                regs.set_bits(b + CR, CR_ADSTART, false);
+            } else {
+                for k in 0..p.n {
+                    regs.set(b + JDR1 + 4 * k as u32, p.vals[k] as u32);
+                    c.wrong[k] = p.wrong[k];
+                }
+                regs.set_bits(b + ISR, ISR_JEOC | ISR_JEOS, true);
+                if p.software {
+                    regs.set_bits(b + CR, CR_JADSTART, false);
                 }
             }
+            c.pending = None;
         }
     }
 

@@ -33,6 +33,13 @@ const BDTR_AOE: u32 = 1 << 14;
 const BDTR_BKF_SHIFT: u32 = 16;
 const AF1_BKINE: u32 = 1 << 0;
 const AF1_BKINP: u32 = 1 << 9;
+pub const CCER: u32 = TIM1 + 0x20;
+/// DBGMCU_APB2FZR.DBG_TIM1_STOP (RM0440 §46.16.5): TIM1 stopped while the core is halted.
+pub const DBGMCU_APB2FZR: u32 = 0xE004_2010;
+pub const DBG_TIM1_STOP: u32 = 1 << 11;
+/// Entries of the compare-register history kept (the sampling windows look back a few
+/// microseconds: two updates suffice, a few more for writes without preload).
+const CCR_HISTORY: usize = 8;
 
 /// Timer events, in time order.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -78,6 +85,48 @@ pub struct Tim1 {
     pub breaks: u64,
     /// Periods the comparator was tripped with the bridge on and no break routed.
     pub breaks_unrouted: u64,
+    /// The active CCR1..4 and from when each set was in force (ticks), oldest first.
+    ccr_hist: Vec<(u64, [u32; 4])>,
+    /// A time at which the counter was at its peak (the triangle's phase).
+    anchor_peak: Option<u64>,
+    /// Debug freeze (DBG_TIM1_STOP with the core halted): since when.
+    frozen_at: Option<u64>,
+    /// BKIN routed and floating (no pull-up) with the break enabled: times it began.
+    pub bkin_floating: u64,
+    floating_now: bool,
+    /// TIM1_SR.BIF cleared by a write (1 → 0), and when last (ticks).
+    pub bif_clears: u64,
+    pub bif_cleared_at: Option<u64>,
+    /// BIF latched by the break (0 → 1), and when first (ticks, since the reset).
+    pub bif_sets: u64,
+    pub bif_first_set_at: Option<u64>,
+}
+
+/// TIM1's output-stage registers, copied (the ADC model samples while it holds the
+/// register file).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct OutRegs {
+    pub ccmr: [u32; 2],
+    pub ccer: u32,
+    pub bdtr: u32,
+}
+
+impl OutRegs {
+    pub fn of(regs: &RegFile) -> Self {
+        Self {
+            ccmr: [regs.get(CCMR1), regs.get(CCMR2)],
+            ccer: regs.get(CCER),
+            bdtr: regs.get(BDTR),
+        }
+    }
+}
+
+/// Whether a phase's low side conducted over a window, and the last switching edge of
+/// that phase before the window's end (ticks).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LowSide {
+    pub conducts: bool,
+    pub last_edge: Option<u64>,
 }
 
 impl Tim1 {
@@ -91,8 +140,148 @@ impl Tim1 {
             aoe_writes: self.aoe_writes,
             breaks: self.breaks,
             breaks_unrouted: self.breaks_unrouted,
+            bif_clears: self.bif_clears,
+            bkin_floating: self.bkin_floating,
+            bif_sets: self.bif_sets,
             ..Self::default()
         };
+    }
+
+    /// The active compare registers changed at `t`.
+    fn ccr_changed(&mut self, t: u64) {
+        if self.ccr_hist.last().map(|h| h.1) == Some(self.ccr) {
+            return;
+        }
+        self.ccr_hist.push((t, self.ccr));
+        if self.ccr_hist.len() > CCR_HISTORY {
+            self.ccr_hist.remove(0);
+        }
+    }
+
+    /// The active CCR1..4 at `t` (as far as the history reaches).
+    fn ccr_at(&self, t: u64) -> [u32; 4] {
+        self.ccr_hist
+            .iter()
+            .rev()
+            .find(|h| h.0 <= t)
+            .or(self.ccr_hist.first())
+            .map_or(self.ccr, |h| h.1)
+    }
+
+    /// The counter at `t` (past or future), ARR unchanged: the centre-aligned triangle
+    /// through the last peak. None when the counter is not running.
+    pub fn cnt_at(&self, t: u64) -> Option<(u32, bool)> {
+        let peak = self.anchor_peak.filter(|_| self.running && self.arr > 0)?;
+        let half = self.arr as i128 * self.step.max(1) as i128;
+        let p = (t as i128 - peak as i128).rem_euclid(2 * half);
+        let steps = (p / self.step.max(1) as i128) as u32;
+        Some(if p < half {
+            // Counting down from the peak.
+            (self.arr - steps.min(self.arr), false)
+        } else {
+            (steps - self.arr, true)
+        })
+    }
+
+    /// OCxREF of channel `k` (0-based) at `t`: PWM mode 1 active while CNT < CCR, mode 2
+    /// the opposite, forced modes as forced (§28.3.13, §28.6.7); other modes are taken
+    /// as PWM mode 1.
+    fn ocref_at(&self, o: &OutRegs, k: usize, t: u64) -> bool {
+        let ccmr = o.ccmr[k / 2];
+        let sh = 8 * (k as u32 % 2);
+        let m = ((ccmr >> (4 + sh)) & 0b111) | ((ccmr >> (16 + sh)) & 1) << 3;
+        let Some((cnt, _)) = self.cnt_at(t) else {
+            return false;
+        };
+        let below = cnt < self.ccr_at(t)[k];
+        match m {
+            0b0100 => false,
+            0b0101 => true,
+            0b0111 => !below,
+            _ => below,
+        }
+    }
+
+    /// Does the low side of phase `k` (CHxN, complementary of OCxREF with dead time)
+    /// conduct throughout [`from` - `settle`, `to`]? It conducts at t when OCxREF was low
+    /// over [t - dead time, t], with MOE set, the timer not frozen and CCxNE set (with
+    /// CCxNE clear the output is Hi-Z or inactive, §28.6.11 table 265). The polarity
+    /// bits are taken as matching the gate driver. Sampled every 4 ticks (24 ns).
+    pub fn low_side(&self, o: &OutRegs, k: usize, from: u64, to: u64, settle: u64) -> LowSide {
+        let enabled = o.bdtr & BDTR_MOE != 0
+            && self.frozen_at.is_none()
+            && o.ccer & (1 << (2 + 4 * k as u32)) != 0
+            && self.running;
+        let dt = Self::dead_time_of(o.bdtr) as u64;
+        let start = from.saturating_sub(settle + dt);
+        // Look back a further half period for the last edge (the ringing's origin).
+        let look = start.saturating_sub(self.arr as u64 * self.step);
+        let mut conducts = enabled;
+        let mut last_edge = None;
+        let mut prev = None;
+        let mut t = look;
+        while t <= to {
+            let r = self.ocref_at(o, k, t);
+            if prev.is_some_and(|p| p != r) {
+                last_edge = Some(t);
+            }
+            if t >= start && r {
+                conducts = false;
+            }
+            prev = Some(r);
+            t += 4;
+        }
+        if self.ocref_at(o, k, to) {
+            conducts = false;
+        }
+        LowSide {
+            conducts,
+            last_edge,
+        }
+    }
+
+    /// The BKIN pin is (or is not) routed and floating with the break enabled: counts
+    /// the times it begins.
+    pub fn note_bkin_floating(&mut self, floating: bool) {
+        if floating && !self.floating_now {
+            self.bkin_floating += 1;
+        }
+        self.floating_now = floating;
+    }
+
+    /// Is the bridge driven now (running, MOE set, not frozen by the debug halt)?
+    pub fn bridge_on(&self, regs: &RegFile) -> bool {
+        self.running && Self::moe(regs) && self.frozen_at.is_none()
+    }
+
+    /// The core halted with DBG_TIM1_STOP set (RM0440 §28.3.31, Debug mode): the counter
+    /// stops and the outputs are disabled as if MOE were reset (OSSI: inactive level or
+    /// released to the GPIO, Hi-Z; neither drives a low side here).
+    pub fn freeze(&mut self, regs: &RegFile, now: u64) {
+        if self.frozen_at.is_none() {
+            self.mark(regs, now);
+            self.frozen_at = Some(now);
+            self.moe_dropped = true;
+        }
+    }
+
+    /// The core resumed: the counter continues where it stopped.
+    pub fn unfreeze(&mut self, regs: &RegFile, now: u64) {
+        if let Some(t0) = self.frozen_at.take() {
+            let d = now.saturating_sub(t0);
+            self.next_flow = self.next_flow.map(|(t, p)| (t + d, p));
+            self.trgo2_at = self.trgo2_at.map(|t| t + d);
+            self.anchor_peak = self.anchor_peak.map(|t| t + d);
+            for h in &mut self.ccr_hist {
+                h.0 += d;
+            }
+            self.mark = now;
+            self.moe_dropped = !Self::moe(regs);
+        }
+    }
+
+    pub fn frozen(&self) -> bool {
+        self.frozen_at.is_some()
     }
 
     /// The PWM period (ticks) of the running counter: up to ARR and down again, (PSC + 1)
@@ -115,7 +304,9 @@ impl Tim1 {
     /// Close the duty segment up to `now`.
     pub fn mark(&mut self, regs: &RegFile, now: u64) {
         let dt = now.saturating_sub(self.mark);
-        if dt > 0 {
+        if self.frozen_at.is_some() {
+            self.moe_dropped = true;
+        } else if dt > 0 {
             let d = self.duties();
             for (a, d) in self.acc.iter_mut().zip(d) {
                 *a += d * dt as f64;
@@ -145,6 +336,10 @@ impl Tim1 {
     pub fn on_write(&mut self, regs: &mut RegFile, addr: u32, old: u32, now: u64, break_in: bool) {
         self.mark(regs, now);
         match addr {
+            SR if old & SR_BIF != 0 && !regs.bit(SR, SR_BIF) => {
+                self.bif_clears += 1;
+                self.bif_cleared_at = Some(now);
+            }
             CR1 => {
                 let cr1 = regs.get(CR1);
                 if cr1 & CR1_CEN != 0 && old & CR1_CEN == 0 {
@@ -160,7 +355,7 @@ impl Tim1 {
                 regs.set(EGR, 0);
                 regs.set(CNT, 0);
                 self.rep = 0;
-                self.update_event(regs, true);
+                self.update_event(regs, true, now);
                 if self.running {
                     self.start(regs, now);
                 }
@@ -170,6 +365,7 @@ impl Tim1 {
                 let k = ((a - CCR1) / 4) as usize;
                 if !self.preloaded(regs, k) {
                     self.ccr[k] = regs.get(a);
+                    self.ccr_changed(now);
                 }
             }
             BDTR => {
@@ -216,11 +412,13 @@ impl Tim1 {
         let cnt = regs.get(CNT) as u64;
         let to_peak = (self.arr as u64).saturating_sub(cnt) * self.step;
         self.next_flow = Some((now + to_peak, true));
+        self.anchor_peak = Some(now + to_peak);
+        self.ccr_changed(now);
         self.schedule_trgo2(regs, now, now - cnt * self.step, true);
     }
 
     /// The update event: shadow registers loaded (§28.3.3, §28.3.10).
-    fn update_event(&mut self, regs: &mut RegFile, forced: bool) {
+    fn update_event(&mut self, regs: &mut RegFile, forced: bool, t: u64) {
         if regs.bit(CR1, CR1_UDIS) && !forced {
             return;
         }
@@ -231,6 +429,7 @@ impl Tim1 {
         for k in 0..4 {
             self.ccr[k] = regs.get(CCR1 + 4 * k as u32);
         }
+        self.ccr_changed(t);
         self.rcr_active = regs.get(RCR) & 0xFFFF;
         regs.set_bits(SR, SR_UIF, true);
     }
@@ -258,6 +457,9 @@ impl Tim1 {
     }
 
     pub fn next_event(&self) -> Option<(u64, Edge)> {
+        if self.frozen_at.is_some() {
+            return None;
+        }
         let flow = self
             .next_flow
             .map(|(t, peak)| (t, if peak { Edge::Peak } else { Edge::Valley }));
@@ -282,8 +484,11 @@ impl Tim1 {
                 // §28.3.3: the repetition counter counts over- and underflows; the
                 // update event comes when it is zero, and reloads it from RCR. After
                 // UG it starts at zero, so an odd RCR updates at the overflows.
+                if peak {
+                    self.anchor_peak = Some(t);
+                }
                 if self.rep == 0 {
-                    self.update_event(regs, false);
+                    self.update_event(regs, false, t);
                     self.rep = self.rcr_active;
                 } else {
                     self.rep -= 1;
@@ -332,6 +537,10 @@ impl Tim1 {
             self.breaks += 1;
         }
         regs.set_bits(BDTR, BDTR_MOE, false);
+        if !regs.bit(SR, SR_BIF) {
+            self.bif_sets += 1;
+            self.bif_first_set_at.get_or_insert(now);
+        }
         regs.set_bits(SR, SR_BIF, true);
         self.moe_dropped = true;
         cleared
@@ -383,7 +592,12 @@ impl Tim1 {
 
     /// Dead time in ticks from BDTR.DTG (§28.6.20, t_DTS = t_CK_INT with CKD = 0).
     pub fn dead_time_ticks(regs: &RegFile) -> u32 {
-        let dtg = regs.get(BDTR) & 0xFF;
+        Self::dead_time_of(regs.get(BDTR))
+    }
+
+    /// Dead time in ticks of a BDTR value.
+    pub fn dead_time_of(bdtr: u32) -> u32 {
+        let dtg = bdtr & 0xFF;
         match dtg >> 5 {
             0..=3 => dtg,
             4 | 5 => (64 + (dtg & 0x3F)) * 2,
