@@ -92,14 +92,17 @@ impl Pwm {
         tim.af1().write(|w| w.bkine().set_bit().bkinp().clear_bit());
         // §28.6.20: dead time, break input enabled active low (shunt comparator), OSSR/
         // OSSI so that outputs go to their idle (off) level, MOE off until armed. BKF =
-        // 0011 (f_CK_INT, N = 8, ~50 ns): a shorter glitch does not latch a break (BKF = 0
-        // is asynchronous). One write: the LOCK bits can write-protect all of these
-        // fields, so they are all set in the first BDTR write.
+        // 1010 (f_DTS/16, N = 5: 470 ns): the comparator's output rings for a few hundred
+        // ns at the switching edges when a phase current nears its level, and a glitch
+        // shorter than the filter does not latch a break (BKF = 0011, 47 ns, let them
+        // through); a real over-current still opens the bridge within half a µs. One
+        // write: the LOCK bits can write-protect all of these fields, so they are all set
+        // in the first BDTR write.
         tim.bdtr().write(|w| {
             w.dtg().set(DEAD_TIME_TICKS);
             w.bke().set_bit().bkp().clear_bit();
             // SAFETY: 0b0011 is a defined BKF encoding.
-            unsafe { w.bkf().bits(0b0011) };
+            unsafe { w.bkf().bits(0b1010) };
             w.ossr().set_bit().ossi().set_bit();
             w.moe().clear_bit()
         });

@@ -57,6 +57,9 @@ pub struct Board {
     /// The plant's αβ current at the start of the last step and when (ticks): with the
     /// state at `plant_at`, the slope the shunts interpolate on.
     i_before: ([f64; 2], u64),
+    /// The instant the plant's state belongs to: the trigger it was advanced to (the
+    /// plant's own clock `plant_at` counts whole periods from its start).
+    state_at: u64,
 }
 
 /// What an analog input shows of the plant: one phase current, the bus, the sensor.
@@ -180,6 +183,7 @@ impl Board {
             wrp2a_pages: None,
             hse_hz: NUCLEO_G474RE_HSE_HZ,
             i_before: ([0.0; 2], 0),
+            state_at: 0,
         }
     }
 
@@ -246,7 +250,7 @@ impl Board {
         if n == 0 {
             return;
         }
-        self.i_before = (self.plant.currents_ab(), self.plant_at);
+        self.i_before = (self.plant.currents_ab(), self.state_at);
         for _ in 1..n {
             self.plant.advance_applied(&Self::idle());
         }
@@ -256,6 +260,7 @@ impl Board {
             supervisor_due: false,
         });
         self.plant_at += n * self.period_ticks;
+        self.state_at = t;
         self.last = self.plant.sample();
     }
 
@@ -273,9 +278,10 @@ impl Board {
     pub fn coast(&mut self, now: u64) -> bool {
         let mut moved = false;
         while now >= self.plant_at + 2 * self.period_ticks {
-            self.i_before = (self.plant.currents_ab(), self.plant_at);
+            self.i_before = (self.plant.currents_ab(), self.state_at);
             self.plant.advance_applied(&Self::idle());
             self.plant_at += self.period_ticks;
+            self.state_at += self.period_ticks;
             moved = true;
         }
         if moved {
@@ -303,13 +309,13 @@ impl Board {
         }
     }
 
-    /// Phase currents a, b, c (A) at `t`: the plant's state at its last step, moved on
-    /// by the slope over that step (the plant is average-valued, a PWM period a step).
+    /// Phase currents a, b, c (A) at `t`: the plant's state at the trigger it was last
+    /// advanced to, moved on by the slope over that step (the plant is average-valued, a PWM period a step).
     pub fn phase_currents_at(&self, t: u64) -> [f64; 3] {
         let (i0, t0) = self.i_before;
         let i1 = self.plant.currents_ab();
-        let span = self.plant_at.saturating_sub(t0).max(1) as f64;
-        let f = (t as f64 - self.plant_at as f64) / span;
+        let span = self.state_at.saturating_sub(t0).max(1) as f64;
+        let f = (t as f64 - self.state_at as f64) / span;
         let ab = [0, 1].map(|k| i1[k] + (i1[k] - i0[k]) * f.clamp(-1.0, 1.0));
         let s3 = 3f64.sqrt() / 2.0;
         [ab[0], -0.5 * ab[0] + s3 * ab[1], -0.5 * ab[0] - s3 * ab[1]]

@@ -694,7 +694,7 @@ fn three_shunt_bench(ccr: [u32; 3]) -> Machine {
     let mut m = machine();
     adcs_enabled(&mut m, 0b00101);
     arm_injected(&mut m, true, 1);
-    three_shunt_pwm(&mut m, [2200, 2125, 2125], 20);
+    three_shunt_pwm(&mut m, [2300, 2125, 2125], 20);
     for _ in 0..40 {
         wait(&mut m, PERIOD_S);
     }
@@ -709,7 +709,7 @@ fn three_shunt_bench(ccr: [u32; 3]) -> Machine {
 
 #[test]
 fn a_shunt_reads_its_phase_current_only_while_its_low_side_conducts() {
-    let mut m = three_shunt_bench([2200, 2125, 2125]);
+    let mut m = three_shunt_bench([2300, 2125, 2125]);
     for p in 0..3 {
         let (v, expected) = shunt(&mut m, p);
         assert!((v - expected).abs() <= 3, "phase {p}: {v} vs {expected}");
@@ -909,7 +909,7 @@ fn comparator_glitches_near_the_level_break_only_through_a_short_filter() {
 fn a_debug_halt_freezes_tim1_with_the_bridge_off_only_with_dbg_tim1_stop() {
     for stop in [true, false] {
         for halt_s in [1e-3, 100e-3] {
-            let mut m = three_shunt_bench([2200, 2125, 2125]);
+            let mut m = three_shunt_bench([2300, 2125, 2125]);
             if stop {
                 m.mmio_write(DBGMCU_APB2FZR, 4, tim1::DBG_TIM1_STOP);
             }

@@ -123,7 +123,8 @@ fn erased_flash_commissions_to_run_then_the_next_power_up_loads() {
 /// control periods. The figures this release ELF gives are published by
 /// `cargo xtask docs emu-report` (docs/figures/emu-report.md, the power-up's notes);
 /// the bounds sit at about twice them: the current's mean angle within 10 mrad
-/// electrical and its pk-pk over the rotor angle within 20 mrad, torque per amp at
+/// electrical and its pk-pk over the rotor angle within 40 mrad (bin means of 64 periods
+/// each: the shunts' noise of ±2 counts, 30 mA, leaves about 20), torque per amp at
 /// least 0.999 (the cost of a 45 mrad error), θ̂'s spatial error within 1 mrad pk-pk
 /// and at least 180x below the raw sensor's. A drive commuting 0.3 rad off gives
 /// 300 mrad and 0.955; a correction of the wrong sign doubles the raw sensor's error
@@ -148,7 +149,7 @@ fn in_run_the_current_and_the_streamed_angle_follow_the_rotor_at_the_plant() {
         let c = c.unwrap_or_else(|| panic!("boot {}: no Run window", b + 1));
         eprintln!("boot {}: {c:?}", b + 1);
         assert!(c.periods > 2_000, "boot {}: {c:?}", b + 1);
-        if c.angle_error_e_rad.abs() >= 10e-3 || c.angle_error_e_pk_pk_rad >= 20e-3 {
+        if c.angle_error_e_rad.abs() >= 10e-3 || c.angle_error_e_pk_pk_rad >= 40e-3 {
             off.push(format!(
                 "boot {}: the current's electrical angle error at the plant: mean {:+.1} mrad, pk-pk {:.1} mrad",
                 b + 1,
@@ -427,7 +428,7 @@ fn near_the_voltage_limit_the_current_loop_keeps_its_torque_per_amp_at_the_plant
                     lm.mean * 100.0
                 ));
             }
-            if c.angle_error_e_rad.abs() >= 10e-3 || c.angle_error_e_pk_pk_rad >= 20e-3 {
+            if c.angle_error_e_rad.abs() >= 10e-3 || c.angle_error_e_pk_pk_rad >= 40e-3 {
                 off.push(format!(
                     "the current's electrical angle error at the plant: mean {:+.1} mrad, pk-pk {:.1} mrad",
                     c.angle_error_e_rad * 1e3,
