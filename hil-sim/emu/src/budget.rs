@@ -88,15 +88,6 @@ pub const KNOWN_FAILURES: &[KnownFailure] = &[
             pwm_hz: 20_000,
             sensor: SensorBoard::N1,
         },
-        check: Check::RunIsrCycles,
-        recorded: 2_026.0,
-        why: "the N = 1 bank of 16 paths: a correction term per path in the core's share",
-    },
-    KnownFailure {
-        build: Build {
-            pwm_hz: 20_000,
-            sensor: SensorBoard::N1,
-        },
         check: Check::IsrPeriodShare,
         recorded: 6_501.0 / 8_500.0,
         why: "the survey's bank install inside the control interrupt (Injection::rebank); building the bank in the adaptation task would take it out",
