@@ -855,6 +855,10 @@ impl Machine {
                 let lock = self.lockup && misc::lockup_to_break(&self.regs);
                 let brk = tim1::Tim1::break_input(&self.regs, pin_low, lock);
                 self.tim1.on_write(&mut self.regs, addr, old, now, brk);
+                self.tim1.check_gate_polarity(
+                    &self.regs,
+                    board_map::gate_driver::LOW_SIDE_INPUT_ACTIVE_LOW,
+                );
                 // A level: an active input latches as soon as the break is enabled.
                 self.check_break();
             }

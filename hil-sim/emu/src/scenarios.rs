@@ -375,6 +375,12 @@ pub fn violations_of(m: &Machine) -> Vec<String> {
             crate::machine::GLITCH_S * 1e9
         ));
     }
+    if m.tim1.gate_polarity_wrong > 0 {
+        v.push(format!(
+            "TIM1: a complementary output enabled with a polarity or idle level the gate driver does not take ({}×, CCER.CCxNP §28.6.11, CR2.OISxN §28.6.2; board_map::gate_driver): its low side does not follow the PWM, or stays on with MOE = 0",
+            m.tim1.gate_polarity_wrong
+        ));
+    }
     if m.tim1.breaks_unrouted > 0 {
         v.push(format!(
             "TIM1: over-current on BKIN not routed to the break (AF1.BKINE = 0, §28.6.27): {} comparator trips ignored",

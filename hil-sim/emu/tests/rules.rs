@@ -668,7 +668,9 @@ fn three_shunt_pwm(m: &mut Machine, ccr: [u32; 3], k: u32) {
     pwm(m, 1, true);
     m.mmio_write(tim1::CCMR2, 4, 0x6868);
     m.mmio_write(tim1::CCR1 + 12, 4, ARR - k);
-    m.mmio_write(tim1::CCER, 4, 0x555);
+    // The L6398's active-low low-side inputs: CHxN inverted and idling high.
+    m.mmio_write(tim1::CR2, 4, 0b0111 << 20 | 1 << 9 | 1 << 11 | 1 << 13);
+    m.mmio_write(tim1::CCER, 4, 0xDDD);
     for (j, c) in ccr.iter().enumerate() {
         m.mmio_write(tim1::CCR1 + 4 * j as u32, 4, *c);
     }
@@ -936,4 +938,27 @@ fn a_debug_halt_freezes_tim1_with_the_bridge_off_only_with_dbg_tim1_stop() {
             assert!(m.tim1.peaks >= p + 2 && m.bridge_on());
         }
     }
+}
+
+/// The IHM08M1's L6398 takes its low-side input active low (board_map::gate_driver): a
+/// complementary output enabled active high, or idling low (MOE = 0 would hold the low
+/// side on), is reported; inverted and idling high, as the firmware sets it, is not.
+#[test]
+fn a_low_side_output_the_gate_driver_does_not_take_is_reported() {
+    let mut m = machine();
+    m.mmio_write(APB2ENR, 4, 1 << 11);
+    // CC1E and CC1NE, CC1NP = 0, OIS1N = 0.
+    m.mmio_write(tim1::CCER, 4, 0b0101);
+    assert_eq!(m.tim1.gate_polarity_wrong, 1);
+    assert!(violations_of(&m).iter().any(|v| v.contains("gate driver")));
+    // Inverted, but idling low: still wrong, the same stretch.
+    m.mmio_write(tim1::CCER, 4, 0b1101);
+    assert_eq!(m.tim1.gate_polarity_wrong, 1);
+
+    let mut m = machine();
+    m.mmio_write(APB2ENR, 4, 1 << 11);
+    m.mmio_write(tim1::CR2, 4, 1 << 9 | 1 << 11 | 1 << 13);
+    m.mmio_write(tim1::CCER, 4, 0b1101 | 0b1101 << 4 | 0b1101 << 8);
+    assert_eq!(m.tim1.gate_polarity_wrong, 0);
+    assert!(violations_of(&m).is_empty(), "{:?}", violations_of(&m));
 }

@@ -93,6 +93,10 @@ pub struct Tim1 {
     frozen_at: Option<u64>,
     /// BKIN routed and floating (no pull-up) with the break enabled: times it began.
     pub bkin_floating: u64,
+    /// A complementary output enabled with the polarity or idle level the gate driver
+    /// does not take (`gate_polarity_wrong`): times it began.
+    pub gate_polarity_wrong: u64,
+    polarity_wrong_now: bool,
     floating_now: bool,
     /// TIM1_SR.BIF cleared by a write (1 → 0), and when last (ticks).
     pub bif_clears: u64,
@@ -130,6 +134,30 @@ pub struct LowSide {
 }
 
 impl Tim1 {
+    /// Whether an enabled complementary output (CCxNE, §28.6.11) has a polarity (CCxNP)
+    /// or an idle level (CR2.OISxN, §28.6.2) that turns the low side on for a gate
+    /// driver whose low-side input is active low (`low_active_low`) or high: its
+    /// switches would not follow OCxREF, or MOE = 0 with OSSI = 1 would hold the low
+    /// side on instead of off.
+    pub fn gate_polarity_wrong_for(regs: &RegFile, low_active_low: bool) -> bool {
+        let (ccer, cr2) = (regs.get(CCER), regs.get(CR2));
+        (0..3).any(|x| {
+            let enabled = ccer >> (2 + 4 * x) & 1 == 1;
+            let inverted = ccer >> (3 + 4 * x) & 1 == 1;
+            let idle_high = cr2 >> (9 + 2 * x) & 1 == 1;
+            enabled && (inverted != low_active_low || idle_high != low_active_low)
+        })
+    }
+
+    /// Count a wrong gate polarity when it begins (after any TIM1 write).
+    pub fn check_gate_polarity(&mut self, regs: &RegFile, low_active_low: bool) {
+        let wrong = Self::gate_polarity_wrong_for(regs, low_active_low);
+        if wrong && !self.polarity_wrong_now {
+            self.gate_polarity_wrong += 1;
+        }
+        self.polarity_wrong_now = wrong;
+    }
+
     pub fn reset(&mut self) {
         *self = Self {
             updates: self.updates,
@@ -142,6 +170,7 @@ impl Tim1 {
             breaks_unrouted: self.breaks_unrouted,
             bif_clears: self.bif_clears,
             bkin_floating: self.bkin_floating,
+            gate_polarity_wrong: self.gate_polarity_wrong,
             bif_sets: self.bif_sets,
             ..Self::default()
         };
