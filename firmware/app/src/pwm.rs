@@ -51,11 +51,20 @@ impl Pwm {
         // §28.6.2: MMS2 = 0111, TRGO2 = OC4REF: the ADCs' injected trigger.
         // SAFETY: 0b0111 is a defined MMS2 encoding.
         tim.cr2().modify(|_, w| unsafe { w.mms2().bits(0b0111) });
+        // §28.6.2 TIM1_CR2 OISxN: with MOE = 0 and OSSI = 1 the outputs take their idle
+        // levels; an active-low low-side input idles high, so the bridge's off state has
+        // every switch off (OISx = 0: the high-side inputs idle low). Set before the
+        // outputs are enabled, so that no enabled output ever has the wrong idle level.
+        let low_inverted = board_map::gate_driver::LOW_SIDE_INPUT_ACTIVE_LOW;
+        tim.cr2().modify(|_, w| {
+            w.ois1n().bit(low_inverted);
+            w.ois2n().bit(low_inverted);
+            w.ois3n().bit(low_inverted)
+        });
         // §28.6.11 TIM1_CCER: the gate driver's low-side input may be active low
         // (board_map::gate_driver, the IHM08M1's L6398): CHxN inverted (CCxNP = 1), so
         // that the low side conducts while OCxREF is inactive, as with an active-high
         // input.
-        let low_inverted = board_map::gate_driver::LOW_SIDE_INPUT_ACTIVE_LOW;
         tim.ccer().write(|w| {
             w.cc1e()
                 .set_bit()
@@ -76,14 +85,6 @@ impl Pwm {
                 .cc3np()
                 .bit(low_inverted);
             w.cc4e().set_bit()
-        });
-        // §28.6.2 TIM1_CR2 OISxN: with MOE = 0 and OSSI = 1 the outputs take their idle
-        // levels; an active-low low-side input idles high, so the bridge's off state has
-        // every switch off (OISx = 0: the high-side inputs idle low).
-        tim.cr2().modify(|_, w| {
-            w.ois1n().bit(low_inverted);
-            w.ois2n().bit(low_inverted);
-            w.ois3n().bit(low_inverted)
         });
         // §28.6.27 TIM1_AF1: the BKIN pin feeds the break (BKINE = 1), not inverted
         // (BKINP = 0). Written explicitly: the reset value differs between the SVD (0,

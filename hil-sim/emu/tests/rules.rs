@@ -947,8 +947,11 @@ fn a_debug_halt_freezes_tim1_with_the_bridge_off_only_with_dbg_tim1_stop() {
 fn a_low_side_output_the_gate_driver_does_not_take_is_reported() {
     let mut m = machine();
     m.mmio_write(APB2ENR, 4, 1 << 11);
-    // CC1E and CC1NE, CC1NP = 0, OIS1N = 0.
+    // CC1E and CC1NE, CC1NP = 0, OIS1N = 0: with the outputs disabled (MOE = OSSI = 0)
+    // the timer drives nothing yet; with OSSI = 1 it drives the idle levels.
     m.mmio_write(tim1::CCER, 4, 0b0101);
+    assert_eq!(m.tim1.gate_polarity_wrong, 0);
+    m.mmio_write(tim1::BDTR, 4, tim1::BDTR_OSSI);
     assert_eq!(m.tim1.gate_polarity_wrong, 1);
     assert!(violations_of(&m).iter().any(|v| v.contains("gate driver")));
     // Inverted, but idling low: still wrong, the same stretch.
@@ -957,6 +960,7 @@ fn a_low_side_output_the_gate_driver_does_not_take_is_reported() {
 
     let mut m = machine();
     m.mmio_write(APB2ENR, 4, 1 << 11);
+    m.mmio_write(tim1::BDTR, 4, tim1::BDTR_OSSI);
     m.mmio_write(tim1::CR2, 4, 1 << 9 | 1 << 11 | 1 << 13);
     m.mmio_write(tim1::CCER, 4, 0b1101 | 0b1101 << 4 | 0b1101 << 8);
     assert_eq!(m.tim1.gate_polarity_wrong, 0);

@@ -27,6 +27,8 @@ const CR1_ARPE: u32 = 1 << 7;
 const SR_UIF: u32 = 1 << 0;
 pub const SR_BIF: u32 = 1 << 7;
 pub const BDTR_MOE: u32 = 1 << 15;
+/// BDTR.OSSI: with MOE = 0 the outputs are driven to their idle levels (§28.6.20).
+pub const BDTR_OSSI: u32 = 1 << 10;
 const BDTR_BKE: u32 = 1 << 12;
 const BDTR_BKP: u32 = 1 << 13;
 const BDTR_AOE: u32 = 1 << 14;
@@ -140,7 +142,12 @@ impl Tim1 {
     /// switches would not follow OCxREF, or MOE = 0 with OSSI = 1 would hold the low
     /// side on instead of off.
     pub fn gate_polarity_wrong_for(regs: &RegFile, low_active_low: bool) -> bool {
-        let (ccer, cr2) = (regs.get(CCER), regs.get(CR2));
+        let (ccer, cr2, bdtr) = (regs.get(CCER), regs.get(CR2), regs.get(BDTR));
+        // With MOE = 0 and OSSI = 0 the outputs are disabled (not driven by the timer):
+        // the order of the configuration writes does not matter until one is set.
+        if bdtr & (BDTR_MOE | BDTR_OSSI) == 0 {
+            return false;
+        }
         (0..3).any(|x| {
             let enabled = ccer >> (2 + 4 * x) & 1 == 1;
             let inverted = ccer >> (3 + 4 * x) & 1 == 1;
