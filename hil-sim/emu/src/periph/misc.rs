@@ -128,9 +128,6 @@ impl Iwdg {
 }
 
 pub const GPIOA: u32 = 0x4800_0000;
-pub const GPIOA_IDR: u32 = GPIOA + 0x10;
-/// PA6: the shield's over-current comparator, open drain, active low (pulled up).
-pub const PA6: u32 = 1 << 6;
 pub const SYSCFG_MEMRMP: u32 = 0x4001_0000;
 pub const SYSCFG_CFGR2: u32 = 0x4001_001C;
 
@@ -138,13 +135,6 @@ pub const SYSCFG_CFGR2: u32 = 0x4001_001C;
 /// 0x0804_0000, so that code linked for 0x0800_0000 runs from bank 2.
 pub fn banks_swapped(regs: &RegFile) -> bool {
     regs.bit(SYSCFG_MEMRMP, 1 << 8)
-}
-
-/// Is PA6 in alternate function 6 (TIM1_BKIN)? (§9.4.1 MODER, §9.4.9 AFRL)
-pub fn pa6_is_bkin(regs: &RegFile) -> bool {
-    let moder = (regs.get(GPIOA) >> 12) & 0b11;
-    let af = (regs.get(GPIOA + 0x20) >> 24) & 0xF;
-    moder == 0b10 && af == 6
 }
 
 /// SYSCFG_CFGR2.CLL: the core's lockup output is a TIM1 break source (§10.2.8).
