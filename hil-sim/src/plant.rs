@@ -814,11 +814,15 @@ mod tests {
         let r_off = torque_ripple(off, SensorModel::ideal(2), p);
         let r_off_2p = torque_ripple(m.clone(), SensorModel::ideal(2), p);
         assert!(r_off > 10.0 * r_off_2p.max(1e-6), "{r_off} vs {r_off_2p}");
+        // A gain imbalance: twice the pole-pair harmonic, as the paper finds for two
+        // fixed sensors. The drive reads the two shunts of the lowest duties, so the pair
+        // (and the error's pattern) changes with the sector: a pole-pair component
+        // appears beside it, of the same order.
         let mut gain = m.clone();
         gain.current_gain_error = [0.05, -0.05, 0.0];
         let r_gain = torque_ripple(gain.clone(), SensorModel::ideal(2), 2 * p);
-        let r_gain_p = torque_ripple(gain, SensorModel::ideal(2), p);
-        assert!(r_gain > 10.0 * r_gain_p.max(1e-6), "{r_gain} vs {r_gain_p}");
+        let r_none = torque_ripple(m.clone(), SensorModel::ideal(2), 2 * p);
+        assert!(r_gain > 10.0 * r_none.max(1e-6), "{r_gain} vs {r_none}");
     }
 
     #[test]

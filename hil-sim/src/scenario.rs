@@ -290,8 +290,25 @@ pub struct MotorToml {
     pub viscous_nm_s_rad: f64,
     pub cogging: Vec<CoggingToml>,
     pub load_steps: Vec<LoadStepToml>,
+    /// Per phase a, b, c; two values are phases a and b (the paper's two sensors),
+    /// phase c's then 0.
+    #[serde(deserialize_with = "per_phase")]
     pub current_offset_a: [f64; 3],
+    #[serde(deserialize_with = "per_phase")]
     pub current_gain_error: [f64; 3],
+}
+
+/// Two or three values, one per phase (a missing phase c reads 0).
+fn per_phase<'de, D: serde::Deserializer<'de>>(d: D) -> Result<[f64; 3], D::Error> {
+    let v = Vec::<f64>::deserialize(d)?;
+    match v.as_slice() {
+        [a, b] => Ok([*a, *b, 0.0]),
+        [a, b, c] => Ok([*a, *b, *c]),
+        _ => Err(serde::de::Error::invalid_length(
+            v.len(),
+            &"2 or 3 values (phases a, b[, c])",
+        )),
+    }
 }
 
 impl Default for MotorToml {
