@@ -125,8 +125,8 @@ const fn smpr(adc: Adc) -> (u32, u32) {
 /// The STM32G47x/G48x errata (ES0430, ADC): a conversion started more than 1 ms after
 /// the ADC's previous conversion or its calibration may be wrong. One software-started
 /// regular conversion of `channel` after the enable, its result left unread and its
-/// flags cleared (§21.4.15 ADSTART, §21.4.18 EOC), so that the first triggered
-/// sequence, well under 1 ms later, is right.
+/// flags cleared (RM0440 §21.4: a regular conversion started by ADSTART, ended by EOC),
+/// so that the first triggered sequence, well under 1 ms later, is right.
 fn discard_first_conversion(adc: &stm32g4xx_hal::stm32::adc1::RegisterBlock, n: u8, channel: u8) {
     // SAFETY: L = 0 (one conversion) and a channel number of the board (1..=18).
     adc.sqr1()

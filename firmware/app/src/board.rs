@@ -35,8 +35,10 @@ pub const DEAD_TIME_TICKS: u8 = 85;
 
 /// The ADCs' clock in timer ticks: synchronous HCLK/4 (adc.rs, CKMODE = 11).
 pub const ADC_CLOCK_TICKS: u32 = 4;
-/// From TRGO2 to the start of the first sampling window (RM0440 §21.4.x latency of
-/// the injected trigger in synchronous clock mode), in ticks.
+/// From TRGO2 to the start of the first sampling window: the injected trigger's latency
+/// in synchronous clock mode, taken as 3 ADC clocks (RM0440's latency table was not
+/// found to check it against; the emulator assumes 2.625). A clock either way moves the
+/// current slots by 4 ticks in a window of at least 178.
 pub const ADC_TRIGGER_LATENCY_TICKS: u32 = 3 * ADC_CLOCK_TICKS;
 /// Ticks from the first current slot's sampling start to the second's sampling end:
 /// slot 1's sampling + 12.5-cycle conversion, then slot 2's sampling.
