@@ -373,9 +373,7 @@ impl Plant {
 
     /// Phase currents a, b, c (A) at the end of the last period.
     pub fn phase_currents_a(&self) -> [f64; 3] {
-        let [al, be] = self.i_ab;
-        let b = -0.5 * al + 0.5 * SQRT3 * be;
-        [al, b, -al - b]
+        ab_to_phases(self.i_ab)
     }
 
     fn load_torque_nm(&self, t: f64) -> f64 {
@@ -573,6 +571,12 @@ impl Plant {
         (self.comparator_over, self.crossing_s, self.break_opened_s) = (over, crossing, opened);
         self.break_due_s = open_at.map(|t| t - c.substeps as f64 * h);
     }
+}
+
+/// Phase quantities a, b, c of an αβ vector (amplitude-invariant inverse Clarke).
+pub fn ab_to_phases([al, be]: [f64; 2]) -> [f64; 3] {
+    let b = -0.5 * al + 0.5 * SQRT3 * be;
+    [al, b, -al - b]
 }
 
 /// Average-value inverter: the αβ voltage of three duty cycles on a DC link (the

@@ -34,8 +34,8 @@ impl Pwm {
             w.oc1m().pwm_mode1().oc1pe().enabled();
             w.oc2m().pwm_mode1().oc2pe().enabled()
         });
-        // Channel 4 in PWM mode 1 with CCR4 = ARR - k: OC4REF (active while CNT < CCR4,
-        // §28.3.x PWM mode) rises on the down-count k ticks after the counter peak, so
+        // Channel 4 in PWM mode 1 with CCR4 = ARR - k: OC4REF (active while CNT < CCR4)
+        // rises on the down-count k ticks after the counter peak, so
         // that the shunt conversions sit inside the low sides' conduction around the
         // peak (board::ADC_TRIGGER_AFTER_PEAK_TICKS says how k follows from dead time,
         // settling and the ADC's timing).
@@ -102,7 +102,7 @@ impl Pwm {
         tim.bdtr().write(|w| {
             w.dtg().set(DEAD_TIME_TICKS);
             w.bke().set_bit().bkp().clear_bit();
-            // SAFETY: 0b0011 is a defined BKF encoding.
+            // SAFETY: 0b1010 is a defined BKF encoding.
             unsafe { w.bkf().bits(0b1010) };
             w.ossr().set_bit().ossi().set_bit();
             w.moe().clear_bit()

@@ -174,10 +174,10 @@ pub struct ControlPeriod<T: Trig> {
 /// of the window), so their low sides conduct at least about 6 % of the period.
 #[inline]
 pub fn phases_to_read(before: &[f32; 3], after: &[f32; 3]) -> usize {
-    let d = [0, 1, 2].map(|k| mras::max_f32(before[k], after[k]));
     if crate::mutant::current_phases_fixed() {
         return 2;
     }
+    let d = [0, 1, 2].map(|k| mras::max_f32(before[k], after[k]));
     if d[0] >= d[1] && d[0] >= d[2] {
         0
     } else if d[1] >= d[2] {
@@ -514,8 +514,7 @@ impl<T: Trig> ControlPeriod<T> {
         let (va, vb) = inverse_park(vd, vq, trig.sin_cos(theta_e + lead));
         let (duties, _) = svpwm(va, vb, self.cfg.motor.vdc_v);
         self.torque_cmd_nm = self.torque_constant_nm_a * iq_ref;
-        self.duties_before = self.duties_after;
-        self.duties_after = duties;
+        self.duties_loaded(duties);
         Output {
             duties,
             enable: true,
@@ -528,13 +527,19 @@ impl<T: Trig> ControlPeriod<T> {
         self.speed.reset();
         self.application.reset();
         self.torque_cmd_nm = 0.0;
-        self.duties_before = self.duties_after;
-        self.duties_after = [0.5; 3];
+        self.duties_loaded([0.5; 3]);
         Output {
             duties: [0.5; 3],
             enable: false,
             supervisor_due,
         }
+    }
+
+    /// The duties this period outputs: in force after the next peak, the present ones
+    /// before it.
+    fn duties_loaded(&mut self, duties: [f32; 3]) {
+        self.duties_before = self.duties_after;
+        self.duties_after = duties;
     }
 
     fn limit_current(&self, i_a: f32) -> f32 {

@@ -310,15 +310,14 @@ impl Board {
     }
 
     /// Phase currents a, b, c (A) at `t`: the plant's state at the trigger it was last
-    /// advanced to, moved on by the slope over that step (the plant is average-valued, a PWM period a step).
+    /// advanced to, moved on by the slope over that step (the plant is average-valued, a
+    /// PWM period a step).
     pub fn phase_currents_at(&self, t: u64) -> [f64; 3] {
         let (i0, t0) = self.i_before;
         let i1 = self.plant.currents_ab();
         let span = self.state_at.saturating_sub(t0).max(1) as f64;
         let f = (t as f64 - self.state_at as f64) / span;
-        let ab = [0, 1].map(|k| i1[k] + (i1[k] - i0[k]) * f.clamp(-1.0, 1.0));
-        let s3 = 3f64.sqrt() / 2.0;
-        [ab[0], -0.5 * ab[0] + s3 * ab[1], -0.5 * ab[0] - s3 * ab[1]]
+        hil_sim::plant::ab_to_phases([0, 1].map(|k| i1[k] + (i1[k] - i0[k]) * f.clamp(-1.0, 1.0)))
     }
 
     /// The analog front end: what ADC `adc` (0 = ADC1) converts on `channel` over the

@@ -83,10 +83,18 @@ struct Pending {
     vals: [u16; 4],
     n: usize,
     wrong: [bool; 4],
+    how: Started,
+}
+
+/// How a sequence was started, which says how it ends.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Started {
+    /// The injected sequence by TIM1 TRGO2: JDRx, JEOC/JEOS.
+    Trigger,
+    /// The injected sequence by software: the same, and JADSTART cleared.
+    Injected,
     /// A regular (software) conversion: DR, EOC/EOS, ADSTART cleared.
-    regular: bool,
-    /// Started by software (JADSTART cleared at the end).
-    software: bool,
+    Regular,
 }
 
 /// What an ADC_CR write asks the machine to start (it has the analog inputs).
@@ -331,6 +339,32 @@ impl Adcs {
         (vals, wrong, t8.div_ceil(8))
     }
 
+    /// ADC `i` starts converting `chans` at `now` (or once ready, if a trigger came
+    /// before ADRDY): the sequence under way until its end.
+    fn begin(
+        &mut self,
+        regs: &RegFile,
+        i: usize,
+        chans: &[u32],
+        now: u64,
+        how: Started,
+        sample: &mut dyn FnMut(usize, u32, u64, u64) -> u16,
+    ) {
+        // Both callers start only with an ADC clock.
+        let Some(clk) = Self::clock_ticks(regs) else {
+            return;
+        };
+        let t0 = self.conv[i].rdy_at.map_or(now, |r| r.max(now));
+        let (vals, wrong, end) = self.convert(regs, i, chans, t0, clk, sample);
+        self.conv[i].pending = Some(Pending {
+            end,
+            vals,
+            n: chans.len().min(4),
+            wrong,
+            how,
+        });
+    }
+
     /// Start the sequences of a software trigger (see [`SoftStart`]).
     pub fn software_start(
         &mut self,
@@ -339,35 +373,26 @@ impl Adcs {
         now: u64,
         sample: &mut dyn FnMut(usize, u32, u64, u64) -> u16,
     ) {
-        let Some(clk) = Self::clock_ticks(regs) else {
+        if Self::clock_ticks(regs).is_none() {
             return;
-        };
+        }
         let dual = regs.get(COMMON_CCR) & 0x1F == DUAL_INJECTED_SIMULTANEOUS;
-        let (adcs, regular): (Vec<usize>, bool) = match what {
+        let (adcs, how): (Vec<usize>, Started) = match what {
             SoftStart::None => return,
-            SoftStart::Injected(0) if dual => (vec![0, 1], false),
-            SoftStart::Injected(i) => (vec![i], false),
-            SoftStart::Regular(i) => (vec![i], true),
+            SoftStart::Injected(0) if dual => (vec![0, 1], Started::Injected),
+            SoftStart::Injected(i) => (vec![i], Started::Injected),
+            SoftStart::Regular(i) => (vec![i], Started::Regular),
         };
         for i in adcs {
             if !regs.bit(base(i) + CR, CR_ADEN) {
                 continue;
             }
-            let chans = if regular {
+            let chans = if how == Started::Regular {
                 Self::regular_channels(regs, i)
             } else {
                 Self::injected_channels(regs, i)
             };
-            let t0 = self.conv[i].rdy_at.map_or(now, |r| r.max(now));
-            let (vals, wrong, end) = self.convert(regs, i, &chans, t0, clk, sample);
-            self.conv[i].pending = Some(Pending {
-                end,
-                vals,
-                n: chans.len().min(4),
-                wrong,
-                regular,
-                software: true,
-            });
+            self.begin(regs, i, &chans, now, how, sample);
         }
     }
 
@@ -421,9 +446,9 @@ impl Adcs {
         // 10: falling edge only; the rising edge starts nothing (the falling edge is not
         // modelled: those sequences are lost).
         let armed = listening && jexten != 0b10;
-        let Some(clk) = Self::clock_ticks(regs).filter(|_| armed) else {
+        if !armed || Self::clock_ticks(regs).is_none() {
             return Trigger::NotArmed;
-        };
+        }
         let dual = regs.get(COMMON_CCR) & 0x1F == DUAL_INJECTED_SIMULTANEOUS;
         let found = Trigger::Started {
             unread: regs.bit(ADC1 + ISR, ISR_JEOS),
@@ -453,16 +478,7 @@ impl Adcs {
                 continue;
             }
             let chans = Self::injected_channels(regs, i);
-            let t0 = self.conv[i].rdy_at.map_or(now, |r| r.max(now));
-            let (vals, wrong, end) = self.convert(regs, i, &chans, t0, clk, sample);
-            self.conv[i].pending = Some(Pending {
-                end,
-                vals,
-                n: chans.len(),
-                wrong,
-                regular: false,
-                software: false,
-            });
+            self.begin(regs, i, &chans, now, Started::Trigger, sample);
         }
         found
     }
@@ -484,7 +500,7 @@ impl Adcs {
                 continue;
             };
             let c = &mut self.conv[i];
-            if p.regular {
+            if p.how == Started::Regular {
                 regs.set(b + DR, p.vals[p.n - 1] as u32);
                 c.wrong[4] = p.wrong[p.n - 1];
                 regs.set_bits(b + ISR, ISR_EOC | ISR_EOS, true);
@@ -495,7 +511,7 @@ impl Adcs {
                     c.wrong[k] = p.wrong[k];
                 }
                 regs.set_bits(b + ISR, ISR_JEOC | ISR_JEOS, true);
-                if p.software {
+                if p.how == Started::Injected {
                     regs.set_bits(b + CR, CR_JADSTART, false);
                 }
             }
