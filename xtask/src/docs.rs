@@ -204,15 +204,18 @@ fn run_generator(g: &Generator, out: &Path, check: bool) -> Result<()> {
             let details = details.to_str().context("a non-UTF-8 path")?;
             let fast = crate::fast_run_aside()?;
             let fast = fast.to_str().context("a non-UTF-8 path")?;
-            crate::emu(&[
-                "scenarios",
-                "--report",
-                report,
-                "--details",
-                details,
-                "--fast-elf",
-                fast,
-            ])
+            crate::emu(
+                &[
+                    "scenarios",
+                    "--report",
+                    report,
+                    "--details",
+                    details,
+                    "--fast-elf",
+                    fast,
+                ],
+                &[],
+            )
         }
         "cycles" => {
             crate::setup()?;

@@ -45,7 +45,21 @@ cargo xtask <command>
                 f64 soft-float routine, no panic path, no PC write the scan cannot
                 follow and nothing that is not code (disassembly scan; perf scans
                 each of its builds the same way)
-  flash         build, flash and attach to the RTT stream (probe-rs, board attached)
+  flash         build and flash the release firmware with probe-rs's flash algorithm
+                (`hil-sim probe flash`: a probe attached; `--probe SERIAL` among
+                several); the calibration pages are left as they are
+  attach        attach to the running drive without reset (`hil-sim probe attach`:
+                checks the flash holds this ELF, halts the core briefly) and record
+                its RTT stream until Ctrl-C or `--duration-s`: raw capture, CSV,
+                events and plots in target/bench
+  bench         the main job, the bench workflow through probe-rs: flash the release
+                ELF, reset, record the commissioning power-up, flash it again (the
+                calibration survives), record the reboot that loads it. Without
+                `--probe` on the emulated STM32G474 (hil-sim/emu, Unicorn; its
+                virtual probe, the simulated drive, what the drive did measured at
+                the plant; installs Debian cmake and libclang-dev if missing); with
+                `--probe [SERIAL]` on the real board. Captures, CSV and plots in
+                target/bench
   qemu          the core on an emulated Cortex-M4F: bit-exact against the host
   cycles        instructions and estimated cycles per core step (QEMU's instruction
                 trace; installs Debian qemu-system-arm if missing); regenerates
@@ -65,10 +79,7 @@ cargo xtask <command>
                 release): regenerates docs/results.md, docs/results/ and the
                 benchmark's figure files; further arguments go to `hil-sim
                 bench-accuracy` (--sensors, --seed, --reduced)
-  emu           the main job: the release firmware ELF on the emulated STM32G474
-                (hil-sim/emu, Unicorn) commissioning the simulated drive, then
-                powering up again with the stored calibration; CSV and plots in
-                target/emu (installs Debian cmake and libclang-dev if missing)
+  emu           the same as `bench` without `--probe`
   emu-report    every firmware-in-the-loop scenario; regenerates
                 docs/figures/emu-report.md and emu-scenarios.md and the pages that
                 show them
@@ -101,13 +112,15 @@ fn main() -> ExitCode {
         Some("isr-check") => setup()
             .and_then(|_| build_cross())
             .and_then(|_| isr::check(&release_elf())),
-        Some("flash") => setup().and_then(|_| flash()),
+        Some("flash") => probe_tool("flash", &args[1..]),
+        Some("attach") => probe_tool("attach", &args[1..]),
+        Some("bench") => bench(&args[1..]),
         Some("docs") => docs::main(&args[1..]),
         Some("bench-accuracy") => bench_accuracy(&args[1..]).and_then(|_| docs::render_pages()),
         Some("qemu") => setup().and_then(|_| qemu::bit_exact()),
         Some("cycles") => docs::generate(&["cycles"]),
         Some("regs") => regs::main(&args[1..]),
-        Some("emu") => emu(&["power-up"]),
+        Some("emu") => bench(&[]),
         Some("mutants") => setup()
             .and_then(|_| emu_setup())
             .and_then(|_| mutants::check()),
@@ -308,22 +321,32 @@ fn size_report() -> Result<String> {
     ))
 }
 
-fn flash() -> Result<()> {
-    if output_of("probe-rs", &["--version"]).is_none() {
-        bail!("probe-rs not found: `cargo install probe-rs-tools` (docs/hardware.md)");
+/// The bench tool (`hil-sim probe`, on the probe-rs library) on the release ELF with a
+/// real probe: `flash`, `attach` or `power-up`; further arguments (`--probe SERIAL`,
+/// `--duration-s`, ...) go to it.
+fn probe_tool(cmd: &str, extra: &[String]) -> Result<()> {
+    setup()?;
+    build_cross()?;
+    let elf = release_elf();
+    let mut args = vec!["probe", cmd, "--elf", elf.to_str().context("ELF path")?];
+    args.extend(extra.iter().map(String::as_str));
+    run(hil_sim(&args))
+}
+
+/// The main job, the bench workflow: probe-rs flashes the release ELF, records the
+/// commissioning power-up over RTT, flashes it again and records the reboot that loads
+/// the calibration. With `--probe [SERIAL]` on the board a real probe reaches; without,
+/// on the emulated STM32G474 through the emulator's virtual probe.
+fn bench(extra: &[String]) -> Result<()> {
+    let Some(i) = extra.iter().position(|a| a == "--probe") else {
+        return emu(&["bench"], extra);
+    };
+    let mut rest: Vec<String> = extra.to_vec();
+    // `--probe` alone: the one probe attached (the tool refuses a choice among several).
+    if rest.get(i + 1).is_none_or(|v| v.starts_with("--")) {
+        rest.remove(i);
     }
-    // The runner in .cargo/config.toml flashes and attaches to the RTT stream.
-    let mut c = cargo();
-    c.args([
-        "run",
-        "--locked",
-        "--release",
-        "--target",
-        TARGET,
-        "-p",
-        FIRMWARE,
-    ]);
-    run(c)
+    probe_tool("power-up", &rest)
 }
 
 /// What the emulator crate's build needs: Unicorn's C code (cmake) and bindgen
@@ -334,13 +357,14 @@ fn emu_setup() -> Result<()> {
 }
 
 /// The emulator (drive-emu, release) on the release firmware.
-fn emu(args: &[&str]) -> Result<()> {
+fn emu(args: &[&str], extra: &[String]) -> Result<()> {
     setup()?;
     emu_setup()?;
     run(cross_build(FIRMWARE))?;
     let mut c = cargo();
     c.args(["run", "--release", "--locked", "-p", EMULATOR, "--"]);
     c.args(args);
+    c.args(extra);
     run(c)
 }
 
@@ -348,6 +372,15 @@ fn emu(args: &[&str]) -> Result<()> {
 /// emulator's high-modulation test finds it; the default build rebuilt after it.
 pub(crate) fn fast_run_aside() -> Result<PathBuf> {
     let out = build_aside(&["--features", "fast-run"], "fast-run", "drive-fw-fast-run")?;
+    run(cross_build(FIRMWARE))?;
+    Ok(out)
+}
+
+/// The 40 kHz build at `target/perf/drive-fw-40k` (where `perf` puts it too): its core
+/// runs at another control rate, so its configuration hash differs from the default
+/// build's. The default build rebuilt after it.
+pub(crate) fn other_config_aside() -> Result<PathBuf> {
+    let out = build_aside(&["--features", "pwm-40khz"], "perf", "drive-fw-40k")?;
     run(cross_build(FIRMWARE))?;
     Ok(out)
 }
@@ -448,6 +481,9 @@ fn ci() -> Result<()> {
     // the high-modulation test also runs the `fast-run` build (set aside, then the
     // default rebuilt so the release ELF stays the default build).
     fast_run_aside()?;
+    // The probe-rs tests flash a build of another core configuration over a
+    // commissioned drive (the next boot refuses the record: ConfigMismatch).
+    other_config_aside()?;
     let mut c = cargo();
     c.args(["test", "--release", "--locked", "-p", EMULATOR]);
     run(c)?;
