@@ -1352,3 +1352,145 @@ pub fn power_up_summary(r: &PowerUpReport) -> String {
     }
     s
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use probe_rs::probe::stlink::StLinkFactory;
+
+    fn probe(name: &str, serial: Option<&str>) -> DebugProbeInfo {
+        let serial = serial.map(String::from);
+        DebugProbeInfo::new(name, 0x0483, 0x374e, serial, &StLinkFactory, None, false)
+    }
+
+    fn err(r: Result<usize>) -> String {
+        format!("{:#}", r.unwrap_err())
+    }
+
+    #[test]
+    fn no_probe_says_what_to_check() {
+        let e = err(choose_probe(&[], None));
+        for what in ["no debug probe", "USB", "udev", "probe-rs list"] {
+            assert!(e.contains(what), "{e}");
+        }
+        assert!(err(choose_probe(&[], Some("X"))).contains("no debug probe"));
+    }
+
+    #[test]
+    fn one_probe_is_taken_several_need_a_serial() {
+        let one = [probe("STLink V3", Some("003A"))];
+        assert_eq!(choose_probe(&one, None).unwrap(), 0);
+        let two = [probe("STLink V3", Some("003A")), probe("STLink V2", None)];
+        let e = err(choose_probe(&two, None));
+        for what in [
+            "2 debug probes",
+            "--probe SERIAL",
+            "003A",
+            "STLink V2 (serial none",
+        ] {
+            assert!(e.contains(what), "{e}");
+        }
+        assert_eq!(choose_probe(&two, Some("003A")).unwrap(), 0);
+    }
+
+    #[test]
+    fn a_serial_not_found_lists_what_is_there() {
+        let two = [
+            probe("STLink V3", Some("003A")),
+            probe("STLink V3", Some("0042")),
+        ];
+        let e = err(choose_probe(&two, Some("0099")));
+        for what in ["`0099`", "003A", "0042"] {
+            assert!(e.contains(what), "{e}");
+        }
+        assert_eq!(choose_probe(&two, Some("0042")).unwrap(), 1);
+        let same = [probe("a", Some("7")), probe("b", Some("7"))];
+        assert!(err(choose_probe(&same, Some("7"))).contains("share"));
+    }
+
+    #[test]
+    fn only_dev_id_0x469_is_accepted_and_others_are_named() {
+        // REV_ID in the high half does not matter.
+        check_dev_id(0x2000_6469).unwrap();
+        check_dev_id(0x469).unwrap();
+        let e = |id| format!("{:#}", check_dev_id(id).unwrap_err());
+        let g431 = e(0x2001_6468);
+        assert!(
+            g431.contains("STM32G431/G441") && g431.contains("0x468"),
+            "{g431}"
+        );
+        assert!(g431.contains("STM32G474RE"), "{g431}");
+        let g491 = e(0x1000_2479);
+        assert!(
+            g491.contains("STM32G491") && g491.contains("0x479"),
+            "{g491}"
+        );
+        let other = e(0x1000_6415);
+        assert!(
+            other.contains("unknown part") && other.contains("0x415"),
+            "{other}"
+        );
+        assert!(e(0).contains("no device ID"));
+        assert!(e(u32::MAX).contains("no device ID"));
+    }
+
+    /// A flash image at 0x0800_0000 read like a probe would.
+    fn reader(mem: &[u8]) -> impl FnMut(u64, &mut [u8]) -> Result<()> + '_ {
+        move |addr, buf| {
+            let off = addr
+                .checked_sub(0x0800_0000)
+                .ok_or_else(|| anyhow!("unmapped {addr:#x}"))? as usize;
+            let src = mem
+                .get(off..off + buf.len())
+                .ok_or_else(|| anyhow!("unmapped {addr:#x}"))?;
+            buf.copy_from_slice(src);
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn flash_is_compared_segment_by_segment_and_the_first_difference_named() {
+        let mut mem: Vec<u8> = (0..8192u32).map(|i| (i * 7 % 251) as u8).collect();
+        // Two segments out of order (the vector table and text, then .data's image);
+        // the gap between them is not the ELF's.
+        let segs = [
+            LoadSegment {
+                paddr: 0x0800_1800,
+                data: mem[0x1800..0x1900].to_vec(),
+            },
+            LoadSegment {
+                paddr: 0x0800_0000,
+                data: mem[..3000].to_vec(),
+            },
+        ];
+        mem[3500] ^= 0xFF;
+        assert_eq!(first_difference(&segs, &mut reader(&mem)).unwrap(), None);
+        mem[0x1805] ^= 1;
+        mem[2500] ^= 0x10;
+        let d = first_difference(&segs, &mut reader(&mem)).unwrap().unwrap();
+        assert_eq!(
+            d,
+            Difference {
+                addr: 0x0800_0000 + 2500,
+                expected: mem[2500] ^ 0x10,
+                found: mem[2500],
+            }
+        );
+        mem[2500] ^= 0x10;
+        let d = first_difference(&segs, &mut reader(&mem)).unwrap().unwrap();
+        assert_eq!(d.addr, 0x0800_1805);
+        // A segment beyond the memory: the read error is named, not a panic.
+        let beyond = [LoadSegment {
+            paddr: 0x0800_3000,
+            data: vec![0; 16],
+        }];
+        let e = first_difference(&beyond, &mut reader(&mem[..100])).unwrap_err();
+        assert!(format!("{e:#}").contains("0x08003000"), "{e:#}");
+    }
+
+    #[test]
+    fn bad_elves_are_errors() {
+        assert!(load_segments(b"not an elf").is_err());
+        assert!(rtt_address(b"not an elf").is_err());
+    }
+}
