@@ -1038,11 +1038,11 @@ pub fn power_up(
         let name = format!("power-up-{k}");
         let mut session = open().with_context(|| format!("{name}: opening the probe"))?;
         let flash_report =
-            flash(&mut session, elf_path, opts.progress).with_context(|| format!("{name}"))?;
+            flash(&mut session, elf_path, opts.progress).with_context(|| name.clone())?;
         if opts.progress {
             eprintln!("{name}: flashed: {}", flash_report.describe());
         }
-        reset_for_capture(&mut session, &elf).with_context(|| format!("{name}"))?;
+        reset_for_capture(&mut session, &elf).with_context(|| name.clone())?;
         let timeout_s = opts.timeout_s;
         let mut stop = |s: &LiveStatus| {
             s.state == Some(State::Safe)
@@ -1055,7 +1055,7 @@ pub fn power_up(
         let raw = raw_path(out_dir, &name);
         let written = write_recording(&rec, elf_path, out_dir, &name);
         if let Some(e) = ended_error(&rec, &raw) {
-            return Err(e.context(format!("{name}")));
+            return Err(e.context(name.clone()));
         }
         let last = rec
             .status
@@ -1072,7 +1072,7 @@ pub fn power_up(
                 raw.display()
             );
         }
-        if !rec.status.in_run_ms().is_some_and(|t| t >= hold_ms) {
+        if rec.status.in_run_ms().is_none_or(|t| t < hold_ms) {
             bail!(
                 "{name}: timed out after {timeout_s} s wall without {} s in Run; last state \
                  seen: {last}; the capture is in {}",
@@ -1080,7 +1080,7 @@ pub fn power_up(
                 raw.display()
             );
         }
-        written.with_context(|| format!("{name}"))?;
+        written.with_context(|| name.clone())?;
         boots.push(BootReport {
             name,
             raw_path: raw,
@@ -1137,12 +1137,13 @@ pub fn attach_and_record(
         // Ctrl-C is how an attach recording normally ends.
         Some(e) if rec.ended != Ended::Interrupted => Err(e),
         _ => {
-            written.with_context(|| match opts.reset {
-                true => String::new(),
-                false => "attached mid-stream: without --reset the capture may start after \
-                          the firmware's `mras-paths` line"
-                    .into(),
-            })?;
+            match (written, opts.reset) {
+                (Err(e), false) => Err(e.context(
+                    "attached mid-stream: without --reset the capture may start after the \
+                     firmware's `mras-paths` line, which names the CSV's columns",
+                )),
+                (w, _) => w,
+            }?;
             Ok(rec)
         }
     }

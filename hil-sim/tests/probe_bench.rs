@@ -151,11 +151,11 @@ fn the_live_status_of_a_power_up_is_what_the_power_up_streamed() {
         let cycles = records.iter().map(|r| r.cycles_max).max().unwrap();
         assert_eq!(s.cycles_max, cycles);
         let whole = stream::decode(&elf, &bytes).unwrap();
-        let t_last = whole.items.iter().filter_map(|i| match i {
+        let mut t_last = whole.items.iter().filter_map(|i| match i {
             Item::Line(l) => l.t_ms(),
             Item::Other(_) => None,
         });
-        assert_eq!(s.t_ms, t_last.last());
+        assert_eq!(s.t_ms, t_last.next_back());
         assert_eq!(s.calibration_loaded, loaded);
         assert_eq!(boot.loaded_from_flash, loaded);
         // The state sequence: the simulated supervisor's transitions, in order.
