@@ -246,8 +246,9 @@ impl FlashCounts {
         };
         match ev {
             ProgressEvent::AddProgressBar { operation, total } => {
-                if let Some(i) = slot(operation) {
-                    self.totals[i] = total;
+                // One bar per flash region and operation: the totals add up.
+                if let (Some(i), Some(t)) = (slot(operation), total) {
+                    self.totals[i] = Some(self.totals[i].unwrap_or(0) + t);
                 }
             }
             ProgressEvent::Started(op) => {
@@ -524,7 +525,7 @@ impl LiveStatus {
             .map_or("-".into(), |t| format!("{:.3} s", f64::from(t) / 1000.0));
         let state = self.state.map_or("-", State::name);
         format!(
-            "{state} t={t} faults={:#04x} residual={:.2e} rad w={:.1} rad/s cycles_max={} \
+            "{state} t={t} faults={:#04x} residual={:.2e} rad omega={:.1} rad/s cycles_max={} \
              rec={} ev={} {} B losses: {}{}",
             self.faults,
             self.residual_max_rad,
@@ -744,9 +745,11 @@ pub fn clear_interrupt() {
 }
 
 /// Ctrl-C sets a flag the recording loop polls, so the capture is written instead of
-/// lost with the process. Installed once per process; if another handler is already
-/// there (an embedding program's), Ctrl-C is left to it, with a note.
-fn install_ctrl_c() {
+/// lost with the process; installed before flashing, a Ctrl-C during a flash lets it
+/// finish (a half-programmed chip is worse) and stops before the recording. Installed
+/// once per process; if another handler is already there (an embedding program's),
+/// Ctrl-C is left to it, with a note.
+pub fn catch_ctrl_c() {
     let failure = HANDLER.get_or_init(|| {
         ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst))
             .err()
@@ -802,7 +805,7 @@ pub fn record(
     let table = stream::table(elf)?;
     let addr = rtt_address(elf)?;
     if opts.ctrl_c {
-        install_ctrl_c();
+        catch_ctrl_c();
     }
     let mut core = session.core(0).context("opening the core")?;
     let mut rtt = attach_rtt(&mut core, addr, opts.attach_timeout_s)?;
@@ -1256,6 +1259,7 @@ fn open_session(c: &Common) -> Result<Session> {
 }
 
 pub fn run(a: &Args) -> Result<()> {
+    catch_ctrl_c();
     clear_interrupt();
     match &a.command {
         ProbeCommand::Flash { common, reset } => {
@@ -1334,6 +1338,13 @@ pub fn run(a: &Args) -> Result<()> {
 /// The report as text, a boot per paragraph.
 pub fn power_up_summary(r: &PowerUpReport) -> String {
     let mut s = String::new();
+    if r.boots.first().is_some_and(|b| b.calibration_loaded) {
+        let _ = writeln!(
+            s,
+            "note: power-up-1 loaded a calibration already stored on the board: no \
+             commissioning ran"
+        );
+    }
     for b in &r.boots {
         let _ = writeln!(s, "{} ({}):", b.name, b.raw_path.display());
         let _ = writeln!(s, "  flash: {}", b.flash.describe());

@@ -240,3 +240,42 @@ fn write_recording_writes_what_rtt_log_writes() {
     assert!(events.contains("state=Run"), "{events}");
     assert!(p("plots-power-up-1/speed.png").exists());
 }
+
+/// The emulated chip's own captures (`target/emu`, written by the emulator when it has
+/// run; skipped otherwise): the real firmware's bytes, banner included, decode live as
+/// they do whole, and the status ends in Run, the reboot with the calibration loaded.
+#[test]
+fn the_emulated_firmwares_captures_decode_live_as_whole() {
+    let elf = elf();
+    let table = stream::table(&elf).unwrap();
+    for (name, loaded) in [("power-up-1", false), ("power-up-2", true)] {
+        let path = hil_sim::checkout::target_dir().join(format!("emu/{name}.defmt"));
+        let Ok(bytes) = fs::read(&path) else {
+            eprintln!(
+                "{}: absent (the emulator has not run): skipped",
+                path.display()
+            );
+            continue;
+        };
+        let whole = stream::decode(&elf, &bytes).unwrap();
+        same(&decode_in_chunks(&elf, bytes.chunks(1)), &whole);
+        same(&decode_in_chunks(&elf, bytes.chunks(333)), &whole);
+        if whole.malformed > 0 || !whole.bad_lines.is_empty() {
+            // Captured from another build of the firmware than this checkout's.
+            eprintln!(
+                "{}: not this ELF's stream: status not checked",
+                path.display()
+            );
+            continue;
+        }
+        let mut m = Monitor::new(&table);
+        for c in bytes.chunks(512) {
+            m.feed(c);
+        }
+        assert_eq!(m.status.state, Some(State::Run), "{name}");
+        assert_eq!(m.status.calibration_loaded, loaded, "{name}");
+        assert_eq!(m.status.losses, whole.losses(), "{name}");
+        assert_eq!(m.status.losses.boots, 1, "{name}");
+        assert!(m.status.other_lines >= 1, "{name}: the banner");
+    }
+}
