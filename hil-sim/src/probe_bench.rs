@@ -959,7 +959,8 @@ fn ended_error(rec: &Recording, raw: &Path) -> Option<anyhow::Error> {
 pub struct PowerUpOptions {
     /// Firmware seconds to record after `Run` is reached.
     pub hold_s: f64,
-    /// Wall seconds a boot may take to reach `Run` and hold.
+    /// Wall seconds a boot's recording (after its flash) may take to reach `Run` and
+    /// hold.
     pub timeout_s: f64,
     pub record: RecordOptions,
     /// Flash progress on stderr.
@@ -1066,7 +1067,8 @@ pub fn power_up(
             .map_or("none (no record decoded)", State::name);
         if rec.status.state == Some(State::Safe) {
             bail!(
-                "{name}: the drive went to Safe ({}) at t = {:.3} s; the capture is in {}",
+                "{name}: the drive went to Safe ({}) at t = {:.3} s; the capture so far is kept \
+                 in {} (its events say what led there)",
                 rec.status
                     .last_fault
                     .as_deref()
@@ -1078,7 +1080,8 @@ pub fn power_up(
         if rec.status.in_run_ms().is_none_or(|t| t < hold_ms) {
             bail!(
                 "{name}: timed out after {timeout_s} s wall without {} s in Run; last state \
-                 seen: {last}; the capture is in {}",
+                 seen: {last} (check the motor, its supply and the sensor; a longer commissioning \
+                 needs --timeout-s); the capture so far is kept in {}",
                 opts.hold_s,
                 raw.display()
             );
@@ -1238,7 +1241,8 @@ pub enum ProbeCommand {
         /// Firmware seconds to record once in Run.
         #[arg(long, default_value_t = 2.0)]
         hold_s: f64,
-        /// Wall seconds a boot may take to reach Run and hold.
+        /// Wall seconds a boot's recording (after its flash) may take to reach Run and
+        /// hold.
         #[arg(long, default_value_t = 120.0)]
         timeout_s: f64,
     },

@@ -279,3 +279,33 @@ fn the_emulated_firmwares_captures_decode_live_as_whole() {
         assert!(m.status.other_lines >= 1, "{name}: the banner");
     }
 }
+
+/// The subcommand parses and, with a serial no probe has, fails before touching any
+/// hardware with a message about the probe (none connected, or that serial not found).
+#[test]
+fn the_probe_subcommand_names_a_missing_probe() {
+    let bin = env!("CARGO_BIN_EXE_hil-sim");
+    let help = std::process::Command::new(bin)
+        .args(["probe", "power-up", "--help"])
+        .output()
+        .unwrap();
+    assert!(help.status.success());
+    let help = String::from_utf8_lossy(&help.stdout);
+    for flag in [
+        "--elf",
+        "--probe",
+        "--chip",
+        "--out",
+        "--hold-s",
+        "--timeout-s",
+    ] {
+        assert!(help.contains(flag), "{help}");
+    }
+    let out = std::process::Command::new(bin)
+        .args(["probe", "flash", "--probe", "no-such-serial-0000"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("no debug probe"), "{err}");
+}
