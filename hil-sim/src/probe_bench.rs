@@ -3,7 +3,7 @@
 //! library. It replaces OpenOCD's RTT server + `nc` (`probe-rs run` prints decoded text
 //! only, and `rtt-log` needs the raw defmt bytes).
 //!
-//! Every function below takes a [`probe_rs::Probe`] or a `&mut` [`Session`]: nothing
+//! Every function below takes a [`Probe`] or a `&mut` [`Session`]: nothing
 //! assumes a USB probe, so the emulator's virtual probe is attached exactly like a real
 //! one ([`attach`]) and the workflows take a closure that opens the session.
 //!
@@ -35,6 +35,22 @@
 //! Attaching halts the core briefly: probe-rs halts, steps and resumes it when a
 //! session opens and closes (it clears the hardware breakpoints). With the debug freeze
 //! TIM1 stops and the bridge is off for that moment; do not attach to a drive under load.
+//!
+//! On the bench:
+//!
+//! ```text
+//! hil-sim probe flash [--reset]                       # flash + verify this checkout's release ELF
+//! hil-sim probe power-up [--hold-s 2] [--timeout-s 120] [--out target/bench]
+//! hil-sim probe attach [--reset] [--duration-s 60] [--name attach]
+//!   common: --elf PATH  --probe SERIAL  --chip STM32G474RETx  --status auto|redraw|lines|off
+//! ```
+//!
+//! Outputs per recording in `--out`: `NAME.defmt` (raw; `hil-sim rtt-log --input` reads
+//! it again), `NAME.csv` (+ `NAME.2.csv`.. after a reset), `NAME.events.csv`,
+//! `plots-NAME/`.
+//!
+//! Ctrl-C during a flash lets the flash finish (a half-programmed chip is worse), then
+//! stops; during a recording it ends it and the capture is written.
 
 use crate::rtt_log;
 use crate::stream::{self, Frame, Item, Line, LossCounter, Losses, StreamDecoder};
