@@ -825,7 +825,23 @@ pub fn record(
     }
     let mut core = session.core(0).context("opening the core")?;
     let mut rtt = attach_rtt(&mut core, addr, opts.attach_timeout_s)?;
-    let mut monitor = Monitor::new(&table);
+    let mut read = |buf: &mut [u8]| match rtt.up_channel(0) {
+        Some(channel) => channel.read(&mut core, buf).map_err(|e| e.to_string()),
+        None => Err("RTT up channel 0 disappeared".into()),
+    };
+    Ok(record_from(&mut read, &table, opts, stop))
+}
+
+/// [`record`]'s loop over any reader of the channel (`read` fills a buffer and returns
+/// the byte count, 0 when nothing is waiting, or why it failed): the capture, its
+/// status and why it ended. Never an error: whatever was read is in the recording.
+pub fn record_from(
+    read: &mut dyn FnMut(&mut [u8]) -> std::result::Result<usize, String>,
+    table: &defmt_decoder::Table,
+    opts: &RecordOptions,
+    stop: &mut dyn FnMut(&LiveStatus) -> bool,
+) -> Recording {
+    let mut monitor = Monitor::new(table);
     let mut raw = Vec::new();
     let mut buf = vec![0u8; 4096];
     let start = Instant::now();
@@ -838,6 +854,13 @@ pub fn record(
     let period = Duration::from_millis(if redraw { 200 } else { 1000 });
     let mut last_draw: Option<Instant> = None;
     let mut failures = 0;
+    let draw = |status: &LiveStatus| {
+        if redraw {
+            eprint!("\r{}\x1b[K", status.line());
+        } else {
+            eprintln!("[{:7.1} s] {}", status.wall_s, status.line());
+        }
+    };
     let ended = loop {
         monitor.status.wall_s = start.elapsed().as_secs_f64();
         if stop(&monitor.status) {
@@ -846,18 +869,15 @@ pub fn record(
         if opts.ctrl_c && interrupted() {
             break Ended::Interrupted;
         }
-        let Some(channel) = rtt.up_channel(0) else {
-            break Ended::ProbeLost("RTT up channel 0 disappeared".into());
-        };
-        let n = match channel.read(&mut core, &mut buf) {
+        let n = match read(&mut buf) {
             Ok(n) => {
                 failures = 0;
-                n
+                n.min(buf.len())
             }
             Err(e) => {
                 failures += 1;
                 if failures >= READ_RETRIES {
-                    break Ended::ProbeLost(e.to_string());
+                    break Ended::ProbeLost(e);
                 }
                 std::thread::sleep(Duration::from_millis(10));
                 continue;
@@ -871,15 +891,7 @@ pub fn record(
         };
         if show && (changed || last_draw.is_none_or(|t| t.elapsed() >= period)) {
             last_draw = Some(Instant::now());
-            if redraw {
-                eprint!("\r{}\x1b[K", monitor.status.line());
-            } else {
-                eprintln!(
-                    "[{:7.1} s] {}",
-                    monitor.status.wall_s,
-                    monitor.status.line()
-                );
-            }
+            draw(&monitor.status);
         }
         // A full buffer means more is waiting: read again at once.
         if n < buf.len() {
@@ -888,23 +900,18 @@ pub fn record(
     };
     monitor.status.wall_s = start.elapsed().as_secs_f64();
     if show {
+        draw(&monitor.status);
         if redraw {
-            eprint!("\r{}\x1b[K\n", monitor.status.line());
-        } else {
-            eprintln!(
-                "[{:7.1} s] {}",
-                monitor.status.wall_s,
-                monitor.status.line()
-            );
+            eprintln!();
         }
     }
-    Ok(Recording {
+    Recording {
         raw,
         ended,
         status: monitor.status,
         states: monitor.states,
         events: monitor.events,
-    })
+    }
 }
 
 /// Halt, clear the RTT control block the last run left in RAM (so the next attach

@@ -309,3 +309,72 @@ fn the_probe_subcommand_names_a_missing_probe() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("no debug probe"), "{err}");
 }
+
+fn quiet() -> probe_bench::RecordOptions {
+    probe_bench::RecordOptions {
+        display: probe_bench::StatusDisplay::Off,
+        poll_ms: 0,
+        ..Default::default()
+    }
+}
+
+/// A probe unplugged mid-run: the reads fail from some point on. The recording ends
+/// `ProbeLost` with every byte read before, and a single failed read is retried.
+#[test]
+fn a_probe_lost_mid_run_keeps_the_capture_so_far() {
+    let elf = elf();
+    let table = stream::table(&elf).unwrap();
+    let (first, _) = boots();
+    let bytes = capture(first);
+    let cut = bytes.len() / 2;
+    let mut pos = 0;
+    let mut calls = 0;
+    let mut read = |buf: &mut [u8]| -> Result<usize, String> {
+        calls += 1;
+        if calls == 3 {
+            return Err("transient SWD fault".into());
+        }
+        if pos >= cut {
+            return Err("probe not found (USB disconnected)".into());
+        }
+        // Irregular pieces, some reads empty.
+        let n = [0, 300, 1, 4096, 17][calls % 5]
+            .min(cut - pos)
+            .min(buf.len());
+        buf[..n].copy_from_slice(&bytes[pos..pos + n]);
+        pos += n;
+        Ok(n)
+    };
+    let rec = probe_bench::record_from(&mut read, &table, &quiet(), &mut |_| false);
+    assert_eq!(
+        rec.ended,
+        Ended::ProbeLost("probe not found (USB disconnected)".into())
+    );
+    assert_eq!(rec.raw, bytes[..cut]);
+    assert_eq!(rec.status.bytes, cut as u64);
+    assert!(rec.status.records > 0);
+}
+
+/// The caller's stop sees the live status: a power-up recording stops once Run has
+/// lasted the hold, and the capture holds everything read until then.
+#[test]
+fn recording_stops_when_the_caller_says_so() {
+    let elf = elf();
+    let table = stream::table(&elf).unwrap();
+    let (first, _) = boots();
+    let bytes = capture(first);
+    let mut pos = 0;
+    let mut read = |buf: &mut [u8]| -> Result<usize, String> {
+        let n = 200.min(bytes.len() - pos).min(buf.len());
+        buf[..n].copy_from_slice(&bytes[pos..pos + n]);
+        pos += n;
+        Ok(n)
+    };
+    let mut stop = |s: &LiveStatus| s.in_run_ms().is_some_and(|t| t >= 100);
+    let rec = probe_bench::record_from(&mut read, &table, &quiet(), &mut stop);
+    assert_eq!(rec.ended, Ended::Stopped);
+    assert!(rec.status.in_run_ms().unwrap() >= 100);
+    assert!(rec.raw.len() < bytes.len(), "stopped before the end");
+    assert_eq!(rec.raw, bytes[..rec.raw.len()]);
+    assert_eq!(rec.states.last().unwrap().state, State::Run);
+}
