@@ -956,13 +956,36 @@ pub fn write_recording(rec: &Recording, elf_path: &Path, out_dir: &Path, name: &
     })
 }
 
+/// Where the capture is, for messages: "the capture so far (N bytes) is kept in PATH",
+/// or that it could not be written there.
+fn kept(rec: &Recording, raw: &Path) -> String {
+    let n = rec.raw.len();
+    match fs::metadata(raw) {
+        Ok(m) if m.len() == n as u64 => {
+            format!(
+                "the capture so far ({n} bytes) is kept in {}",
+                raw.display()
+            )
+        }
+        _ => format!(
+            "the capture ({n} bytes) could NOT be written to {} (see below)",
+            raw.display()
+        ),
+    }
+}
+
+/// A workflow's failure with what writing the outputs said, if that failed too (the
+/// CSV not written, or the raw file itself).
+fn with_written(e: anyhow::Error, written: &Result<()>) -> anyhow::Error {
+    match written {
+        Ok(()) => e,
+        Err(w) => anyhow!("{e:#}\n  and writing the outputs failed: {w:#}"),
+    }
+}
+
 /// Why a recording that ended early failed, naming the kept capture.
 fn ended_error(rec: &Recording, raw: &Path) -> Option<anyhow::Error> {
-    let kept = format!(
-        "the capture so far ({} bytes) is kept in {}",
-        rec.raw.len(),
-        raw.display()
-    );
+    let kept = kept(rec, raw);
     match &rec.ended {
         Ended::Stopped => None,
         Ended::Interrupted => Some(anyhow!("interrupted (Ctrl-C); {kept}")),
@@ -1082,32 +1105,34 @@ pub fn power_up(
         let raw = raw_path(out_dir, &name);
         let written = write_recording(&rec, elf_path, out_dir, &name);
         if let Some(e) = ended_error(&rec, &raw) {
-            return Err(e.context(name.clone()));
+            return Err(with_written(e.context(name.clone()), &written));
         }
         let last = rec
             .status
             .state
             .map_or("none (no record decoded)", State::name);
         if rec.status.state == Some(State::Safe) {
-            bail!(
-                "{name}: the drive went to Safe ({}) at t = {:.3} s; the capture so far is kept \
-                 in {} (its events say what led there)",
+            let e = anyhow!(
+                "{name}: the drive went to Safe ({}) at t = {:.3} s; {} (its events say what \
+                 led there)",
                 rec.status
                     .last_fault
                     .as_deref()
                     .unwrap_or("no fault event received"),
                 f64::from(rec.status.t_ms.unwrap_or(0)) / 1000.0,
-                raw.display()
+                kept(&rec, &raw)
             );
+            return Err(with_written(e, &written));
         }
         if rec.status.in_run_ms().is_none_or(|t| t < hold_ms) {
-            bail!(
+            let e = anyhow!(
                 "{name}: timed out after {timeout_s} s wall without {} s in Run; last state \
                  seen: {last} (check the motor, its supply and the sensor; a longer commissioning \
-                 needs --timeout-s); the capture so far is kept in {}",
+                 needs --timeout-s); {}",
                 opts.hold_s,
-                raw.display()
+                kept(&rec, &raw)
             );
+            return Err(with_written(e, &written));
         }
         written.with_context(|| name.clone())?;
         boots.push(BootReport {
@@ -1164,7 +1189,7 @@ pub fn attach_and_record(
     let written = write_recording(&rec, elf_path, out_dir, name);
     match ended_error(&rec, &raw) {
         // Ctrl-C is how an attach recording normally ends.
-        Some(e) if rec.ended != Ended::Interrupted => Err(e),
+        Some(e) if rec.ended != Ended::Interrupted => Err(with_written(e, &written)),
         _ => {
             match (written, opts.reset) {
                 (Err(e), false) => Err(e.context(
