@@ -17,6 +17,7 @@ pub mod plant;
 pub mod plant_truth;
 pub mod plots;
 pub mod power_up;
+pub mod probe_bench;
 pub mod replay;
 pub mod report;
 pub mod rig;

@@ -2,7 +2,9 @@
 //! simulated SPMSM drive; the core alone against kinematic rotors and recorded data.
 
 use clap::{Parser, Subcommand};
-use hil_sim::{accuracy, cli as cmd, commission, figures, replay, rtt_log, study, vector};
+use hil_sim::{
+    accuracy, cli as cmd, commission, figures, probe_bench, replay, rtt_log, study, vector,
+};
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -33,6 +35,10 @@ enum Command {
     /// The firmware's RTT stream (raw defmt bytes) decoded against its ELF into CSV, an
     /// event table and plots.
     RttLog(rtt_log::Args),
+    /// A drive on a debug probe (probe-rs): flash the firmware, record its RTT stream raw
+    /// and decoded live (`attach`), or run the commissioning power-up and the reboot with
+    /// the stored calibration (`power-up`). Attaching halts the core briefly.
+    Probe(probe_bench::Args),
     /// Accuracy benchmark: the MRAS against offline calibrations on random simulated
     /// sensors (writes docs/results.md, its plots and a per-sensor CSV).
     BenchAccuracy(accuracy::report::Args),
@@ -57,6 +63,7 @@ fn main() -> ExitCode {
         Some(Command::Scenario(a)) => cmd::scenario(&a),
         Some(Command::Bench(a)) => cmd::bench(&a),
         Some(Command::RttLog(a)) => rtt_log::run(&a),
+        Some(Command::Probe(a)) => probe_bench::run(&a),
         Some(Command::BenchAccuracy(a)) => accuracy::report::run(&a),
         Some(Command::QemuVector(a)) => vector::run(&a),
         Some(Command::Figures(a)) => figures::run(&a),

@@ -385,7 +385,7 @@ impl Losses {
 }
 
 /// Counts [`Losses`] over a stream's lines in order.
-#[derive(Debug, Default)]
+#[derive(Clone, Debug, Default)]
 pub struct LossCounter {
     losses: Losses,
     /// The `seq` the next line should have (None: unknown, at the start of a capture).
@@ -457,6 +457,27 @@ impl LossCounter {
         self.close_boot();
         self.losses
     }
+
+    /// The losses so far, the counting going on (a live capture's status).
+    pub fn so_far(&self) -> Losses {
+        self.clone().finish()
+    }
+
+    /// A decoded item, in stream order: a banner starts a boot, a line of ours is
+    /// counted (a record's counters read when it has them), other lines are not.
+    pub fn item(&mut self, item: &Item) {
+        match item {
+            Item::Other(o) if is_banner(o) => self.banner(),
+            Item::Other(_) => {}
+            Item::Line(l) => {
+                let record = (l.kind == "mras").then(|| match l.has_loss_counters() {
+                    true => l.record().ok(),
+                    false => None,
+                });
+                self.line(l.seq(), record.as_ref().map(Option::as_ref));
+            }
+        }
+    }
 }
 
 /// The losses of hil-sim's stream of a power-up (init's `mras-paths` line, then the
@@ -480,32 +501,53 @@ impl Decoded {
     pub fn losses(&self) -> Losses {
         let mut c = LossCounter::default();
         for item in &self.items {
-            match item {
-                Item::Other(o) if is_banner(o) => c.banner(),
-                Item::Other(_) => {}
-                Item::Line(l) => {
-                    let record = (l.kind == "mras").then(|| match l.has_loss_counters() {
-                        true => l.record().ok(),
-                        false => None,
-                    });
-                    c.line(l.seq(), record.as_ref().map(Option::as_ref));
-                }
-            }
+            c.item(item);
         }
         c.finish()
     }
 }
 
-/// Decode a raw defmt byte stream (RTT channel 0) against the ELF that produced it.
-pub fn decode(elf: &[u8], bytes: &[u8]) -> Result<Decoded> {
-    let table = Table::parse(elf)
+/// The ELF's defmt table (the decoder's input besides the bytes).
+pub fn table(elf: &[u8]) -> Result<Table> {
+    Table::parse(elf)
         .context("reading the defmt table")?
-        .ok_or_else(|| anyhow!("the ELF has no defmt table"))?;
-    let mut dec = table.new_stream_decoder();
-    dec.received(bytes);
-    let mut out = Decoded::default();
-    loop {
-        match dec.decode() {
+        .ok_or_else(|| anyhow!("the ELF has no defmt table"))
+}
+
+/// One frame of the stream as [`StreamDecoder`] yields it.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Frame {
+    /// A decoded frame (a line of ours or another log line).
+    Item(Item),
+    /// A frame the decoder could not decode (corrupt or truncated bytes).
+    Malformed,
+    /// A line of ours whose fields did not fit the schema, with the reason.
+    BadLine(String),
+}
+
+/// Decodes a stream as its bytes arrive (a live RTT capture): bytes in with
+/// [`received`](Self::received), frames out with [`next_frame`](Self::next_frame).
+/// Frames are rzCOBS-framed, so how the bytes were chunked does not change what
+/// decodes: [`decode`] is this over the whole capture at once.
+pub struct StreamDecoder<'t> {
+    dec: Box<dyn defmt_decoder::StreamDecoder + 't>,
+}
+
+impl<'t> StreamDecoder<'t> {
+    pub fn new(table: &'t Table) -> Self {
+        Self {
+            dec: table.new_stream_decoder(),
+        }
+    }
+
+    /// More bytes of the stream, in order.
+    pub fn received(&mut self, bytes: &[u8]) {
+        self.dec.received(bytes);
+    }
+
+    /// The next complete frame, None until more bytes arrive.
+    pub fn next_frame(&mut self) -> Option<Frame> {
+        match self.dec.decode() {
             Ok(frame) => {
                 let frags = frame.fragments();
                 // The rendering of each parameter on its own, in order.
@@ -514,17 +556,37 @@ pub fn decode(elf: &[u8], bytes: &[u8]) -> Result<Decoded> {
                     .zip(frame.display_fragments())
                     .filter(|(f, _)| matches!(f, Fragment::Parameter(_)))
                     .map(|(_, t)| t);
-                match line_of(&frags, texts) {
-                    Ok(Some(l)) => out.items.push(Item::Line(l)),
-                    Ok(None) => out
-                        .items
-                        .push(Item::Other(frame.display_message().to_string())),
-                    Err(e) => out.bad_lines.push(format!("{e:#}")),
-                }
+                Some(match line_of(&frags, texts) {
+                    Ok(Some(l)) => Frame::Item(Item::Line(l)),
+                    Ok(None) => Frame::Item(Item::Other(frame.display_message().to_string())),
+                    Err(e) => Frame::BadLine(format!("{e:#}")),
+                })
             }
-            Err(DecodeError::UnexpectedEof) => break,
-            Err(DecodeError::Malformed) => out.malformed += 1,
+            Err(DecodeError::UnexpectedEof) => None,
+            Err(DecodeError::Malformed) => Some(Frame::Malformed),
         }
+    }
+}
+
+impl Decoded {
+    /// A frame, in stream order.
+    pub fn push(&mut self, frame: Frame) {
+        match frame {
+            Frame::Item(i) => self.items.push(i),
+            Frame::Malformed => self.malformed += 1,
+            Frame::BadLine(b) => self.bad_lines.push(b),
+        }
+    }
+}
+
+/// Decode a raw defmt byte stream (RTT channel 0) against the ELF that produced it.
+pub fn decode(elf: &[u8], bytes: &[u8]) -> Result<Decoded> {
+    let table = table(elf)?;
+    let mut dec = StreamDecoder::new(&table);
+    dec.received(bytes);
+    let mut out = Decoded::default();
+    while let Some(frame) = dec.next_frame() {
+        out.push(frame);
     }
     Ok(out)
 }
