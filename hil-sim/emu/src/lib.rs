@@ -18,5 +18,6 @@ pub mod regs_g474;
 pub mod rtt;
 pub mod scenarios;
 pub mod stats;
+pub mod vprobe;
 
 pub use cpu::Emu;
