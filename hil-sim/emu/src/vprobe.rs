@@ -214,7 +214,7 @@ impl<P: DebugPort + 'static> EmuThread<P> {
     pub fn virtual_probe(&self) -> VirtualProbe {
         VirtualProbe {
             link: Arc::new(Link {
-                tx: Mutex::new(self.tx.clone()),
+                tx: self.tx.clone(),
                 shared: self.shared.clone(),
             }),
             unplugged: self.unplugged.clone(),
@@ -412,8 +412,7 @@ enum LinkError {
 }
 
 struct Link<P: DebugPort + 'static> {
-    // A `Mutex` so that the link is `Sync` on every toolchain (probes are `Send`).
-    tx: Mutex<Sender<Msg<P>>>,
+    tx: Sender<Msg<P>>,
     shared: Arc<Shared>,
 }
 
@@ -428,12 +427,7 @@ impl<P: DebugPort + 'static> Link<P> {
         if let Some(why) = self.shared.stopped() {
             return Err(LinkError::Gone(why));
         }
-        let tx = self
-            .tx
-            .lock()
-            .map_err(|_| LinkError::Gone("the probe's link was poisoned".into()))?
-            .clone();
-        call(&tx, f).map_err(|()| {
+        call(&self.tx, f).map_err(|()| {
             LinkError::Gone(
                 self.shared
                     .stopped()

@@ -173,6 +173,17 @@ impl DebugPort for Fake {
     }
 }
 
+/// An error with its sources (probe-rs's own `Display` names only the outermost).
+fn chain(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut s = e.to_string();
+    let mut src = e.source();
+    while let Some(x) = src {
+        s += &format!(": {x}");
+        src = x.source();
+    }
+    s
+}
+
 fn fake(pacing: Pacing) -> EmuThread<Fake> {
     EmuThread::spawn(|| Ok(Fake::new()), pacing).expect("the fake board starts")
 }
@@ -241,7 +252,7 @@ fn with_and_finish_reach_the_port() -> Result<()> {
         .attach("STM32G474RETx", Permissions::default())
         .err()
         .ok_or_else(|| anyhow!("attached to a finished board"))?;
-    println!("after finish: {err}");
+    println!("after finish: {}", chain(&err));
     assert!(t0.elapsed() < Duration::from_secs(1));
     Ok(())
 }
@@ -268,7 +279,7 @@ fn a_dead_thread_gives_errors_not_hangs() -> Result<()> {
         .read_word_32(DBGMCU_IDCODE as u64)
         .err()
         .ok_or_else(|| anyhow!("a dead board answered"))?;
-    println!("dead thread: {err}");
+    println!("dead thread: {}", chain(&err));
     assert!(t0.elapsed() < Duration::from_secs(1));
     drop(core);
     // The session's drop tries to clean up on a dead board: it must not panic either.
@@ -327,7 +338,7 @@ fn unplugging_fails_the_next_access() -> Result<()> {
         .read_word_32(DBGMCU_IDCODE as u64)
         .err()
         .ok_or_else(|| anyhow!("an unplugged probe answered"))?;
-    println!("unplugged: {err}");
+    println!("unplugged: {}", chain(&err));
     assert!(is_unplugged(&err), "{err:?}");
     assert!(core.halt(Duration::from_millis(100)).is_err());
     assert!(t0.elapsed() < Duration::from_secs(1));
