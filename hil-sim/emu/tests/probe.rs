@@ -42,6 +42,9 @@ struct Fake {
     pin_resets: u32,
     /// Panics in `advance` once `now` passes this (a dead thread).
     panic_at: Option<u64>,
+    /// Wall seconds `advance` takes per emulated second (the emulator is ~3x slower than
+    /// the board).
+    slowness: f64,
 }
 
 impl Fake {
@@ -158,6 +161,11 @@ impl DebugPort for Fake {
         if self.panic_at.is_some_and(|t| self.now >= t) {
             panic!("the fake board's advance panicked on purpose");
         }
+        if self.slowness > 0.0 {
+            std::thread::sleep(Duration::from_secs_f64(
+                max_ticks as f64 / TICK_HZ * self.slowness,
+            ));
+        }
         self.now += max_ticks;
         if self.halted {
             self.halted_ticks += max_ticks;
@@ -215,6 +223,42 @@ fn wall_pacing_never_runs_ahead_of_the_clock() -> Result<()> {
     let halted = (h1 - h0) as f64 / TICK_HZ;
     println!("halted: {halted:.4} s of plant time in 0.2 s");
     assert!((0.1..=0.21).contains(&halted), "{halted} s while halted");
+    Ok(())
+}
+
+#[test]
+fn a_slow_emulator_gets_no_catch_up_and_still_answers_promptly() -> Result<()> {
+    let emu = EmuThread::spawn(
+        || {
+            Ok(Fake {
+                slowness: 3.0,
+                ..Fake::new()
+            })
+        },
+        Pacing::Wall,
+    )?;
+    let t0 = Instant::now();
+    let n0 = emu.with(|p| p.now_ticks())?;
+    let mut worst = Duration::ZERO;
+    while t0.elapsed() < Duration::from_millis(400) {
+        let t = Instant::now();
+        emu.with(|_| ())?;
+        worst = worst.max(t.elapsed());
+        std::thread::sleep(Duration::from_millis(7));
+    }
+    let n1 = emu.with(|p| p.now_ticks())?;
+    let wall = t0.elapsed().as_secs_f64();
+    let emulated = (n1 - n0) as f64 / TICK_HZ;
+    println!(
+        "3x slower emulator: {emulated:.4} s emulated in {wall:.4} s, worst answer {:.2} ms",
+        worst.as_secs_f64() * 1e3
+    );
+    // Time lost is not made up: at most the wall time over the slowness (plus slack for
+    // the listening windows), never the wall time itself.
+    assert!(emulated <= wall / 3.0 * 1.1, "{emulated} s in {wall} s");
+    assert!(emulated >= wall / 3.0 * 0.5, "{emulated} s in {wall} s");
+    // A request waits for one capped slice at most (1 ms emulated = 3 ms here).
+    assert!(worst < Duration::from_millis(15), "{worst:?}");
     Ok(())
 }
 
