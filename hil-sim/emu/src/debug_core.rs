@@ -160,7 +160,7 @@ impl Emu {
         if PERIPHS.iter().any(|&(b, l)| within(a, b, l)) {
             return Ok(self.m_mut().mmio_read(a, w));
         }
-        if a >= 0xE000_0000 && a < 0xE010_0000 {
+        if (0xE000_0000..0xE010_0000).contains(&a) {
             let v = self.m_mut().ppb_read(a & !3);
             let mask = if w == 4 { u32::MAX } else { (1 << (8 * w)) - 1 };
             return Ok(v >> ((a & 3) * 8) & mask);
@@ -187,7 +187,7 @@ impl Emu {
             self.sync_bank1();
             return Ok(());
         }
-        if a >= 0xE000_0000 && a < 0xE010_0000 {
+        if (0xE000_0000..0xE010_0000).contains(&a) {
             if a == DCRSR {
                 self.dcrsr_write(v);
             } else {

@@ -233,3 +233,21 @@ fn an_unmapped_address_faults() {
     assert_eq!(rd(&mut e, 0x1FFF_75E0) & 0xFFFF, 512);
     assert_eq!(rd(&mut e, 0x4002_2020) >> 22 & 1, 1, "OPTR.DBANK");
 }
+
+/// IWDG (RM0440 §42) keeps counting while the core is halted unless
+/// DBGMCU_APB1FZR1.DBG_IWDG_STOP is set: the release firmware halted for 150 ms is
+/// reset by its watchdog only without it.
+#[test]
+fn a_long_halt_resets_by_watchdog_only_without_dbg_iwdg_stop() {
+    for stop in [false, true] {
+        let mut e = emu();
+        e.advance(ticks(0.3)).unwrap();
+        if stop {
+            wr(&mut e, DBGMCU_APB1FZR1, DBG_IWDG_STOP);
+        }
+        let before = e.m().iwdg.expiries;
+        halt(&mut e);
+        e.advance(ticks(0.15)).unwrap();
+        assert_eq!(e.m().iwdg.expiries > before, !stop, "DBG_IWDG_STOP {stop}");
+    }
+}
