@@ -7,6 +7,7 @@ pub mod board;
 pub mod budget;
 pub mod cpu;
 pub mod debug;
+pub mod debug_core;
 pub mod elf;
 pub mod machine;
 pub mod nvic;
