@@ -1,6 +1,8 @@
 //! probe-rs through `drive_emu::vprobe`: the emulator's thread (pacing, `with`, `finish`,
 //! a dead thread), and probe-rs's own attach/halt/resume and unplugging, here against a
-//! small fake port (a Cortex-M4 debug core over sparse memory, no CPU).
+//! small fake port (a Cortex-M4 debug core over sparse memory, no CPU), then the release
+//! firmware on the emulated board: attach, probe-rs's own flash algorithm, RTT, the
+//! calibration page kept over a reflash, unplugging mid-run.
 
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
@@ -400,5 +402,220 @@ fn unplugging_fails_the_next_access() -> Result<()> {
         .attach("STM32G474RETx", Permissions::default())?
         .core(0)?
         .read_word_32(DBGMCU_IDCODE as u64)?;
+    Ok(())
+}
+
+use drive_emu::board::Board;
+use drive_emu::Emu;
+use probe_rs::flashing::{
+    download_file_with_options, DownloadOptions, ElfLoader, ElfOptions, FlashProgress,
+    ProgressEvent, ProgressOperation,
+};
+use probe_rs::rtt::{Rtt, ScanRegion};
+
+const CALIB: u32 = 0x0807_F000;
+const FLASH_KEYR: u32 = 0x4002_2008;
+const FLASH_SR: u32 = 0x4002_2010;
+const FLASH_CR: u32 = 0x4002_2014;
+
+fn release_elf() -> (std::path::PathBuf, Vec<u8>) {
+    let path = hil_sim::stream::release_elf();
+    let elf = std::fs::read(&path).unwrap_or_else(|e| {
+        panic!(
+            "{}: {e}: build the release firmware first (`cargo xtask build-cross`)",
+            path.display()
+        )
+    });
+    (path, elf)
+}
+
+fn running_board() -> Result<EmuThread<Emu>> {
+    let (_, elf) = release_elf();
+    EmuThread::spawn(
+        move || Emu::new(&elf, Board::commissioning(1)?, None),
+        Pacing::Wall,
+    )
+}
+
+/// Bank 1's 512 KiB as the MEM-AP reads them.
+fn read_flash(emu: &EmuThread<Emu>) -> Result<Vec<u8>> {
+    emu.with(|e| {
+        let mut b = vec![0; 512 * 1024];
+        e.read(0x0800_0000, 4, &mut b).map(|()| b)
+    })?
+    .map_err(|f| anyhow!("{f}"))
+}
+
+/// What a flash session did: pages erased and programmed, bytes programmed.
+#[derive(Default, Debug)]
+struct Flashed {
+    erased: u32,
+    programmed: u32,
+    bytes: u64,
+}
+
+fn flash_elf(emu: &EmuThread<Emu>, path: &std::path::Path) -> Result<(Flashed, Duration)> {
+    let mut session = emu
+        .probe()
+        .attach("STM32G474RETx", Permissions::default())?;
+    let counts = std::cell::RefCell::new(Flashed::default());
+    let mut opts = DownloadOptions::default();
+    opts.verify = true;
+    opts.progress = FlashProgress::new(|ev| {
+        if let ProgressEvent::Progress {
+            operation, size, ..
+        } = ev
+        {
+            let mut c = counts.borrow_mut();
+            match operation {
+                ProgressOperation::Erase => c.erased += 1,
+                ProgressOperation::Program => {
+                    c.programmed += 1;
+                    c.bytes += size;
+                }
+                _ => {}
+            }
+        }
+    });
+    let t0 = Instant::now();
+    download_file_with_options(&mut session, path, ElfLoader(ElfOptions::default()), opts)
+        .map_err(|e| anyhow!("{} (board: {:?})", chain(&e), emu.stopped()))?;
+    let wall = t0.elapsed();
+    drop(session);
+    Ok((counts.into_inner(), wall))
+}
+
+#[test]
+fn attach_to_the_running_firmware() -> Result<()> {
+    let emu = running_board()?;
+    std::thread::sleep(Duration::from_millis(500));
+    let mut session = emu
+        .probe()
+        .attach("STM32G474RETx", Permissions::default())?;
+    let mut core = session.core(0)?;
+    let idcode = core.read_word_32(DBGMCU_IDCODE as u64)?;
+    println!("DBGMCU_IDCODE {idcode:#010x}");
+    assert_eq!(idcode & 0xFFF, 0x469);
+    let info = core.halt(Duration::from_millis(100))?;
+    let pc: u32 = core.read_core_reg(core.program_counter())?;
+    println!("halted at {:#010x}", info.pc);
+    assert_eq!(info.pc, pc as u64);
+    assert!((0x0800_0000..0x0808_0000).contains(&pc), "PC {pc:#010x}");
+    core.run()?;
+    assert!(!core.core_halted()?);
+    Ok(())
+}
+
+#[test]
+#[ignore = "unfinished: download_file against the emulator ran past 60 s without an answer; not yet diagnosed"]
+fn probe_rs_reflashes_resets_reads_rtt_and_keeps_the_calibration() -> Result<()> {
+    let (path, elf) = release_elf();
+    let image = drive_emu::elf::load(&elf)?;
+    let elf_for_board = elf.clone();
+    let rtt_block = image.rtt_block.ok_or_else(|| anyhow!("no _SEGGER_RTT"))?;
+    let emu = EmuThread::spawn(
+        move || Emu::new(&elf_for_board, Board::commissioning(1)?, None),
+        Pacing::Wall,
+    )?;
+    // Not an erased chip: the firmware is resident. The emulator stops (unicorn:
+    // INSN_INVALID / WRITE_UNMAPPED) where a real core runs into erased flash and locks
+    // up, which probe-rs's attach to a blank part then meets. probe-rs still erases and
+    // reprograms every page the ELF covers, with its own algorithm.
+
+    // probe-rs's own algorithm (stm32g47x-8x_512) on the emulated core.
+    let (flashed, wall) = flash_elf(&emu, &path)?;
+    println!("flash: {flashed:?} in {:.2} s", wall.as_secs_f64());
+    assert!(flashed.erased > 0 && flashed.programmed > 0);
+    assert!(
+        read_flash(&emu)? == image.flash,
+        "bank 1 differs from the ELF"
+    );
+
+    // Reset: the firmware runs; its RTT block fills with defmt frames.
+    {
+        let mut session = emu
+            .probe()
+            .attach("STM32G474RETx", Permissions::default())?;
+        let mut core = session.core(0)?;
+        core.reset()?;
+        drop(core);
+        std::thread::sleep(Duration::from_secs(2));
+        let mut core = session.core(0)?;
+        let mut rtt = Rtt::attach_region(&mut core, &ScanRegion::Exact(rtt_block as u64))?;
+        let mut bytes = Vec::new();
+        let mut buf = vec![0; 4096];
+        let t0 = Instant::now();
+        while bytes.len() < 64 && t0.elapsed() < Duration::from_secs(10) {
+            let n = rtt.up_channels()[0].read(&mut core, &mut buf)?;
+            bytes.extend_from_slice(&buf[..n]);
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        println!("RTT: {} bytes", bytes.len());
+        let decoded = hil_sim::stream::decode(&elf, &bytes)?;
+        let first = decoded.items.first().ok_or_else(|| anyhow!("no frame"))?;
+        assert!(
+            matches!(first, hil_sim::stream::Item::Other(t) if hil_sim::stream::is_banner(t)),
+            "first frame is not the banner"
+        );
+    }
+
+    // A calibration record at 0x0807F000 (programmed through the flash controller, as
+    // the firmware would), then the same ELF again: probe-rs erases only what it writes.
+    let record: Vec<u8> = (0..64u8).map(|i| i.wrapping_mul(37) ^ 0x5A).collect();
+    let rec = record.clone();
+    emu.with(move |e| -> Result<()> {
+        let w = |e: &mut Emu, a: u32, v: u32| {
+            e.write(a, 4, &v.to_le_bytes()).map_err(|f| anyhow!("{f}"))
+        };
+        w(e, FLASH_KEYR, 0x4567_0123)?;
+        w(e, FLASH_KEYR, 0xCDEF_89AB)?;
+        w(e, FLASH_CR, 1)?; // PG
+        for (i, dw) in rec.chunks(8).enumerate() {
+            e.write(CALIB + 8 * i as u32, 4, dw)
+                .map_err(|f| anyhow!("{f}"))?;
+            loop {
+                let mut sr = [0; 4];
+                e.read(FLASH_SR, 4, &mut sr).map_err(|f| anyhow!("{f}"))?;
+                if u32::from_le_bytes(sr) & 1 << 16 == 0 {
+                    break;
+                }
+                e.advance(1_000)?;
+            }
+        }
+        w(e, FLASH_CR, 1 << 31)?; // LOCK
+        Ok(())
+    })??;
+    let (again, wall) = flash_elf(&emu, &path)?;
+    println!("reflash: {again:?} in {:.2} s", wall.as_secs_f64());
+    let flash = read_flash(&emu)?;
+    let off = (CALIB - 0x0800_0000) as usize;
+    assert_eq!(&flash[off..off + record.len()], &record[..]);
+    let mut expect = image.flash.clone();
+    expect[off..off + record.len()].copy_from_slice(&record);
+    assert!(flash == expect, "bank 1 differs from the ELF + record");
+    Ok(())
+}
+
+#[test]
+fn unplugging_mid_run_fails_the_rtt_read() -> Result<()> {
+    let (_, elf) = release_elf();
+    let rtt_block = drive_emu::elf::load(&elf)?
+        .rtt_block
+        .ok_or_else(|| anyhow!("no _SEGGER_RTT"))?;
+    let emu = running_board()?;
+    std::thread::sleep(Duration::from_millis(500));
+    let mut session = emu
+        .probe()
+        .attach("STM32G474RETx", Permissions::default())?;
+    let mut core = session.core(0)?;
+    let mut rtt = Rtt::attach_region(&mut core, &ScanRegion::Exact(rtt_block as u64))?;
+    let mut buf = vec![0; 1024];
+    rtt.up_channels()[0].read(&mut core, &mut buf)?;
+    emu.unplug();
+    let err = rtt.up_channels()[0]
+        .read(&mut core, &mut buf)
+        .err()
+        .ok_or_else(|| anyhow!("read through an unplugged probe"))?;
+    assert!(is_unplugged(&err), "{err:?}");
     Ok(())
 }
