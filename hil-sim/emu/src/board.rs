@@ -54,6 +54,9 @@ pub struct Board {
     pub wrp2a_pages: Option<(u32, u32)>,
     /// The crystal on OSC_IN/OSC_OUT (Hz).
     pub hse_hz: f64,
+    /// DBGMCU_IDCODE.DEV_ID the chip reports (0x469: STM32G47x; another for a
+    /// wrong-chip test).
+    pub dev_id: u16,
     /// The plant's αβ current at the start of the last step and when (ticks): with the
     /// state at `plant_at`, the slope the shunts interpolate on.
     i_before: ([f64; 2], u64),
@@ -182,6 +185,7 @@ impl Board {
             last,
             wrp2a_pages: None,
             hse_hz: NUCLEO_G474RE_HSE_HZ,
+            dev_id: crate::debug::DEV_ID_G474,
             i_before: ([0.0; 2], 0),
             state_at: 0,
         }

@@ -204,6 +204,13 @@ impl Emu {
                 8 => m.exc_return = Some(pc),
                 // EXCP_NOCP: Unicorn's own coprocessor check.
                 17 => m.fault = Some(Fault::NoCoprocessor(pc)),
+                // EXCP_BKPT: with halting debug enabled the core enters Debug state at
+                // the BKPT (ARMv7-M ARM C1.5.1: DFSR.BKPT, the PC left at it);
+                // without, a HardFault (the DebugMonitor is not enabled).
+                7 if m.dbg.ctrl & crate::debug::C_DEBUGEN != 0 => {
+                    m.debug_halt(crate::debug::DFSR_BKPT);
+                    m.bkpt_at = Some(pc);
+                }
                 _ => m.fault = Some(Fault::Undefined(pc)),
             }
             let _ = uc.emu_stop();
@@ -213,8 +220,20 @@ impl Emu {
             HookType::MEM_UNMAPPED | HookType::MEM_PROT,
             1,
             0,
-            |uc: &mut Unicorn<'_, Machine>, _t: MemType, addr: u64, _s: usize, _v: i64| {
-                uc.get_data_mut().fault = Some(Fault::Bus(addr as u32));
+            |uc: &mut Unicorn<'_, Machine>, t: MemType, addr: u64, size: usize, v: i64| {
+                // A store into bank 1 (mapped read-only for Unicorn) is a write to the
+                // flash array: the controller decides (programming, or PGSERR etc.,
+                // RM0440 §3.3.8); the CPU loop then copies the model's bank 1 back.
+                let a = addr as u32;
+                if t == MemType::WRITE_PROT
+                    && (FLASH_BASE..FLASH_BASE + BANK_BYTES as u32).contains(&a)
+                {
+                    uc.get_data_mut()
+                        .flash_write(a - FLASH_BASE, size, v as u32);
+                    uc.get_data_mut().stop = true;
+                    return true;
+                }
+                uc.get_data_mut().fault = Some(Fault::Bus(a));
                 false
             },
         )
@@ -275,10 +294,17 @@ impl Emu {
         Ok(())
     }
 
-    /// A system reset: peripherals, core registers; RAM and flash kept.
-    fn system_reset(&mut self, kind: ResetKind) -> Result<()> {
+    /// A system reset: peripherals, core registers; RAM and flash kept. With
+    /// DEMCR.VC_CORERESET and halting debug enabled the core halts on the reset vector's
+    /// first instruction (ARMv7-M ARM C1.6.5, DFSR.VCATCH).
+    pub(crate) fn system_reset(&mut self, kind: ResetKind) -> Result<()> {
         self.m_mut().reset_peripherals(kind);
-        self.cpu_reset()
+        self.cpu_reset()?;
+        let m = self.m_mut();
+        if m.dbg.ctrl & crate::debug::C_DEBUGEN != 0 && m.demcr & crate::debug::VC_CORERESET != 0 {
+            m.debug_halt(crate::debug::DFSR_VCATCH);
+        }
+        Ok(())
     }
 
     /// QEMU caches thread/handler mode in its translation flags: rewriting the flags
@@ -398,6 +424,10 @@ impl Emu {
         self.enter(nvic::HARD_FAULT)
     }
 
+    pub(crate) fn take_pending_pub(&mut self) -> Result<bool> {
+        self.take_pending()
+    }
+
     /// Take the most urgent pending exception if it preempts what runs (with
     /// tail-chaining, this is called again after each return).
     fn take_pending(&mut self) -> Result<bool> {
@@ -480,7 +510,8 @@ impl Emu {
     }
 
     /// One slice: events, exceptions, then the CPU up to the next event.
-    fn step(&mut self, t_end: u64) -> Result<()> {
+    pub(crate) fn step(&mut self, t_end: u64) -> Result<()> {
+        self.sync_bank1();
         self.m_mut().service_events();
         if self.m().rtt.next_poll <= self.m().now {
             self.poll_rtt()?;
@@ -489,6 +520,9 @@ impl Emu {
             return self.system_reset(kind);
         }
         let deadline = self.m().next_event().min(t_end);
+        if self.m().dbg.halted {
+            return self.step_halted(deadline);
+        }
         // An injected busy-wait at the end of the control interrupt: time passes as
         // executed instructions of the handler, then it returns.
         if let Some((exc_return, until)) = self.m().busy_exit {
@@ -525,6 +559,19 @@ impl Emu {
         m.first_block = true;
         let pc = self.reg(RegisterARM::PC);
         let r = self.uc.emu_start((pc | 1) as u64, 0, 0, 0);
+        self.after_run(r)
+    }
+
+    /// What a run of Unicorn left to do: an exception return, a fault, a BKPT halt.
+    pub(crate) fn after_run(
+        &mut self,
+        r: std::result::Result<(), unicorn_engine::uc_error>,
+    ) -> Result<()> {
+        if let Some(pc) = self.m_mut().bkpt_at.take() {
+            // Unicorn stopped past the BKPT's exception: the PC back on it.
+            self.set_reg(RegisterARM::PC, pc)?;
+            return Ok(());
+        }
         let m = self.m_mut();
         if let Some(e) = m.exc_return.take() {
             if e >> 28 == 0xF {

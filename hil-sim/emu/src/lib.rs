@@ -7,6 +7,7 @@ pub mod board;
 pub mod budget;
 pub mod cpu;
 pub mod debug;
+pub mod debug_core;
 pub mod elf;
 pub mod machine;
 pub mod nvic;
@@ -18,5 +19,6 @@ pub mod regs_g474;
 pub mod rtt;
 pub mod scenarios;
 pub mod stats;
+pub mod vprobe;
 
 pub use cpu::Emu;

@@ -175,6 +175,12 @@ pub struct Machine {
     /// The core halted by a debugger until then (ticks): no instructions, no
     /// exceptions taken; TIM1 frozen if DBGMCU_APB2FZR.DBG_TIM1_STOP ([`Machine::halt_core`]).
     pub halted_until: Option<u64>,
+    /// Halting debug (DHCSR, DFSR, DCRDR): see [`crate::debug::DebugState`].
+    pub dbg: crate::debug::DebugState,
+    /// A BKPT halted the core at this address (the CPU loop puts the PC back there).
+    pub bkpt_at: Option<u32>,
+    /// Bank-1 bytes the flash model changed (offsets [lo, hi)), for Unicorn's copy.
+    pub bank1_dirty: Option<(u32, u32)>,
 }
 
 /// The over-current comparator's output glitches at a switching edge when a phase
@@ -254,6 +260,9 @@ impl Machine {
             power_cut_at_program: None,
             powered_off: false,
             halted_until: None,
+            dbg: Default::default(),
+            bkpt_at: None,
+            bank1_dirty: None,
         };
         m.reset_peripherals(ResetKind::PowerOn);
         m
@@ -263,7 +272,23 @@ impl Machine {
     /// RAM, the plant and the reset flags survive (RM0440 §7.1.2 system reset).
     pub fn reset_peripherals(&mut self, kind: ResetKind) {
         let csr = self.regs.get(rcc::CSR);
+        // DBGMCU_CR and the freeze registers are reset by a power-on reset only
+        // (RM0440 §46.16.2-5); DEMCR by a power-on reset only (ARMv7-M ARM C1.6.5).
+        let kept_dbgmcu: Vec<(u32, u32)> = (0xE004_2004..=0xE004_2010)
+            .step_by(4)
+            .map(|a| (a, self.regs.get(a)))
+            .collect();
+        let power_on = kind == ResetKind::PowerOn;
         self.regs.reset();
+        if !power_on {
+            for (a, v) in kept_dbgmcu {
+                self.regs.set(a, v);
+            }
+        }
+        self.regs.set(
+            crate::debug::DBGMCU_IDCODE,
+            (crate::debug::REV_ID_G474 as u32) << 16 | self.board.dev_id as u32,
+        );
         self.rcc.reset(&mut self.regs);
         self.rcc.record_reset(&mut self.regs, kind, csr);
         self.adcs.reset();
@@ -283,7 +308,11 @@ impl Machine {
         self.scr = 0;
         self.ccr = 0x200;
         self.fpccr = 0xC000_0000;
-        self.demcr = 0;
+        if power_on {
+            self.demcr = 0;
+            self.dbg = Default::default();
+        }
+        self.dbg.reset_st = true;
         self.dwt_ctrl = 0x4000_0000;
         self.ppb_plain.clear();
         self.adc_irq_high = false;
@@ -725,6 +754,69 @@ impl Machine {
         self.stop = true;
     }
 
+    /// DHCSR as read (C1.6.2): S_RESET_ST and S_RETIRE_ST clear on read.
+    pub fn dhcsr_read(&mut self) -> u32 {
+        use crate::debug::*;
+        let d = &mut self.dbg;
+        let mut v = d.ctrl | S_REGRDY;
+        if d.halted {
+            v |= S_HALT;
+        }
+        if self.lockup {
+            v |= S_LOCKUP;
+        }
+        if std::mem::take(&mut d.reset_st) {
+            v |= S_RESET_ST;
+        }
+        if std::mem::take(&mut d.retire_st) {
+            v |= S_RETIRE_ST;
+        }
+        v
+    }
+
+    /// A DHCSR write (C1.6.2): ignored without DBGKEY in [31:16]; C_HALT with
+    /// C_DEBUGEN halts, C_HALT cleared resumes (with C_STEP: one instruction).
+    pub fn dhcsr_write(&mut self, v: u32) {
+        use crate::debug::*;
+        if v >> 16 != DBGKEY {
+            return;
+        }
+        let ctrl = v & (C_DEBUGEN | C_HALT | C_STEP | C_MASKINTS);
+        self.dbg.ctrl = if ctrl & C_DEBUGEN == 0 { 0 } else { ctrl };
+        let ctrl = self.dbg.ctrl;
+        if ctrl & C_DEBUGEN != 0 && ctrl & C_HALT != 0 {
+            self.debug_halt(DFSR_HALTED);
+        } else if self.dbg.halted {
+            if ctrl & C_STEP != 0 {
+                self.dbg.step_pending = true;
+            } else {
+                self.debug_resume();
+            }
+        }
+    }
+
+    /// Enter Debug state (C1.5): the core stops at the next instruction boundary.
+    pub fn debug_halt(&mut self, reason: u32) {
+        self.dbg.dfsr |= reason;
+        self.dbg.ctrl |= crate::debug::C_HALT;
+        if !self.dbg.halted {
+            self.dbg.halted = true;
+            if self.regs.bit(tim1::DBGMCU_APB2FZR, tim1::DBG_TIM1_STOP) {
+                self.tim1.freeze(&self.regs, self.now);
+            }
+        }
+        self.stop = true;
+    }
+
+    /// Leave Debug state.
+    pub fn debug_resume(&mut self) {
+        if self.dbg.halted {
+            self.dbg.halted = false;
+            self.dbg.ctrl &= !crate::debug::C_HALT;
+            self.tim1.unfreeze(&self.regs, self.now);
+        }
+    }
+
     /// Is the core halted by [`Machine::halt_core`]?
     pub fn halted(&self) -> bool {
         self.halted_until.is_some()
@@ -910,6 +1002,7 @@ impl Machine {
                 let page = flash::PAGE_BYTES;
                 let end = ((offset + page) as usize).min(self.flash.len());
                 self.flash[offset as usize..end].fill(0xFF);
+                self.mark_bank1(offset, end as u32);
                 self.flash_ctl
                     .torn
                     .retain(|&t| !(offset..offset + page).contains(&t));
@@ -922,6 +1015,7 @@ impl Machine {
                 let o = offset as usize;
                 self.flash[o..o + 4].copy_from_slice(&lo.to_le_bytes());
                 self.flash[o + 4..o + 8].copy_from_slice(&hi.to_le_bytes());
+                self.mark_bank1(offset, offset + 8);
                 if self.power_cut_at_program == Some(self.flash_ctl.programs) {
                     self.power_cut();
                     self.powered_off = true;
@@ -929,6 +1023,19 @@ impl Machine {
                 }
             }
         }
+    }
+
+    /// Bank 1 (Unicorn's memory copy) changed in [lo, hi): resynced by the CPU loop.
+    fn mark_bank1(&mut self, lo: u32, hi: u32) {
+        let hi = hi.min(flash::BANK_BYTES);
+        if lo >= hi {
+            return;
+        }
+        self.bank1_dirty = Some(match self.bank1_dirty {
+            Some((a, b)) => (a.min(lo), b.max(hi)),
+            None => (lo, hi),
+        });
+        self.stop = true;
     }
 
     /// Power cut: a double word being programmed is left torn, its first word written
@@ -1026,6 +1133,12 @@ impl Machine {
             0xE000_ED2C => self.hfsr,
             0xE000_ED88 => self.cpacr,
             0xE000_EDFC => self.demcr,
+            crate::debug::DHCSR => self.dhcsr_read(),
+            crate::debug::DFSR => self.dbg.dfsr,
+            crate::debug::DCRDR => self.dbg.dcrdr,
+            // MVFR0/MVFR1 of the Cortex-M4F (Cortex-M4 TRM r0p1 §7.3).
+            0xE000_EF40 => 0x1011_0021,
+            0xE000_EF44 => 0x1100_0011,
             0xE000_EF34 => self.fpccr,
             a if (0xE004_2000..0xE004_2400).contains(&a) => self.read_word(a),
             a => {
@@ -1125,6 +1238,9 @@ impl Machine {
             0xE000_ED2C => self.hfsr &= !v,
             0xE000_ED88 => self.cpacr = v & (0xF << 20),
             0xE000_EDFC => self.demcr = v,
+            crate::debug::DHCSR => self.dhcsr_write(v),
+            crate::debug::DFSR => self.dbg.dfsr &= !v,
+            crate::debug::DCRDR => self.dbg.dcrdr = v,
             0xE000_EF34 => self.fpccr = v,
             a if (0xE004_2000..0xE004_2400).contains(&a) => self.mmio_write(a, 4, v),
             a => {

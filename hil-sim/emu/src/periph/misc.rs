@@ -121,6 +121,11 @@ impl Iwdg {
         }
     }
 
+    /// The counter stopped for `d` ticks (DBG_IWDG_STOP with the core halted).
+    pub fn hold(&mut self, d: u64) {
+        self.reloaded_at += d;
+    }
+
     pub fn expiry(&self, regs: &RegFile) -> Option<u64> {
         self.running
             .then(|| self.reloaded_at + Self::timeout_ticks(regs))

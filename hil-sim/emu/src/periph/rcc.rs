@@ -35,6 +35,8 @@ pub enum ResetKind {
     PowerOn,
     Software,
     Watchdog,
+    /// NRST pulled low (a debug probe's reset line).
+    Pin,
 }
 
 /// The enable bit that clocks a peripheral's registers (§7.4.14-7.4.20): (enable
@@ -232,6 +234,7 @@ impl Rcc {
             ResetKind::PowerOn => CSR_BORRSTF | CSR_PINRSTF,
             ResetKind::Software => kept_csr & 0xFE00_0000 | CSR_SFTRSTF | CSR_PINRSTF,
             ResetKind::Watchdog => kept_csr & 0xFE00_0000 | CSR_IWDGRSTF | CSR_PINRSTF,
+            ResetKind::Pin => kept_csr & 0xFE00_0000 | CSR_PINRSTF,
         };
         regs.set(CSR, (regs.get(CSR) & !0xFE00_0000) | flags);
     }
