@@ -462,7 +462,14 @@ impl Emu {
         let buf = self.read_u32(up + 4)?;
         let size = self.read_u32(up + 8)?;
         let wr = self.read_u32(up + 12)?;
-        let rd = self.read_u32(up + 16)?;
+        let observe = self.m().rtt.mode == crate::rtt::RttMode::Observe;
+        // Observing: from the write offset seen last (the buffer starts empty at
+        // offset 0), whatever a probe did to RdOff.
+        let rd = if observe {
+            self.m().rtt.seen_wr.unwrap_or(0)
+        } else {
+            self.read_u32(up + 16)?
+        };
         let in_ram = |a: u32| (SRAM..SRAM + SRAM_BYTES).contains(&a);
         if size == 0
             || wr >= size
@@ -488,7 +495,11 @@ impl Emu {
             copy(rd, size, &mut out)?;
             copy(0, wr, &mut out)?;
         }
-        self.write_u32(up + 16, wr)?;
+        if observe {
+            self.m_mut().rtt.seen_wr = Some(wr);
+        } else {
+            self.write_u32(up + 16, wr)?;
+        }
         let m = self.m_mut();
         m.rtt.bytes.extend(out);
         m.rtt.reads += 1;
