@@ -98,6 +98,36 @@ impl Emu {
         Ok(emu)
     }
 
+    /// A blank chip: flash erased (0xFF), no firmware known. Out of reset the core
+    /// reads SP and PC 0xFFFF_FFFF from the erased vector table; the fetch from there
+    /// faults and the HardFault vector (erased too) faults again: lockup (B1.5.15).
+    pub fn blank(board: Board) -> Result<Self> {
+        let m = Machine::new(vec![0xFF; 2 * BANK_BYTES as usize], board, Rtt::new(None));
+        let mut uc = Unicorn::new_with_data(Arch::ARM, Mode::THUMB, m).map_err(uc_err)?;
+        uc.ctl_set_cpu_model(ArmCpuModel::CORTEX_M4 as i32)
+            .map_err(uc_err)?;
+        Self::map(&mut uc)?;
+        let mut emu = Self {
+            uc,
+            elf: Vec::new(),
+        };
+        emu.cpu_reset()?;
+        Ok(emu)
+    }
+
+    /// The firmware a probe flashed: its cycle profile and RTT control block for the
+    /// measurements. The flash is not touched.
+    pub fn set_firmware(&mut self, elf: &[u8]) -> Result<()> {
+        let image = elf::load(elf)?;
+        let profile = Profile::for_elf(elf)?;
+        let m = self.m_mut();
+        m.rtt.block = image.rtt_block;
+        m.profile = Some(profile);
+        m.block_costs.clear();
+        self.elf = elf.to_vec();
+        Ok(())
+    }
+
     fn map(uc: &mut Unicorn<'static, Machine>) -> Result<()> {
         // Bank 1 (code) as memory; bank 2 through callbacks (programming, ECC).
         uc.mem_map(FLASH_BASE as u64, BANK_BYTES, Prot::READ | Prot::EXEC)
@@ -421,7 +451,14 @@ impl Emu {
         let now = self.m().now;
         self.m_mut().stats.hard_faults.push((now, pc));
         self.set_reg(RegisterARM::PC, pc)?;
-        self.enter(nvic::HARD_FAULT)
+        if self.enter(nvic::HARD_FAULT).is_err() {
+            // The frame could not be pushed (SP outside memory, as from an erased
+            // vector table): a fault while entering HardFault, lockup (B1.5.15).
+            let m = self.m_mut();
+            m.lockup = true;
+            m.stats.lockups += 1;
+        }
+        Ok(())
     }
 
     pub(crate) fn take_pending_pub(&mut self) -> Result<bool> {

@@ -284,3 +284,14 @@ fn observe_mode_rtt_sees_what_consume_mode_reads() {
     assert!(!consumed.is_empty());
     assert_eq!(observed, consumed);
 }
+
+#[test]
+fn a_blank_chip_locks_up_without_panicking_and_resets_sanely() {
+    let mut e = Emu::blank(Board::commissioning(1).unwrap()).unwrap();
+    e.advance(ticks(0.001)).unwrap();
+    assert_eq!(rd(&mut e, 0x0800_0000), 0xFFFF_FFFF);
+    e.pin_reset();
+    e.advance(ticks(0.001)).unwrap();
+    halt(&mut e);
+    e.set_firmware(&elf()).unwrap();
+}
