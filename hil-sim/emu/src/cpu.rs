@@ -98,6 +98,36 @@ impl Emu {
         Ok(emu)
     }
 
+    /// A blank chip: flash erased (0xFF), no firmware known. Out of reset the core
+    /// reads SP and PC 0xFFFF_FFFF from the erased vector table; the fetch from there
+    /// faults and the HardFault vector (erased too) faults again: lockup (B1.5.15).
+    pub fn blank(board: Board) -> Result<Self> {
+        let m = Machine::new(vec![0xFF; 2 * BANK_BYTES as usize], board, Rtt::new(None));
+        let mut uc = Unicorn::new_with_data(Arch::ARM, Mode::THUMB, m).map_err(uc_err)?;
+        uc.ctl_set_cpu_model(ArmCpuModel::CORTEX_M4 as i32)
+            .map_err(uc_err)?;
+        Self::map(&mut uc)?;
+        let mut emu = Self {
+            uc,
+            elf: Vec::new(),
+        };
+        emu.cpu_reset()?;
+        Ok(emu)
+    }
+
+    /// The firmware a probe flashed: its cycle profile and RTT control block for the
+    /// measurements. The flash is not touched.
+    pub fn set_firmware(&mut self, elf: &[u8]) -> Result<()> {
+        let image = elf::load(elf)?;
+        let profile = Profile::for_elf(elf)?;
+        let m = self.m_mut();
+        m.rtt.block = image.rtt_block;
+        m.profile = Some(profile);
+        m.block_costs.clear();
+        self.elf = elf.to_vec();
+        Ok(())
+    }
+
     fn map(uc: &mut Unicorn<'static, Machine>) -> Result<()> {
         // Bank 1 (code) as memory; bank 2 through callbacks (programming, ECC).
         uc.mem_map(FLASH_BASE as u64, BANK_BYTES, Prot::READ | Prot::EXEC)
@@ -421,7 +451,14 @@ impl Emu {
         let now = self.m().now;
         self.m_mut().stats.hard_faults.push((now, pc));
         self.set_reg(RegisterARM::PC, pc)?;
-        self.enter(nvic::HARD_FAULT)
+        if self.enter(nvic::HARD_FAULT).is_err() {
+            // The frame could not be pushed (SP outside memory, as from an erased
+            // vector table): a fault while entering HardFault, lockup (B1.5.15).
+            let m = self.m_mut();
+            m.lockup = true;
+            m.stats.lockups += 1;
+        }
+        Ok(())
     }
 
     pub(crate) fn take_pending_pub(&mut self) -> Result<bool> {
@@ -462,7 +499,14 @@ impl Emu {
         let buf = self.read_u32(up + 4)?;
         let size = self.read_u32(up + 8)?;
         let wr = self.read_u32(up + 12)?;
-        let rd = self.read_u32(up + 16)?;
+        let observe = self.m().rtt.mode == crate::rtt::RttMode::Observe;
+        // Observing: from the write offset seen last (the buffer starts empty at
+        // offset 0), whatever a probe did to RdOff.
+        let rd = if observe {
+            self.m().rtt.seen_wr.unwrap_or(0)
+        } else {
+            self.read_u32(up + 16)?
+        };
         let in_ram = |a: u32| (SRAM..SRAM + SRAM_BYTES).contains(&a);
         if size == 0
             || wr >= size
@@ -488,7 +532,11 @@ impl Emu {
             copy(rd, size, &mut out)?;
             copy(0, wr, &mut out)?;
         }
-        self.write_u32(up + 16, wr)?;
+        if observe {
+            self.m_mut().rtt.seen_wr = Some(wr);
+        } else {
+            self.write_u32(up + 16, wr)?;
+        }
         let m = self.m_mut();
         m.rtt.bytes.extend(out);
         m.rtt.reads += 1;

@@ -15,6 +15,19 @@ pub struct Rtt {
     /// The host reads (false: a detached or stalled host; the buffer fills).
     pub reading: bool,
     pub reads: u64,
+    /// Consume (the default: the emulator is the host, it advances RdOff) or Observe
+    /// (a probe's RTT client consumes; the emulator only copies what the firmware
+    /// wrote, never writing RdOff).
+    pub mode: RttMode,
+    /// Observe mode: the write offset seen at the last poll.
+    pub seen_wr: Option<u32>,
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum RttMode {
+    #[default]
+    Consume,
+    Observe,
 }
 
 /// The up-buffer descriptor of channel 0: offset in the control block (16-byte id, two

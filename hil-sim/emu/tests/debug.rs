@@ -251,3 +251,47 @@ fn a_long_halt_resets_by_watchdog_only_without_dbg_iwdg_stop() {
         assert_eq!(e.m().iwdg.expiries > before, !stop, "DBG_IWDG_STOP {stop}");
     }
 }
+
+#[test]
+fn the_wrong_flash_models_misbehave() {
+    use drive_emu::periph::flash::FlashMutation;
+    let mut e = emu();
+    halt(&mut e);
+    e.m_mut().flash_ctl.mutation = Some(FlashMutation::KeysAnyOrder);
+    wr(&mut e, KEYR, 0x4567_0123);
+    wr(&mut e, KEYR, 0xCDEF_89AB);
+    assert_eq!(rd(&mut e, CR) >> 31, 1, "the right order no longer unlocks");
+}
+
+#[test]
+fn observe_mode_rtt_sees_what_consume_mode_reads() {
+    let run = |mode| {
+        let mut e = emu();
+        e.m_mut().rtt.mode = mode;
+        let cb = e.m().rtt.block.unwrap();
+        for _ in 0..300 {
+            e.advance(ticks(0.001)).unwrap();
+            if mode == drive_emu::rtt::RttMode::Observe && rd(&mut e, cb) == 0x4747_4553 {
+                // The probe's RTT client consumes: RdOff := WrOff.
+                let wr_off = rd(&mut e, cb + 24 + 12);
+                wr(&mut e, cb + 24 + 16, wr_off);
+            }
+        }
+        e.m().rtt.bytes.clone()
+    };
+    let consumed = run(drive_emu::rtt::RttMode::Consume);
+    let observed = run(drive_emu::rtt::RttMode::Observe);
+    assert!(!consumed.is_empty());
+    assert_eq!(observed, consumed);
+}
+
+#[test]
+fn a_blank_chip_locks_up_without_panicking_and_resets_sanely() {
+    let mut e = Emu::blank(Board::commissioning(1).unwrap()).unwrap();
+    e.advance(ticks(0.001)).unwrap();
+    assert_eq!(rd(&mut e, 0x0800_0000), 0xFFFF_FFFF);
+    e.pin_reset();
+    e.advance(ticks(0.001)).unwrap();
+    halt(&mut e);
+    e.set_firmware(&elf()).unwrap();
+}

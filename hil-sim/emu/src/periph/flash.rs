@@ -41,8 +41,22 @@ pub const BANK_BYTES: u32 = 256 * 1024;
 pub const ERASE_S: f64 = 22.0e-3;
 pub const PROGRAM_S: f64 = 82.0e-6;
 
+/// A deliberately wrong flash controller, for a check that a flash tool notices.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FlashMutation {
+    /// CR.PNB read 6 bits wide instead of 7 (§3.7.6: PNB is CR[9:3]): pages 64-127 of
+    /// a bank erase pages 0-63.
+    PnbWrongWidth,
+    /// The keys in the wrong order: KEY2 then KEY1 unlocks, and the order §3.3.5
+    /// requires (KEY1 then KEY2) locks the controller out until reset, so a correct
+    /// tool fails to unlock. (Accepting both orders would not fail a correct tool.)
+    KeysAnyOrder,
+}
+
 #[derive(Debug, Default, Clone)]
 pub struct FlashCtl {
+    /// A wrong model on purpose (None: RM0440's). Survives resets.
+    pub mutation: Option<FlashMutation>,
     key_stage: u8,
     /// Locked until the next reset after a wrong key (§3.3.5).
     key_locked_out: bool,
@@ -106,6 +120,7 @@ impl FlashCtl {
             errors: self.errors,
             while_busy: self.while_busy,
             ecc_double_errors: self.ecc_double_errors,
+            mutation: self.mutation,
             ..Self::default()
         };
         regs.set_bits(CR, CR_LOCK, true);
@@ -158,8 +173,14 @@ impl FlashCtl {
         match addr {
             KEYR => {
                 let v = regs.get(KEYR);
+                let any_order = self.mutation == Some(FlashMutation::KeysAnyOrder);
                 match (self.key_stage, v) {
-                    (0, KEY1) => self.key_stage = 1,
+                    (0, KEY2) if any_order => self.key_stage = 2,
+                    (0, KEY1) if !any_order => self.key_stage = 1,
+                    (2, KEY1) if any_order => {
+                        regs.set_bits(CR, CR_LOCK, false);
+                        self.key_stage = 0;
+                    }
                     (1, KEY2) if !self.key_locked_out => {
                         regs.set_bits(CR, CR_LOCK, false);
                         self.key_stage = 0;
@@ -194,7 +215,11 @@ impl FlashCtl {
                     return Effect::None;
                 }
                 let dual = Self::dual_bank(regs);
-                let page = (cr >> 3) & 0xFF;
+                let page = if self.mutation == Some(FlashMutation::PnbWrongWidth) {
+                    (cr >> 3) & 0x3F
+                } else {
+                    (cr >> 3) & 0x7F
+                };
                 let bank2 = cr & CR_BKER != 0;
                 let page_bytes = if dual { PAGE_BYTES } else { 2 * PAGE_BYTES };
                 let offset = if bank2 { BANK_BYTES } else { 0 } + page * page_bytes;
