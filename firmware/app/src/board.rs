@@ -228,11 +228,9 @@ pub fn setup(dp: Peripherals, cp: &mut cortex_m::Peripherals) -> Board {
     dp.DBGMCU
         .apb2_fz()
         .modify(|_, w| w.dbg_tim1_stop().set_bit());
-    // The watchdog pauses while the core is halted (DBGMCU_APB1FZR1.DBG_IWDG_STOP), in
-    // every build: a probe halts the core whenever it attaches (probe-rs halts, steps
-    // and resumes on opening and closing a session), and a halt is no firmware hang.
-    // The bridge is already off while halted (TIM1 frozen above), so counting on would
-    // only turn a bench engineer's attach into a reset and a latched watchdog fault.
+    // Debug builds only (DBGMCU_APB1FZR1.DBG_IWDG_STOP): the watchdog pauses while
+    // halted, so breakpoints do not reset the board. Release builds keep it counting.
+    #[cfg(debug_assertions)]
     dp.DBGMCU
         .apb1l_fz()
         .modify(|_, w| w.dbg_iwdg_stop().set_bit());

@@ -333,6 +333,10 @@ impl Emu {
         let m = self.m_mut();
         if m.dbg.ctrl & crate::debug::C_DEBUGEN != 0 && m.demcr & crate::debug::VC_CORERESET != 0 {
             m.debug_halt(crate::debug::DFSR_VCATCH);
+        } else {
+            // Without the vector catch the core leaves Debug state and runs from the
+            // reset vector (what a probe's plain reset, probe-rs `reset`, relies on).
+            m.debug_resume();
         }
         Ok(())
     }

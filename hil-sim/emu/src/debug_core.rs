@@ -53,12 +53,20 @@ impl Emu {
         }
         let m = self.m_mut();
         m.dbg.halted = false;
-        m.deadline = u64::MAX;
+        // A step of the idle loop `b .` must not skip time to a deadline: none here.
+        m.deadline = m.now;
         m.stop = false;
         m.idle = false;
         m.first_block = true;
         let pc = self.pc();
+        // Unicorn counts instructions only in blocks translated while counting: a block
+        // cached from a normal run would run whole. Drop the translations around the PC
+        // before the step, and after it, so that normal runs do not keep the counting
+        // ones.
+        let around = (pc as u64 & !0xFFF, (pc as u64 & !0xFFF) + 0x2000);
+        let _ = self.uc.ctl_remove_cache(around.0, around.1);
         let r = self.uc.emu_start((pc | 1) as u64, 0, 0, 1);
+        let _ = self.uc.ctl_remove_cache(around.0, around.1);
         self.after_run(r)?;
         let m = self.m_mut();
         m.dbg.retire_st = true;
@@ -192,6 +200,13 @@ impl Emu {
                 self.dcrsr_write(v);
             } else {
                 self.m_mut().ppb_write(a, w, v);
+                // C_STEP completes before the probe's next access, as on silicon,
+                // where one instruction takes nanoseconds: a probe that reads S_HALT
+                // straight after the write must see the step done, never the old PC
+                // (probe-rs would take an unmoved PC for a BKPT and skip two bytes).
+                if std::mem::take(&mut self.m_mut().dbg.step_pending) {
+                    self.single_step().map_err(|_| fault)?;
+                }
             }
             return Ok(());
         }

@@ -797,6 +797,10 @@ impl Machine {
 
     /// Enter Debug state (C1.5): the core stops at the next instruction boundary.
     pub fn debug_halt(&mut self, reason: u32) {
+        // Entering Debug state is one of the two ways out of lockup, a reset the other
+        // (ARMv7-M ARM B1.5.15): a probe can halt a locked-up core (an erased chip
+        // fetching its vectors from 0xFFFF_FFFF) and then flash it.
+        self.lockup = false;
         self.dbg.dfsr |= reason;
         self.dbg.ctrl |= crate::debug::C_HALT;
         if !self.dbg.halted {
