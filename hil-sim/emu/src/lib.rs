@@ -3,6 +3,7 @@
 //!
 //! GPL-2.0-only: this crate links the Unicorn engine. No MIT crate depends on it.
 
+pub mod bench;
 pub mod board;
 pub mod budget;
 pub mod cpu;

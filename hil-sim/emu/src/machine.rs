@@ -325,6 +325,7 @@ impl Machine {
         self.stats.task_entered_at = None;
         self.stats.task_pend = None;
         self.stats.task_serving = None;
+        self.rtt.reset();
         self.stats.boots.push((self.now, kind));
         self.period_truth.push(Vec::new());
     }

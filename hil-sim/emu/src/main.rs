@@ -16,6 +16,22 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
+    /// The bench workflow through probe-rs on an erased emulated STM32G474: probe-rs's
+    /// own flash algorithm flashes the ELF, its RTT client records the commissioning
+    /// power-up, the same ELF is flashed again (the calibration pages survive) and the
+    /// reboot that loads the calibration is recorded; `hil-sim probe power-up` is the
+    /// same workflow with a real probe.
+    Bench {
+        /// Firmware ELF (default: this checkout's release build).
+        #[arg(long)]
+        elf: Option<PathBuf>,
+        /// Where the captures, CSV, events and plots go.
+        #[arg(long, default_value = "target/bench")]
+        out: PathBuf,
+        /// Firmware seconds to record once in Run.
+        #[arg(long, default_value_t = 1.0)]
+        hold_s: f64,
+    },
     /// Power-up with an erased calibration area (commissioning → Run), then again with
     /// the stored one (load → Run): states, errors, the interrupt budget, the stream as
     /// CSV and plots.
@@ -77,6 +93,28 @@ fn read_elf(elf: Option<PathBuf>) -> Result<(PathBuf, Vec<u8>)> {
 
 fn main() -> Result<()> {
     match Cli::parse().cmd {
+        Cmd::Bench { elf, out, hold_s } => {
+            let (path, _) = read_elf(elf)?;
+            println!(
+                "drive-emu bench: {} through probe-rs's virtual probe into an erased emulated \
+                 {}, the `commissioning` scenario's motor and sensor",
+                path.display(),
+                drive_emu::bench::CHIP
+            );
+            let opts = hil_sim::probe_bench::PowerUpOptions {
+                hold_s,
+                ..Default::default()
+            };
+            let run = drive_emu::bench::power_up(&path, &out, &opts)?;
+            print!("{}", hil_sim::probe_bench::power_up_summary(&run.report));
+            print!("{}", drive_emu::bench::describe(&run));
+            println!(
+                "  captures (raw defmt), CSV, events and plots: {}/; what the drive did in \
+                 Run measured at the plant: `cargo run --release -p drive-emu -- power-up`",
+                out.display()
+            );
+            Ok(())
+        }
         Cmd::PowerUp { elf, out } => power_up(elf, out),
         Cmd::Perf {
             builds,

@@ -21,6 +21,8 @@ pub struct Rtt {
     pub mode: RttMode,
     /// Observe mode: the write offset seen at the last poll.
     pub seen_wr: Option<u32>,
+    /// Where in `bytes` each boot's stream begins (a reset re-initialises the buffer).
+    pub boot_starts: Vec<usize>,
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -45,5 +47,26 @@ impl Rtt {
 
     pub fn schedule(&mut self, now: u64) {
         self.next_poll = now + ticks(POLL_S);
+    }
+}
+
+impl Rtt {
+    /// A reset: the firmware writes its control block again, from offset 0.
+    pub fn reset(&mut self) {
+        self.seen_wr = None;
+        if self.boot_starts.last() != Some(&self.bytes.len()) {
+            self.boot_starts.push(self.bytes.len());
+        }
+    }
+
+    /// The bytes of each boot that wrote any.
+    pub fn boots(&self) -> Vec<&[u8]> {
+        let mut cuts = vec![0];
+        cuts.extend(self.boot_starts.iter().copied());
+        cuts.push(self.bytes.len());
+        cuts.windows(2)
+            .filter(|w| w[1] > w[0])
+            .map(|w| &self.bytes[w[0]..w[1]])
+            .collect()
     }
 }

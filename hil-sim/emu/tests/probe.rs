@@ -406,6 +406,7 @@ fn unplugging_fails_the_next_access() -> Result<()> {
 }
 
 use drive_emu::board::Board;
+use drive_emu::periph::flash::FlashMutation;
 use drive_emu::Emu;
 use probe_rs::flashing::{
     download_file_with_options, DownloadOptions, ElfLoader, ElfOptions, FlashProgress,
@@ -559,28 +560,7 @@ fn probe_rs_reflashes_resets_reads_rtt_and_keeps_the_calibration() -> Result<()>
     // the firmware would), then the same ELF again: probe-rs erases only what it writes.
     let record: Vec<u8> = (0..64u8).map(|i| i.wrapping_mul(37) ^ 0x5A).collect();
     let rec = record.clone();
-    emu.with(move |e| -> Result<()> {
-        let w = |e: &mut Emu, a: u32, v: u32| {
-            e.write(a, 4, &v.to_le_bytes()).map_err(|f| anyhow!("{f}"))
-        };
-        w(e, FLASH_KEYR, 0x4567_0123)?;
-        w(e, FLASH_KEYR, 0xCDEF_89AB)?;
-        w(e, FLASH_CR, 1)?; // PG
-        for (i, dw) in rec.chunks(8).enumerate() {
-            e.write(CALIB + 8 * i as u32, 4, dw)
-                .map_err(|f| anyhow!("{f}"))?;
-            loop {
-                let mut sr = [0; 4];
-                e.read(FLASH_SR, 4, &mut sr).map_err(|f| anyhow!("{f}"))?;
-                if u32::from_le_bytes(sr) & 1 << 16 == 0 {
-                    break;
-                }
-                e.advance(1_000)?;
-            }
-        }
-        w(e, FLASH_CR, 1 << 31)?; // LOCK
-        Ok(())
-    })??;
+    program_record(&emu, rec)?;
     let (again, wall) = flash_elf(&emu, &path)?;
     println!("reflash: {again:?} in {:.2} s", wall.as_secs_f64());
     let flash = read_flash(&emu)?;
@@ -613,5 +593,124 @@ fn unplugging_mid_run_fails_the_rtt_read() -> Result<()> {
         .err()
         .ok_or_else(|| anyhow!("read through an unplugged probe"))?;
     assert!(is_unplugged(&err), "{err:?}");
+    Ok(())
+}
+
+/// `record` programmed at the calibration pages through the flash controller, as the
+/// firmware stores a calibration (unlock, PG, double words, BSY polled, lock).
+fn program_record(emu: &EmuThread<Emu>, record: Vec<u8>) -> Result<()> {
+    emu.with(move |e| -> Result<()> {
+        let w = |e: &mut Emu, a: u32, v: u32| {
+            e.write(a, 4, &v.to_le_bytes()).map_err(|f| anyhow!("{f}"))
+        };
+        w(e, FLASH_KEYR, 0x4567_0123)?;
+        w(e, FLASH_KEYR, 0xCDEF_89AB)?;
+        w(e, FLASH_CR, 1)?; // PG
+        for (i, dw) in record.chunks(8).enumerate() {
+            e.write(CALIB + 8 * i as u32, 4, dw)
+                .map_err(|f| anyhow!("{f}"))?;
+            loop {
+                let mut sr = [0; 4];
+                e.read(FLASH_SR, 4, &mut sr).map_err(|f| anyhow!("{f}"))?;
+                if u32::from_le_bytes(sr) & 1 << 16 == 0 {
+                    break;
+                }
+                e.advance(1_000)?;
+            }
+        }
+        w(e, FLASH_CR, 1 << 31)?; // LOCK
+        Ok(())
+    })?
+}
+
+/// probe-rs writes `data` at `addr` with its own algorithm (erasing the sector first).
+fn flash_data(emu: &EmuThread<Emu>, addr: u64, data: &[u8]) -> Result<()> {
+    let mut session = emu
+        .probe()
+        .attach("STM32G474RETx", Permissions::default())?;
+    let mut loader = session.target().flash_loader();
+    loader.add_data(addr, data)?;
+    let mut opts = DownloadOptions::default();
+    opts.verify = true;
+    loader
+        .commit(&mut session, opts)
+        .map_err(|e| anyhow!("{}", chain(&e)))
+}
+
+/// An erased chip whose flash controller is wrong on purpose.
+fn blank_with(mutation: Option<FlashMutation>) -> Result<EmuThread<Emu>> {
+    EmuThread::spawn(
+        move || {
+            let mut e = Emu::blank(Board::commissioning(1)?)?;
+            e.m_mut().flash_ctl.mutation = mutation;
+            Ok(e)
+        },
+        Pacing::Wall,
+    )
+}
+
+/// probe-rs's own algorithm checks our flash model: on a controller whose PNB field is
+/// read a bit too narrow (page 126 of bank 2 erases page 62), writing over a stored
+/// record fails (the page was not erased: PROGERR); on the model as RM0440 describes it
+/// (the control) it succeeds. (`KeysAnyOrder` is not here: the algorithm still unlocks
+/// that controller, seemingly by writing the key pair more than once.)
+#[test]
+fn a_wrong_flash_model_makes_probe_rs_own_algorithm_fail() -> Result<()> {
+    let old: Vec<u8> = vec![0x00; 64];
+    let new: Vec<u8> = (0..64u8).map(|i| i ^ 0xA5).collect();
+    let run = |m: Option<FlashMutation>| -> Result<Vec<u8>> {
+        let emu = blank_with(m)?;
+        program_record(&emu, old.clone())?;
+        flash_data(&emu, CALIB as u64, &new)?;
+        let flash = read_flash(&emu)?;
+        let off = (CALIB - 0x0800_0000) as usize;
+        Ok(flash[off..off + 64].to_vec())
+    };
+    assert_eq!(run(None)?, new, "the correct model: the record replaced");
+    for m in [FlashMutation::PnbWrongWidth] {
+        match run(Some(m)) {
+            Err(e) => println!("{m:?}: probe-rs failed: {e:#}"),
+            Ok(got) => panic!("{m:?}: probe-rs's algorithm succeeded (page read back {got:02x?})"),
+        }
+    }
+    Ok(())
+}
+
+/// The README's main job: `hil_sim::probe_bench::power_up` (the bench engineer's
+/// command) through the virtual probe: flash an erased chip, record the commissioning,
+/// reflash (the calibration survives: probe-rs erases only the ELF's sectors), record
+/// the reboot that loads it; each probe-rs capture is exactly the beginning of what the
+/// firmware wrote in that boot (checked inside `bench::power_up`).
+#[test]
+fn the_bench_workflow_flashes_commissions_reflashes_and_loads_the_calibration() -> Result<()> {
+    let (path, _) = release_elf();
+    let out = std::env::temp_dir().join(format!("drive-emu-bench-{}", std::process::id()));
+    let opts = hil_sim::probe_bench::PowerUpOptions {
+        hold_s: 0.3,
+        progress: false,
+        ..Default::default()
+    };
+    let run = drive_emu::bench::power_up(&path, &out, &opts)?;
+    print!("{}", drive_emu::bench::describe(&run));
+    let r = &run.report;
+    assert!(
+        !r.boots[0].calibration_loaded,
+        "boot 1 found a calibration on an erased chip"
+    );
+    assert!(
+        r.calibration_loaded_on_reboot(),
+        "boot 2 did not load the calibration"
+    );
+    for b in &r.boots {
+        assert!(
+            b.losses.is_none(),
+            "{}: lost {}",
+            b.name,
+            b.losses.describe()
+        );
+        assert_eq!(b.flash.bytes_verified, b.flash.bytes_programmed);
+    }
+    assert_eq!(run.missed_periods, 0);
+    let _ = std::fs::remove_dir_all(&out);
     Ok(())
 }
