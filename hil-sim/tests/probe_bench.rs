@@ -7,46 +7,15 @@
 //! ELF's own defmt format (as `rtt_log.rs` does); needs the release firmware (`cargo
 //! xtask build-cross`).
 
-use calib_record::RamFlash;
 use drive::commissioning::State;
 use drive::telemetry::Line as Sent;
-use hil_sim::power_up::{self, Boot};
 use hil_sim::probe_bench::{self, Ended, LiveStatus, Monitor, Recording};
-use hil_sim::rig::SimFlash;
-use hil_sim::scenario::Scenario;
-use hil_sim::stream::{self, Decoded, Formats, Item, StreamDecoder};
+use hil_sim::stream::{self, Decoded, Item, StreamDecoder};
 use rand::{Rng, SeedableRng};
 use std::fs;
-use std::sync::OnceLock;
 
-fn elf() -> Vec<u8> {
-    let p = stream::release_elf();
-    fs::read(&p).unwrap_or_else(|e| {
-        panic!(
-            "{}: {e}: build the release firmware first (`cargo xtask build-cross`)",
-            p.display()
-        )
-    })
-}
-
-/// The scenario's two power-ups (erased flash, then the stored calibration).
-fn boots() -> &'static (Boot, Boot) {
-    static BOOTS: OnceLock<(Boot, Boot)> = OnceLock::new();
-    BOOTS.get_or_init(|| {
-        let sc = Scenario::load("commissioning").unwrap();
-        let (a, flash) =
-            power_up::boot(&sc, SimFlash::new(RamFlash::default()), 1, 3.0, None).unwrap();
-        let (b, _) = power_up::boot(&sc, flash, 2, 1.0, None).unwrap();
-        (a, b)
-    })
-}
-
-fn capture(b: &Boot) -> Vec<u8> {
-    let sc = Scenario::load("commissioning").unwrap();
-    let names = drive::telemetry::path_names(&sc.core_config(None).unwrap());
-    let formats = Formats::from_elf(&elf()).unwrap();
-    stream::encode_streamed(&formats, &names, &b.streamed).unwrap()
-}
+mod capture;
+use capture::{boots, capture, elf};
 
 /// Both boots back to back with a few bytes corrupted: malformed frames are part of
 /// what must decode the same however the bytes arrive.

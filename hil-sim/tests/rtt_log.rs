@@ -6,46 +6,15 @@
 //! Needs the release firmware (`cargo xtask build-cross`; `cargo xtask ci` builds it
 //! before the host tests).
 
-use calib_record::RamFlash;
 use drive::commissioning::State;
 use drive::telemetry::{Line, Record};
-use hil_sim::power_up::{self, Boot};
-use hil_sim::rig::SimFlash;
-use hil_sim::scenario::Scenario;
 use hil_sim::stream::{self, Formats, Item};
 use std::fs;
 use std::path::Path;
 use std::process::Command;
-use std::sync::OnceLock;
 
-fn elf() -> Vec<u8> {
-    let p = stream::release_elf();
-    fs::read(&p).unwrap_or_else(|e| {
-        panic!(
-            "{}: {e}: build the release firmware first (`cargo xtask build-cross`)",
-            p.display()
-        )
-    })
-}
-
-/// The scenario's two power-ups (erased flash, then the stored calibration).
-fn boots() -> &'static (Boot, Boot) {
-    static BOOTS: OnceLock<(Boot, Boot)> = OnceLock::new();
-    BOOTS.get_or_init(|| {
-        let sc = Scenario::load("commissioning").unwrap();
-        let (a, flash) =
-            power_up::boot(&sc, SimFlash::new(RamFlash::default()), 1, 3.0, None).unwrap();
-        let (b, _) = power_up::boot(&sc, flash, 2, 1.0, None).unwrap();
-        (a, b)
-    })
-}
-
-fn capture(b: &Boot) -> Vec<u8> {
-    let sc = Scenario::load("commissioning").unwrap();
-    let names = drive::telemetry::path_names(&sc.core_config(None).unwrap());
-    let formats = Formats::from_elf(&elf()).unwrap();
-    stream::encode_streamed(&formats, &names, &b.streamed).unwrap()
-}
+mod capture;
+use capture::{boots, capture, elf};
 
 /// The release build's stream format carries every record and event bit for bit, each
 /// line with its `seq`; the coefficients are live (they move through Adapt, are zero
