@@ -47,6 +47,8 @@ pub struct KeptFlash {
 pub struct Emu {
     pub uc: Unicorn<'static, Machine>,
     pub elf: Vec<u8>,
+    /// The FPB's breakpoints as Unicorn code hooks (address, hook).
+    fpb_hooks: Vec<(u32, unicorn_engine::UcHookId)>,
 }
 
 fn uc_err(e: unicorn_engine::uc_error) -> anyhow::Error {
@@ -78,6 +80,19 @@ impl Emu {
         let mut m = Machine::new(flash, board, Rtt::new(rtt_block));
         m.flash_ctl.torn = torn;
         m.profile = Some(Profile::for_elf(elf)?);
+        Self::power_on(m, elf.to_vec())
+    }
+
+    /// A blank chip: flash erased (0xFF), no firmware known. Out of reset the core
+    /// reads SP and PC 0xFFFF_FFFF from the erased vector table; the fetch from there
+    /// faults and the HardFault vector (erased too) faults again: lockup (B1.5.15).
+    pub fn blank(board: Board) -> Result<Self> {
+        let m = Machine::new(vec![0xFF; 2 * BANK_BYTES as usize], board, Rtt::new(None));
+        Self::power_on(m, Vec::new())
+    }
+
+    /// The core around `m`, its RAM at power-on content, out of reset.
+    fn power_on(m: Machine, elf: Vec<u8>) -> Result<Self> {
         let mut uc = Unicorn::new_with_data(Arch::ARM, Mode::THUMB, m).map_err(uc_err)?;
         // Not UC_MODE_MCLASS, which makes a Cortex-M33: a Cortex-M4 with our own
         // exception model.
@@ -86,7 +101,8 @@ impl Emu {
         Self::map(&mut uc)?;
         let mut emu = Self {
             uc,
-            elf: elf.to_vec(),
+            elf,
+            fpb_hooks: Vec::new(),
         };
         // Power-on RAM content is not zero: a fixed pattern, so `.uninit` records are
         // garbage at the first boot.
@@ -94,23 +110,6 @@ impl Emu {
             .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
             .collect();
         emu.uc.mem_write(SRAM as u64, &pattern).map_err(uc_err)?;
-        emu.cpu_reset()?;
-        Ok(emu)
-    }
-
-    /// A blank chip: flash erased (0xFF), no firmware known. Out of reset the core
-    /// reads SP and PC 0xFFFF_FFFF from the erased vector table; the fetch from there
-    /// faults and the HardFault vector (erased too) faults again: lockup (B1.5.15).
-    pub fn blank(board: Board) -> Result<Self> {
-        let m = Machine::new(vec![0xFF; 2 * BANK_BYTES as usize], board, Rtt::new(None));
-        let mut uc = Unicorn::new_with_data(Arch::ARM, Mode::THUMB, m).map_err(uc_err)?;
-        uc.ctl_set_cpu_model(ArmCpuModel::CORTEX_M4 as i32)
-            .map_err(uc_err)?;
-        Self::map(&mut uc)?;
-        let mut emu = Self {
-            uc,
-            elf: Vec::new(),
-        };
         emu.cpu_reset()?;
         Ok(emu)
     }
@@ -609,9 +608,49 @@ impl Emu {
         m.stop = false;
         m.idle = false;
         m.first_block = true;
+        self.sync_breakpoints()?;
         let pc = self.reg(RegisterARM::PC);
+        self.m_mut().fetching_from_flash =
+            (FLASH_BASE..FLASH_BASE + 2 * BANK_BYTES as u32).contains(&pc);
         let r = self.uc.emu_start((pc | 1) as u64, 0, 0, 0);
         self.after_run(r)
+    }
+
+    /// The FPB's breakpoints as code hooks on their addresses: a fetch from one enters
+    /// Debug state before the instruction executes (DFSR.BKPT; the PC stays on it),
+    /// when halting debug is enabled (without it the event is ignored here). Each
+    /// address's translations are dropped so that the hook takes effect.
+    fn sync_breakpoints(&mut self) -> Result<()> {
+        if !std::mem::take(&mut self.m_mut().fpb.changed) {
+            return Ok(());
+        }
+        for (a, id) in std::mem::take(&mut self.fpb_hooks) {
+            self.uc.remove_hook(id).map_err(uc_err)?;
+            self.uc
+                .ctl_remove_cache(a as u64, a as u64 + 4)
+                .map_err(uc_err)?;
+        }
+        for a in self.m().fpb.breakpoints() {
+            let id = self
+                .uc
+                .add_code_hook(a as u64, a as u64, |uc, addr, _size| {
+                    let m = uc.get_data_mut();
+                    // The unit as it is now: a probe disables it to step over the
+                    // breakpoint before the hooks are brought up to date.
+                    let live = m.fpb.enable && m.fpb.breakpoints().contains(&(addr as u32));
+                    if live && m.dbg.ctrl & crate::debug::C_DEBUGEN != 0 {
+                        m.debug_halt(crate::debug::DFSR_BKPT);
+                        m.bkpt_at = Some(addr as u32);
+                        let _ = uc.emu_stop();
+                    }
+                })
+                .map_err(uc_err)?;
+            self.uc
+                .ctl_remove_cache(a as u64, a as u64 + 4)
+                .map_err(uc_err)?;
+            self.fpb_hooks.push((a, id));
+        }
+        Ok(())
     }
 
     /// What a run of Unicorn left to do: an exception return, a fault, a BKPT halt.

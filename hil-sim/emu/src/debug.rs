@@ -82,3 +82,85 @@ pub struct DebugState {
     pub reset_st: bool,
     pub retire_st: bool,
 }
+
+/// The Flash Patch and Breakpoint unit as the Cortex-M4 has it (ARMv7-M ARM C1.11,
+/// FPB version 1: six instruction comparators and two literal ones): breakpoints on
+/// instruction fetches from the code region; no remapping (FP_REMAP.RMPSPT = 0), the
+/// literal comparators are storage. Like the other debug registers it keeps its state
+/// over a system reset.
+#[derive(Clone, Debug, Default)]
+pub struct Fpb {
+    /// FP_CTRL.ENABLE.
+    pub enable: bool,
+    /// FP_COMP0..7 as written (FPBv1 fields: REPLACE[31:30], COMP[28:2], ENABLE[0]).
+    pub comp: [u32; 8],
+    /// Something changed since the CPU last installed its breakpoints.
+    pub changed: bool,
+}
+
+pub const FP_CTRL: u32 = 0xE000_2000;
+pub const FP_REMAP: u32 = 0xE000_2004;
+pub const FP_COMP0: u32 = 0xE000_2008;
+const FP_NUM_CODE: u32 = 6;
+const FP_NUM_LIT: u32 = 2;
+
+impl Fpb {
+    /// A read of an FPB register; None outside the unit.
+    pub fn read(&self, a: u32) -> Option<u32> {
+        match a {
+            // KEY reads 0; REV 0 (FPBv1); NUM_CODE[3:0] and NUM_LIT.
+            FP_CTRL => Some(FP_NUM_LIT << 8 | FP_NUM_CODE << 4 | self.enable as u32),
+            FP_REMAP => Some(0),
+            a if (FP_COMP0..FP_COMP0 + 32).contains(&a) => {
+                Some(self.comp[((a - FP_COMP0) / 4) as usize])
+            }
+            _ => None,
+        }
+    }
+
+    /// A write of an FPB register; false outside the unit. FP_CTRL takes ENABLE only
+    /// with KEY (bit 1) set.
+    pub fn write(&mut self, a: u32, v: u32) -> bool {
+        match a {
+            FP_CTRL => {
+                if v & 2 != 0 {
+                    self.enable = v & 1 != 0;
+                    self.changed = true;
+                }
+            }
+            FP_REMAP => {}
+            a if (FP_COMP0..FP_COMP0 + 32).contains(&a) => {
+                self.comp[((a - FP_COMP0) / 4) as usize] = v & 0xDFFF_FFFD;
+                self.changed = true;
+            }
+            _ => return false,
+        }
+        true
+    }
+
+    /// The halfword addresses whose instruction fetch is a breakpoint now: an enabled
+    /// instruction comparator's word address, its lower halfword (REPLACE = 01), upper
+    /// (10) or both (11); REPLACE = 00 would remap, which this unit does not.
+    pub fn breakpoints(&self) -> Vec<u32> {
+        if !self.enable {
+            return Vec::new();
+        }
+        let mut out = Vec::new();
+        for &c in &self.comp[..FP_NUM_CODE as usize] {
+            if c & 1 == 0 {
+                continue;
+            }
+            let word = c & 0x1FFF_FFFC;
+            let replace = c >> 30;
+            if replace & 1 != 0 {
+                out.push(word);
+            }
+            if replace & 2 != 0 {
+                out.push(word + 2);
+            }
+        }
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+}

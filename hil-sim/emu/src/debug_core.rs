@@ -207,6 +207,13 @@ impl Emu {
                 if std::mem::take(&mut self.m_mut().dbg.step_pending) {
                     self.single_step().map_err(|_| fault)?;
                 }
+                // AIRCR.SYSRESETREQ likewise: the reset is over (S_RESET_ST set, the
+                // vector catch taken or not) before the probe's next access. Left to
+                // the next slice, a probe polling DHCSR straight after would see the
+                // old halt and take it for the reset's vector catch.
+                if let Some(kind) = self.m_mut().reset_request.take() {
+                    self.system_reset(kind).map_err(|_| fault)?;
+                }
             }
             return Ok(());
         }

@@ -172,13 +172,18 @@ pub struct Machine {
     /// over the run), leaving it torn; the board is then off and runs no more.
     pub power_cut_at_program: Option<u32>,
     pub powered_off: bool,
-    /// The core halted by a debugger until then (ticks): no instructions, no
-    /// exceptions taken; TIM1 frozen if DBGMCU_APB2FZR.DBG_TIM1_STOP ([`Machine::halt_core`]).
+    /// [`Machine::halt_core`]'s halt ends then (ticks).
     pub halted_until: Option<u64>,
     /// Halting debug (DHCSR, DFSR, DCRDR): see [`crate::debug::DebugState`].
     pub dbg: crate::debug::DebugState,
     /// A BKPT halted the core at this address (the CPU loop puts the PC back there).
     pub bkpt_at: Option<u32>,
+    /// The core fetches its instructions from flash (where the current run of it
+    /// started): an erase of that bank stalls it. Code copied to RAM (a probe's flash
+    /// algorithm) runs on (§3.3.8: only a read of the bank being erased waits).
+    pub fetching_from_flash: bool,
+    /// Breakpoints (ARMv7-M ARM C1.11).
+    pub fpb: crate::debug::Fpb,
     /// Bank-1 bytes the flash model changed (offsets [lo, hi)), for Unicorn's copy.
     pub bank1_dirty: Option<(u32, u32)>,
 }
@@ -262,6 +267,8 @@ impl Machine {
             halted_until: None,
             dbg: Default::default(),
             bkpt_at: None,
+            fetching_from_flash: true,
+            fpb: Default::default(),
             bank1_dirty: None,
         };
         m.reset_peripherals(ResetKind::PowerOn);
@@ -558,9 +565,9 @@ impl Machine {
 
     /// Process every event due by `now`.
     pub fn service_events(&mut self) {
-        if let Some(t) = self.halted_until.filter(|&t| t <= self.now) {
+        if self.halted_until.is_some_and(|t| t <= self.now) {
             self.halted_until = None;
-            self.tim1.unfreeze(&self.regs, t);
+            self.debug_resume();
         }
         loop {
             let mut progressed = false;
@@ -739,20 +746,16 @@ impl Machine {
 
     // ---- debug halt ----
 
-    /// A debugger halts the core for `ticks`: no instructions run and no exception is
-    /// taken (the CPU stalls), time, the peripherals and the plant go on. With
-    /// DBGMCU_APB2FZR.DBG_TIM1_STOP set, TIM1 stops counting and its outputs are
-    /// disabled as if MOE were reset (RM0440 §28.3.31 Debug mode): no trigger, the
-    /// motor coasts with the bridge off; without it the timer keeps switching on its
-    /// last duties. The core resumes by itself at the end.
+    /// A debugger halts the core for `ticks`, then lets it run: the Debug state a
+    /// probe's DHCSR.C_HALT enters ([`Machine::debug_halt`]), ended by the machine
+    /// itself. No instructions run and no exception is taken, time, the peripherals and
+    /// the plant go on. With DBGMCU_APB2FZR.DBG_TIM1_STOP set, TIM1 stops counting and
+    /// its outputs are disabled as if MOE were reset (RM0440 §28.3.31 Debug mode): no
+    /// trigger, the motor coasts with the bridge off; without it the timer keeps
+    /// switching on its last duties. IWDG pauses with DBG_IWDG_STOP.
     pub fn halt_core(&mut self, ticks: u64) {
-        let until = self.now + ticks;
-        self.stall_until = self.stall_until.max(until);
-        self.halted_until = Some(until);
-        if self.regs.bit(tim1::DBGMCU_APB2FZR, tim1::DBG_TIM1_STOP) {
-            self.tim1.freeze(&self.regs, self.now);
-        }
-        self.stop = true;
+        self.halted_until = Some(self.now + ticks);
+        self.debug_halt(crate::debug::DFSR_HALTED);
     }
 
     /// DHCSR as read (C1.6.2): S_RESET_ST and S_RETIRE_ST clear on read.
@@ -815,6 +818,7 @@ impl Machine {
 
     /// Leave Debug state.
     pub fn debug_resume(&mut self) {
+        self.halted_until = None;
         if self.dbg.halted {
             self.dbg.halted = false;
             self.dbg.ctrl &= !crate::debug::C_HALT;
@@ -822,9 +826,9 @@ impl Machine {
         }
     }
 
-    /// Is the core halted by [`Machine::halt_core`]?
+    /// Is the core in Debug state (a probe's halt or [`Machine::halt_core`])?
     pub fn halted(&self) -> bool {
-        self.halted_until.is_some()
+        self.dbg.halted
     }
 
     /// Does the bridge drive the motor now (TIM1 running, MOE set, not frozen)?
@@ -964,9 +968,10 @@ impl Machine {
                 // The code is linked for 0x0800_0000: bank 1, unless FB_MODE maps bank
                 // 2 there (the swap itself is not modelled and is reported).
                 let code_bank2 = misc::banks_swapped(&self.regs);
-                let eff = self
-                    .flash_ctl
-                    .on_write(&mut self.regs, addr, old, now, code_bank2);
+                let fetching = self.fetching_from_flash && !self.dbg.halted;
+                let eff =
+                    self.flash_ctl
+                        .on_write(&mut self.regs, addr, old, now, code_bank2, fetching);
                 self.apply_flash(eff);
             }
             misc::CORDIC_WDATA => self.cordic.write_arg(&mut self.regs, v),
@@ -1139,6 +1144,7 @@ impl Machine {
             0xE000_ED88 => self.cpacr,
             0xE000_EDFC => self.demcr,
             crate::debug::DHCSR => self.dhcsr_read(),
+            a if self.fpb.read(a).is_some() => self.fpb.read(a).unwrap_or(0),
             crate::debug::DFSR => self.dbg.dfsr,
             crate::debug::DCRDR => self.dbg.dcrdr,
             // MVFR0/MVFR1 of the Cortex-M4F (Cortex-M4 TRM r0p1 §7.3).
@@ -1244,6 +1250,7 @@ impl Machine {
             0xE000_ED88 => self.cpacr = v & (0xF << 20),
             0xE000_EDFC => self.demcr = v,
             crate::debug::DHCSR => self.dhcsr_write(v),
+            a if self.fpb.write(a, v) => {}
             crate::debug::DFSR => self.dbg.dfsr &= !v,
             crate::debug::DCRDR => self.dbg.dcrdr = v,
             0xE000_EF34 => self.fpccr = v,

@@ -235,15 +235,20 @@ fn an_unmapped_address_faults() {
 }
 
 /// IWDG (RM0440 §42) keeps counting while the core is halted unless
-/// DBGMCU_APB1FZR1.DBG_IWDG_STOP is set: the release firmware halted for 150 ms is
-/// reset by its watchdog only without it.
+/// DBGMCU_APB1FZR1.DBG_IWDG_STOP is set: the release firmware sets it; with the bit
+/// cleared behind its back, a halt of 150 ms resets it through its watchdog.
 #[test]
 fn a_long_halt_resets_by_watchdog_only_without_dbg_iwdg_stop() {
     for stop in [false, true] {
         let mut e = emu();
         e.advance(ticks(0.3)).unwrap();
-        if stop {
-            wr(&mut e, DBGMCU_APB1FZR1, DBG_IWDG_STOP);
+        assert_ne!(
+            rd(&mut e, DBGMCU_APB1FZR1) & DBG_IWDG_STOP,
+            0,
+            "set by the firmware"
+        );
+        if !stop {
+            wr(&mut e, DBGMCU_APB1FZR1, 0);
         }
         let before = e.m().iwdg.expiries;
         halt(&mut e);

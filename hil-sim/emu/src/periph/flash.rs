@@ -67,7 +67,8 @@ pub struct FlashCtl {
     pub torn: Vec<u32>,
     /// The double word being programmed (offset into the image), until BSY clears.
     pub in_flight: Option<u32>,
-    /// Erases of the bank the code runs from: the CPU stalls (no read-while-write).
+    /// Erases of the bank the CPU is fetching its code from: it stalls (no
+    /// read-while-write).
     pub code_bank_erases: u32,
     pub erases: u32,
     pub programs: u32,
@@ -169,6 +170,7 @@ impl FlashCtl {
         old: u32,
         now: u64,
         code_bank2: bool,
+        cpu_fetching_from_flash: bool,
     ) -> Effect {
         match addr {
             KEYR => {
@@ -228,7 +230,7 @@ impl FlashCtl {
                     return Effect::None;
                 }
                 self.erases += 1;
-                let stall_cpu = !dual || bank2 == code_bank2;
+                let stall_cpu = cpu_fetching_from_flash && (!dual || bank2 == code_bank2);
                 if stall_cpu {
                     self.code_bank_erases += 1;
                 }
