@@ -376,13 +376,14 @@ pub(crate) fn fast_run_aside() -> Result<PathBuf> {
     Ok(out)
 }
 
-/// The 40 kHz build at `target/perf/drive-fw-40k` (where `perf` puts it too): its core
-/// runs at another control rate, so its configuration hash differs from the default
-/// build's. The default build rebuilt after it.
-pub(crate) fn other_config_aside() -> Result<PathBuf> {
-    let out = build_aside(&["--features", "pwm-40khz"], "perf", "drive-fw-40k")?;
-    run(cross_build(FIRMWARE))?;
-    Ok(out)
+/// The 40 kHz and N = 1 builds at `target/perf/` (where `perf` puts them too), for the
+/// probe-rs tests that flash them over a commissioned drive: the first keeps its record
+/// (another control rate), the second refuses it (another core configuration). The
+/// default build rebuilt after them.
+pub(crate) fn other_configs_aside() -> Result<()> {
+    build_aside(&["--features", "pwm-40khz"], "perf", "drive-fw-40k")?;
+    build_aside(&["--features", "sensor-n1"], "perf", "drive-fw-n1")?;
+    run(cross_build(FIRMWARE))
 }
 
 /// The firmware builds `perf` measures: (label, cargo features, ELF name, the
@@ -481,9 +482,10 @@ fn ci() -> Result<()> {
     // the high-modulation test also runs the `fast-run` build (set aside, then the
     // default rebuilt so the release ELF stays the default build).
     fast_run_aside()?;
-    // The probe-rs tests flash a build of another core configuration over a
-    // commissioned drive (the next boot refuses the record: ConfigMismatch).
-    other_config_aside()?;
+    // The probe-rs tests flash builds of another control rate and another core
+    // configuration over a commissioned drive (the second's boot refuses the record:
+    // ConfigMismatch).
+    other_configs_aside()?;
     let mut c = cargo();
     c.args(["test", "--release", "--locked", "-p", EMULATOR]);
     run(c)?;

@@ -228,9 +228,11 @@ pub fn setup(dp: Peripherals, cp: &mut cortex_m::Peripherals) -> Board {
     dp.DBGMCU
         .apb2_fz()
         .modify(|_, w| w.dbg_tim1_stop().set_bit());
-    // Debug builds only (DBGMCU_APB1FZR1.DBG_IWDG_STOP): the watchdog pauses while
-    // halted, so breakpoints do not reset the board. Release builds keep it counting.
-    #[cfg(debug_assertions)]
+    // The watchdog pauses while the core is halted too (DBGMCU_APB1FZR1.DBG_IWDG_STOP,
+    // §46.16.3): a halted core cannot feed it and the bridge is already off, so all a
+    // counting watchdog would add is a reset, a latched Watchdog fault and a new
+    // power-up after a probe's attach held the core for 100 ms. A running core is
+    // guarded as before: the freeze applies only in Debug state.
     dp.DBGMCU
         .apb1l_fz()
         .modify(|_, w| w.dbg_iwdg_stop().set_bit());

@@ -27,6 +27,7 @@ pub const ALL: &[&str] = &[
     "store-flash-error",
     "torn-store",
     "rtt-host-stops",
+    "attach-halt",
 ];
 
 /// One streamed event: emulator time, the firmware's own t_ms, kind and fields.
@@ -703,9 +704,135 @@ pub fn run(name: &str, elf: &[u8]) -> Result<Outcome> {
             emu.run_for(0.2)?;
             emu
         }
+        "attach-halt" => {
+            let mut emu = fresh(elf, None)?;
+            run_until_state(&mut emu, "Run", 4.0)?;
+            emu.run_for(0.3)?;
+            for hold_s in ATTACH_HOLDS_S {
+                let h = attach_halt(&mut emu, hold_s)?;
+                let ms = hold_s * 1e3;
+                note(
+                    &format!("{ms:.0} ms halt: bridge on while halted"),
+                    format!("{} of {} samples", h.bridge_on_samples, h.samples),
+                );
+                note(
+                    &format!("{ms:.0} ms halt: the probe read PC, RTT header"),
+                    format!("{:#010x}, {}", h.pc, h.rtt_id),
+                );
+                note(
+                    &format!("{ms:.0} ms halt: rotor speed at the halt → at the resume"),
+                    format!(
+                        "{:.1} → {:.1} rad/s",
+                        h.speed_at_halt_rad_s, h.speed_at_resume_rad_s
+                    ),
+                );
+                for (when, c) in [("before", &h.before), ("after", &h.after)] {
+                    note(
+                        &format!("{ms:.0} ms halt: the current against the rotor's q axis {when} (plant)"),
+                        c.as_ref().map_or("no periods".into(), describe_current),
+                    );
+                }
+                let after = h
+                    .after
+                    .as_ref()
+                    .context("no control period after the resume")?;
+                note(
+                    &format!("{ms:.0} ms halt: torque per amp after"),
+                    format!("{:.4}", after.torque_per_amp),
+                );
+            }
+            emu
+        }
         other => bail!("unknown scenario `{other}` (known: {})", ALL.join(", ")),
     };
     finish(name, &emu, t0, notes)
+}
+
+/// How long the `attach-halt` scenario holds the core halted, in turn: a probe's
+/// session (halt, read, resume: about a millisecond) and a slow one.
+pub const ATTACH_HOLDS_S: [f64; 2] = [1.0e-3, 100.0e-3];
+
+/// What a probe's attach did to a drive in Run.
+pub struct AttachHalt {
+    /// The bridge sampled every 100 µs while the core was halted.
+    pub samples: u32,
+    pub bridge_on_samples: u32,
+    /// What the probe read while halted: the PC (DCRSR/DCRDR) and the RTT control
+    /// block's id.
+    pub pc: u32,
+    pub rtt_id: String,
+    pub speed_at_halt_rad_s: f64,
+    pub speed_at_resume_rad_s: f64,
+    /// The current vector against the rotor over 250 ms before the halt and over 250
+    /// ms from 50 ms after the resume (plant).
+    pub before: Option<CurrentVectorStats>,
+    pub after: Option<CurrentVectorStats>,
+}
+
+/// A probe attaches to the running drive as probe-rs does (the debug port's own
+/// registers: DHCSR halt, DCRSR/DCRDR, a memory read), holds the core halted for
+/// `hold_s`, resumes and detaches; the drive runs on for 300 ms.
+pub fn attach_halt(emu: &mut Emu, hold_s: f64) -> Result<AttachHalt> {
+    use crate::debug::*;
+    let ap = |f: ApFault| anyhow::anyhow!("{f}");
+    let window = |emu: &mut Emu, s: f64| -> Result<Option<CurrentVectorStats>> {
+        let from = period_truth(emu, 0).len();
+        emu.run_for(s)?;
+        let mut cv = CurrentVector::new(&emu.m().board.plant.motor);
+        for p in &period_truth(emu, 0)[from..] {
+            cv.add_period(p);
+        }
+        Ok(cv.stats())
+    };
+    let before = window(emu, 0.25)?;
+    let speed_at_halt_rad_s = emu.m().board.plant.omega_rad_s();
+    let w = |emu: &mut Emu, a: u32, v: u32| emu.write(a, 4, &v.to_le_bytes()).map_err(ap);
+    let r = |emu: &mut Emu, a: u32| -> Result<u32> {
+        let mut b = [0; 4];
+        emu.read(a, 4, &mut b).map_err(ap)?;
+        Ok(u32::from_le_bytes(b))
+    };
+    w(emu, DHCSR, DBGKEY << 16 | C_DEBUGEN | C_HALT)?;
+    if r(emu, DHCSR)? & S_HALT == 0 {
+        bail!("attach: the core did not halt");
+    }
+    w(emu, DCRSR, 15)?;
+    let pc = r(emu, DCRDR)?;
+    let rtt_id = match emu.m().rtt.block {
+        Some(a) => {
+            let mut id = [0; 16];
+            emu.read(a, 4, &mut id).map_err(ap)?;
+            String::from_utf8_lossy(&id)
+                .trim_end_matches('\0')
+                .to_string()
+        }
+        None => "no RTT block".into(),
+    };
+    let (t_halt, step) = (emu.m().now, ticks(100e-6));
+    let (mut samples, mut bridge_on_samples) = (0, 0);
+    while emu.m().now < t_halt + ticks(hold_s) {
+        emu.advance(step.min(t_halt + ticks(hold_s) - emu.m().now))?;
+        if !emu.m().halted() {
+            bail!("attach: the core left the halt by itself");
+        }
+        samples += 1;
+        bridge_on_samples += emu.m().bridge_on() as u32;
+    }
+    let speed_at_resume_rad_s = emu.m().board.plant.omega_rad_s();
+    w(emu, DHCSR, DBGKEY << 16 | C_DEBUGEN)?;
+    w(emu, DHCSR, DBGKEY << 16)?;
+    emu.run_for(0.05)?;
+    let after = window(emu, 0.25)?;
+    Ok(AttachHalt {
+        samples,
+        bridge_on_samples,
+        pc,
+        rtt_id,
+        speed_at_halt_rad_s,
+        speed_at_resume_rad_s,
+        before,
+        after,
+    })
 }
 
 /// The double word of the calibration record whose programming the power cut

@@ -714,3 +714,256 @@ fn the_bench_workflow_flashes_commissions_reflashes_and_loads_the_calibration() 
     let _ = std::fs::remove_dir_all(&out);
     Ok(())
 }
+
+/// The stream of the board so far, decoded against `elf`: the states entered (per
+/// boot, a boot starts at the banner) and the fault and calibration events.
+fn stream_of(e: &Emu, elf: &[u8], from: usize) -> Result<(Vec<Vec<String>>, Vec<String>)> {
+    use hil_sim::stream::{decode, is_banner, Item};
+    let d = decode(elf, &e.m().rtt.bytes[from..])?;
+    let (mut states, mut events) = (Vec::new(), Vec::new());
+    for item in d.items {
+        match item {
+            Item::Other(t) if is_banner(&t) => states.push(Vec::new()),
+            Item::Line(l) if l.kind == "mras-state" => {
+                if let (Some(s), Some(v)) = (states.last_mut(), l.get("state")) {
+                    s.push(v.text());
+                }
+            }
+            Item::Line(l) if l.kind.starts_with("mras-") && l.kind != "mras-paths" => {
+                events.push(format!("{} {}", l.kind, l.describe()));
+            }
+            _ => {}
+        }
+    }
+    Ok((states, events))
+}
+
+/// Let the wall-paced board run until `done` holds for its stream from byte `from`,
+/// or `limit`.
+fn wait_for(
+    emu: &EmuThread<Emu>,
+    elf: &[u8],
+    from: usize,
+    limit: Duration,
+    done: impl Fn(&[Vec<String>], &[String]) -> bool,
+) -> Result<(Vec<Vec<String>>, Vec<String>)> {
+    let t0 = Instant::now();
+    loop {
+        let e = elf.to_vec();
+        let (states, events) = emu.with(move |x| stream_of(x, &e, from))??;
+        if done(&states, &events) {
+            return Ok((states, events));
+        }
+        if t0.elapsed() > limit {
+            anyhow::bail!("not seen within {limit:?}: states {states:?}, events {events:?}");
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
+fn in_run(states: &[Vec<String>]) -> bool {
+    states
+        .last()
+        .is_some_and(|b| b.last().map(String::as_str) == Some("Run"))
+}
+
+/// probe-rs attaches to the drive in Run, halts it, reads the PC and the RTT block,
+/// holds the halt (1 ms, then 100 ms of wall time, the board paced to it) and resumes.
+/// While halted the bridge is off and TIM1 stands still; afterwards the drive is still
+/// in Run, in its first boot (no watchdog reset), with no fault, and the rotor back at
+/// its speed.
+#[test]
+fn probe_rs_attaches_to_the_drive_in_run_halts_it_and_the_drive_runs_on() -> Result<()> {
+    let (_, elf) = release_elf();
+    let rtt_block = drive_emu::elf::load(&elf)?
+        .rtt_block
+        .ok_or_else(|| anyhow!("no _SEGGER_RTT"))?;
+    let emu = running_board()?;
+    wait_for(&emu, &elf, 0, Duration::from_secs(60), |s, _| in_run(s))?;
+    let speed = |emu: &EmuThread<Emu>| emu.with(|e| e.m().board.plant.omega_rad_s());
+    std::thread::sleep(Duration::from_millis(300));
+    let run_speed = speed(&emu)?;
+    for hold in [Duration::from_millis(1), Duration::from_millis(100)] {
+        let mut session = emu
+            .probe()
+            .attach("STM32G474RETx", Permissions::default())?;
+        let mut core = session.core(0)?;
+        core.halt(Duration::from_millis(100))?;
+        let t_halt = emu.with(|e| e.m().now)?;
+        let pc: u32 = core.read_core_reg(core.program_counter())?;
+        let mut id = [0u8; 10];
+        core.read(rtt_block as u64, &mut id)?;
+        assert_eq!(&id, b"SEGGER RTT", "the RTT block read while halted");
+        std::thread::sleep(hold);
+        let (halted, bridge_on, peaks) =
+            emu.with(|e| (e.m().halted(), e.m().bridge_on(), e.m().tim1.peaks))?;
+        assert!(
+            halted && !bridge_on,
+            "halted {halted}, bridge on {bridge_on}"
+        );
+        std::thread::sleep(Duration::from_millis(2));
+        assert_eq!(
+            emu.with(|e| e.m().tim1.peaks)?,
+            peaks,
+            "TIM1 counted while halted"
+        );
+        let held_s = (emu.with(|e| e.m().now)? - t_halt) as f64 / TICK_HZ;
+        core.run()?;
+        drop(core);
+        drop(session);
+        println!(
+            "halted at PC {pc:#010x} for {:.1} ms emulated (asked {hold:?})",
+            held_s * 1e3
+        );
+        assert!(held_s >= hold.as_secs_f64(), "held {held_s} s");
+    }
+    std::thread::sleep(Duration::from_millis(600));
+    let (states, events) = wait_for(&emu, &elf, 0, Duration::from_secs(1), |_, _| true)?;
+    assert_eq!(states.len(), 1, "a reset: {states:?}");
+    assert!(in_run(&states), "{states:?}");
+    let faults: Vec<&String> = events.iter().filter(|e| e.contains("fault")).collect();
+    assert!(faults.is_empty(), "{faults:?}");
+    let now = speed(&emu)?;
+    assert!(
+        (now - run_speed).abs() < 0.05 * run_speed,
+        "speed {now:.1} rad/s after, {run_speed:.1} before"
+    );
+    Ok(())
+}
+
+/// A build aside in `target/perf` (`cargo xtask ci` builds them: other_configs_aside).
+fn build_aside(name: &str) -> Result<(std::path::PathBuf, Vec<u8>)> {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../target/perf")
+        .join(name);
+    let elf = std::fs::read(&path).map_err(|e| {
+        anyhow!(
+            "{}: {e}: `cargo xtask ci` builds it (other_configs_aside)",
+            path.display()
+        )
+    })?;
+    Ok((path, elf))
+}
+
+/// probe-rs flashes `path` over the running board and resets into it, halted on its
+/// reset vector while the board's RTT reader takes the new ELF's control block, then
+/// lets it run. Returns where the new firmware's stream starts.
+fn reflash_and_reset(emu: &EmuThread<Emu>, path: &std::path::Path, elf: &[u8]) -> Result<usize> {
+    let (flashed, wall) = flash_elf(emu, path)?;
+    println!(
+        "{}: {flashed:?} in {:.2} s",
+        path.display(),
+        wall.as_secs_f64()
+    );
+    let mut session = emu
+        .probe()
+        .attach("STM32G474RETx", Permissions::default())?;
+    let mut core = session.core(0)?;
+    core.reset_and_halt(Duration::from_millis(100))?;
+    let e = elf.to_vec();
+    let from = emu.with(move |x| x.set_firmware(&e).map(|()| x.m().rtt.bytes.len()))??;
+    core.run()?;
+    Ok(from)
+}
+
+/// Other builds flashed by probe-rs over a commissioned drive. The 40 kHz build keeps
+/// the record (a calibration depends on the sensor, the motor and the path bank, not on
+/// the control rate: it loads). The N = 1 build's core configuration differs (sensor
+/// periods, a bank from the data): its first boot refuses the record by name
+/// (ConfigMismatch) and commissions anew. probe-rs's `reset_and_halt` (vector catch
+/// on a system reset) brings each in.
+#[test]
+fn another_core_configuration_refuses_the_record_and_commissions_again() -> Result<()> {
+    let (_, elf) = release_elf();
+    let emu = running_board()?;
+    wait_for(&emu, &elf, 0, Duration::from_secs(60), |_, ev| {
+        ev.iter().any(|e| e.starts_with("mras-stored"))
+    })?;
+
+    let (path, other) = build_aside("drive-fw-40k")?;
+    let from = reflash_and_reset(&emu, &path, &other)?;
+    let (_, events) = wait_for(&emu, &other, from, Duration::from_secs(30), |s, _| {
+        in_run(s)
+    })?;
+    println!("40 kHz build: {events:?}");
+    assert!(
+        events.iter().any(|e| e.starts_with("mras-loaded")),
+        "{events:?}"
+    );
+    let pwm_hz = 1.0 / emu.with(|e| e.m().board.period_s())?;
+    assert!((pwm_hz - 40e3).abs() < 1.0, "PWM {pwm_hz:.0} Hz");
+
+    let (path, other) = build_aside("drive-fw-n1")?;
+    let from = reflash_and_reset(&emu, &path, &other)?;
+    let (states, events) = wait_for(&emu, &other, from, Duration::from_secs(60), |s, ev| {
+        s.last().is_some_and(|b| b.iter().any(|x| x == "Sweep"))
+            || ev.iter().any(|e| e.contains("fault"))
+    })?;
+    println!("N = 1 build: {states:?}\n{events:#?}");
+    assert!(
+        events
+            .iter()
+            .any(|e| e.starts_with("mras-not-loaded") && e.contains("ConfigMismatch")),
+        "{events:?}"
+    );
+    assert!(
+        states
+            .last()
+            .is_some_and(|b| b.iter().any(|x| x == "Sweep")),
+        "no new commissioning: {states:?}"
+    );
+    Ok(())
+}
+
+/// A hardware breakpoint through the FPB, as probe-rs sets one: on the control
+/// interrupt's first instruction. The core halts there with DFSR.BKPT, the PC on it,
+/// before it executes; `run` steps over it (probe-rs disables the unit for the step)
+/// and the next hit is the next control period, one interrupt later. Cleared, the drive
+/// runs on without a fault.
+#[test]
+fn a_hardware_breakpoint_halts_the_control_interrupt_on_its_first_instruction() -> Result<()> {
+    use probe_rs::{CoreStatus, HaltReason};
+    let (_, elf) = release_elf();
+    let emu = running_board()?;
+    wait_for(&emu, &elf, 0, Duration::from_secs(60), |s, _| in_run(s))?;
+    let mut session = emu
+        .probe()
+        .attach("STM32G474RETx", Permissions::default())?;
+    let mut core = session.core(0)?;
+    assert_eq!(core.available_breakpoint_units()?, 6);
+    // The vector table's entry of ADC1_2 (IRQ 18), the Thumb bit dropped.
+    let handler = core.read_word_32(0x0800_0000 + 4 * (16 + 18))? & !1;
+    core.set_hw_breakpoint(handler as u64)?;
+    let mut hits = Vec::new();
+    for _ in 0..3 {
+        core.wait_for_core_halted(Duration::from_secs(2))?;
+        let status = core.status()?;
+        assert!(
+            matches!(status, CoreStatus::Halted(HaltReason::Breakpoint(_))),
+            "{status:?}"
+        );
+        let pc: u32 = core.read_core_reg(core.program_counter())?;
+        assert_eq!(pc, handler);
+        let (now, isrs, bridge) = emu.with(|e| {
+            let m = e.m();
+            (m.now, m.stats.isr_count_total, m.bridge_on())
+        })?;
+        assert!(!bridge, "the bridge on while halted");
+        hits.push((now, isrs));
+        core.run()?;
+    }
+    core.clear_hw_breakpoint(handler as u64)?;
+    drop(core);
+    drop(session);
+    println!("breakpoint at {handler:#010x}: hits (ticks, interrupts) {hits:?}");
+    for w in hits.windows(2) {
+        assert_eq!(w[1].1, w[0].1 + 1, "one control interrupt between hits");
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    let (states, events) = wait_for(&emu, &elf, 0, Duration::from_secs(1), |_, _| true)?;
+    assert_eq!(states.len(), 1, "a reset: {states:?}");
+    assert!(in_run(&states), "{states:?}");
+    assert!(!events.iter().any(|e| e.contains("fault")), "{events:?}");
+    assert!(emu.with(|e| e.m().stats.hard_faults.is_empty())?);
+    Ok(())
+}

@@ -444,3 +444,44 @@ fn near_the_voltage_limit_the_current_loop_keeps_its_torque_per_amp_at_the_plant
     assert!(off.is_empty(), "{}", off.join("\n"));
     healthy(&high.outcome);
 }
+
+/// A probe attaches to the drive in Run as probe-rs does (halt, read PC and the RTT
+/// block, resume) and holds the halt 1 ms, then 100 ms: TIM1 frozen keeps the bridge
+/// off throughout (DBG_TIM1_STOP), the watchdog pauses (DBG_IWDG_STOP) so there is no
+/// reset, no fault is latched, and the drive re-acquires the coasting rotor and runs
+/// on with its current on the q axis. The one rule broken is ES0430's: the first
+/// conversion of each ADC after a halt longer than 1 ms is wrong and the firmware uses
+/// it (one period, ridden through).
+#[test]
+fn attaching_in_run_halts_with_the_bridge_off_and_the_drive_runs_on() {
+    let o = run("attach-halt");
+    assert_eq!(o.boots, 1, "a reset while or after halted");
+    assert_eq!(states(&o, 0), COMMISSIONING, "{:?}", o.states);
+    assert!(!event_in(&o, 0, "mras-fault", ""), "{:#?}", o.events);
+    assert!(o.losses.is_none(), "lost: {}", o.losses.describe());
+    assert_eq!((o.missed_periods, o.hard_faults), (0, 0));
+    for (hold_s, samples) in [(1e-3, 10), (100e-3, 1000)] {
+        let ms = hold_s * 1e3;
+        let on = o
+            .note(&format!("{ms:.0} ms halt: bridge on while halted"))
+            .unwrap_or_default();
+        assert_eq!(on, format!("0 of {samples} samples"), "{ms} ms");
+        let tpa = number(&o, &format!("{ms:.0} ms halt: torque per amp after"));
+        assert!(
+            tpa > 0.999,
+            "{ms} ms: torque per amp {tpa} after the resume"
+        );
+    }
+    let erratum: Vec<&String> = o
+        .violations
+        .iter()
+        .filter(|v| v.contains("ES0430"))
+        .collect();
+    assert_eq!(erratum.len(), o.violations.len(), "{:#?}", o.violations);
+    assert!(
+        erratum
+            .iter()
+            .all(|v| v.starts_with("ADC: 4 wrong results")),
+        "one wrong conversion per ADC and halt, no more: {erratum:?}"
+    );
+}
