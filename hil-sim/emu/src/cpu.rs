@@ -460,6 +460,13 @@ impl Emu {
             let m = self.m_mut();
             m.lockup = true;
             m.stats.lockups += 1;
+            return Ok(());
+        }
+        // DEMCR.VC_HARDERR (C1.6.5): with halting debug enabled the core halts on the
+        // HardFault handler's first instruction, the frame stacked, DFSR.VCATCH set.
+        let m = self.m_mut();
+        if m.dbg.ctrl & crate::debug::C_DEBUGEN != 0 && m.demcr & crate::debug::VC_HARDERR != 0 {
+            m.debug_halt(crate::debug::DFSR_VCATCH);
         }
         Ok(())
     }

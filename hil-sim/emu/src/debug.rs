@@ -57,6 +57,8 @@ pub const DFSR_BKPT: u32 = 1 << 1;
 pub const DFSR_VCATCH: u32 = 1 << 3;
 /// DEMCR.VC_CORERESET (C1.6.5): halt on the reset vector.
 pub const VC_CORERESET: u32 = 1 << 0;
+/// DEMCR.VC_HARDERR (C1.6.5): halt on a HardFault's entry.
+pub const VC_HARDERR: u32 = 1 << 10;
 /// DBGMCU IDCODE (RM0440 §46.6.1), CR and APB1FZR1 with DBG_IWDG_STOP (§46.16.3).
 pub const DBGMCU_IDCODE: u32 = 0xE004_2000;
 pub const DBGMCU_APB1FZR1: u32 = 0xE004_2008;

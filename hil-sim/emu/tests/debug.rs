@@ -300,3 +300,35 @@ fn a_blank_chip_locks_up_without_panicking_and_resets_sanely() {
     halt(&mut e);
     e.set_firmware(&elf()).unwrap();
 }
+
+/// DEMCR.VC_HARDERR (C1.6.5): a HardFault halts the core on its handler's first
+/// instruction with DFSR.VCATCH, the frame already stacked; without the catch the
+/// handler runs.
+#[test]
+fn the_hardfault_vector_catch_halts_on_the_handler() {
+    for catch in [true, false] {
+        let mut e = emu();
+        e.advance(ticks(0.05)).unwrap();
+        halt(&mut e);
+        wr(&mut e, DFSR, 0x1F);
+        wr(&mut e, DEMCR, if catch { VC_HARDERR } else { 0 });
+        // A load from nowhere (LDR r0, [r1], r1 in a reserved region) in RAM, run
+        // from there: a precise bus fault, escalated to HardFault.
+        code(&mut e, RAM_CODE, &[0x6808]);
+        set_reg(&mut e, 1, 0x3000_0000);
+        set_reg(&mut e, 15, RAM_CODE);
+        wr(&mut e, DHCSR, DBGKEY << 16 | C_DEBUGEN);
+        e.advance(ticks(1e-6)).unwrap();
+        let handler = rd(&mut e, 0x0800_000C) & !1;
+        let halted = rd(&mut e, DHCSR) & S_HALT != 0;
+        assert_eq!(halted, catch, "VC_HARDERR {catch}");
+        assert_eq!(e.m().stats.hard_faults.len(), 1);
+        if catch {
+            assert_ne!(rd(&mut e, DFSR) & DFSR_VCATCH, 0);
+            assert_eq!(reg(&mut e, 15), handler);
+            // The stacked PC is the faulting instruction's.
+            let sp = reg(&mut e, 13);
+            assert_eq!(rd(&mut e, sp + 24), RAM_CODE);
+        }
+    }
+}
