@@ -5,7 +5,9 @@
 
 use crate::board::Board;
 use crate::elf::{self, Image, FLASH_BASE};
-use crate::machine::{Fault, Machine, ADC1_2_IRQ, SRAM, SRAM_BYTES};
+use crate::machine::{
+    Fault, Machine, ADC1_2_IRQ, PERIPHERALS, SRAM, SRAM_BYTES, SYSMEM, SYSMEM_BYTES,
+};
 use crate::nvic;
 use crate::periph::rcc::ResetKind;
 use crate::periph::ticks;
@@ -16,7 +18,6 @@ use unicorn_engine::{Arch, ArmCpuModel, HookType, MemType, Mode, Prot, RegisterA
 
 const BANK2: u64 = 0x0804_0000;
 const BANK_BYTES: u64 = 256 * 1024;
-const SYSMEM: u64 = 0x1FFF_0000;
 /// FLASH_SIZE data register (RM0440 §48.2): KiB of flash.
 const FLASH_SIZE_REG: u64 = 0x1FFF_75E0;
 
@@ -148,16 +149,13 @@ impl Emu {
             ),
         )
         .map_err(uc_err)?;
-        uc.mem_map(SYSMEM, 0x8000, Prot::READ).map_err(uc_err)?;
+        uc.mem_map(SYSMEM as u64, SYSMEM_BYTES as u64, Prot::READ)
+            .map_err(uc_err)?;
         uc.mem_write(FLASH_SIZE_REG, &512u16.to_le_bytes())
             .map_err(uc_err)?;
         uc.mem_map(SRAM as u64, SRAM_BYTES as u64, Prot::ALL)
             .map_err(uc_err)?;
-        for (base, size) in [
-            (0x4000_0000u64, 0x4_0000u64),
-            (0x4800_0000, 0x2000),
-            (0x5000_0000, 0x1000),
-        ] {
+        for (base, size) in PERIPHERALS.map(|(b, n)| (b as u64, n as u64)) {
             uc.mmio_map(
                 base,
                 size,
@@ -471,13 +469,9 @@ impl Emu {
         Ok(())
     }
 
-    pub(crate) fn take_pending_pub(&mut self) -> Result<bool> {
-        self.take_pending()
-    }
-
     /// Take the most urgent pending exception if it preempts what runs (with
     /// tail-chaining, this is called again after each return).
-    fn take_pending(&mut self) -> Result<bool> {
+    pub(crate) fn take_pending(&mut self) -> Result<bool> {
         let Some((n, prio)) = self.m().nvic.most_urgent_pending() else {
             return Ok(false);
         };
@@ -644,7 +638,7 @@ impl Emu {
                     let m = uc.get_data_mut();
                     // The unit as it is now: a probe disables it to step over the
                     // breakpoint before the hooks are brought up to date.
-                    let live = m.fpb.enable && m.fpb.breakpoints().contains(&(addr as u32));
+                    let live = m.fpb.breakpoints().contains(&(addr as u32));
                     if live && m.dbg.ctrl & crate::debug::C_DEBUGEN != 0 {
                         m.debug_halt(crate::debug::DFSR_BKPT);
                         m.bkpt_at = Some(addr as u32);

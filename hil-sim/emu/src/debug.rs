@@ -103,6 +103,8 @@ pub struct Fpb {
 pub const FP_CTRL: u32 = 0xE000_2000;
 pub const FP_REMAP: u32 = 0xE000_2004;
 pub const FP_COMP0: u32 = 0xE000_2008;
+/// The end of the unit's registers (FP_COMP7 is the last).
+pub const FP_END: u32 = FP_COMP0 + 32;
 const FP_NUM_CODE: u32 = 6;
 const FP_NUM_LIT: u32 = 2;
 
@@ -113,9 +115,7 @@ impl Fpb {
             // KEY reads 0; REV 0 (FPBv1); NUM_CODE[3:0] and NUM_LIT.
             FP_CTRL => Some(FP_NUM_LIT << 8 | FP_NUM_CODE << 4 | self.enable as u32),
             FP_REMAP => Some(0),
-            a if (FP_COMP0..FP_COMP0 + 32).contains(&a) => {
-                Some(self.comp[((a - FP_COMP0) / 4) as usize])
-            }
+            a if (FP_COMP0..FP_END).contains(&a) => Some(self.comp[((a - FP_COMP0) / 4) as usize]),
             _ => None,
         }
     }
@@ -131,7 +131,7 @@ impl Fpb {
                 }
             }
             FP_REMAP => {}
-            a if (FP_COMP0..FP_COMP0 + 32).contains(&a) => {
+            a if (FP_COMP0..FP_END).contains(&a) => {
                 self.comp[((a - FP_COMP0) / 4) as usize] = v & 0xDFFF_FFFD;
                 self.changed = true;
             }

@@ -5,20 +5,13 @@
 use crate::cpu::Emu;
 use crate::debug::*;
 use crate::elf::FLASH_BASE;
-use crate::machine::{SRAM, SRAM_BYTES};
+use crate::machine::{PERIPHERALS, SRAM, SRAM_BYTES, SYSMEM, SYSMEM_BYTES};
 use crate::periph::flash;
 use crate::periph::rcc::ResetKind;
 use anyhow::Result;
 use unicorn_engine::RegisterARM;
 
 const BANK_BYTES: u32 = flash::BANK_BYTES;
-const SYSMEM: u32 = 0x1FFF_0000;
-const SYSMEM_BYTES: u32 = 0x8000;
-const PERIPHS: [(u32, u32); 3] = [
-    (0x4000_0000, 0x4_0000),
-    (0x4800_0000, 0x2000),
-    (0x5000_0000, 0x1000),
-];
 
 fn within(a: u32, base: u32, len: u32) -> bool {
     a.wrapping_sub(base) < len
@@ -49,7 +42,7 @@ impl Emu {
             return Ok(());
         }
         if self.m().dbg.ctrl & C_MASKINTS == 0 {
-            self.take_pending_pub()?;
+            self.take_pending()?;
         }
         let m = self.m_mut();
         m.dbg.halted = false;
@@ -165,7 +158,7 @@ impl Emu {
             let off = a - FLASH_BASE;
             return Ok(self.m_mut().flash_read(off, w));
         }
-        if PERIPHS.iter().any(|&(b, l)| within(a, b, l)) {
+        if PERIPHERALS.iter().any(|&(b, l)| within(a, b, l)) {
             return Ok(self.m_mut().mmio_read(a, w));
         }
         if (0xE000_0000..0xE010_0000).contains(&a) {
@@ -190,7 +183,7 @@ impl Emu {
             self.sync_bank1();
             return Ok(());
         }
-        if PERIPHS.iter().any(|&(b, l)| within(a, b, l)) {
+        if PERIPHERALS.iter().any(|&(b, l)| within(a, b, l)) {
             self.m_mut().mmio_write(a, w, v);
             self.sync_bank1();
             return Ok(());
@@ -269,7 +262,6 @@ impl DebugPort for Emu {
         let t_end = t0.saturating_add(max_ticks);
         while self.m().now < t_end && !self.m().powered_off {
             self.step(t_end)?;
-            self.sync_bank1();
         }
         Ok(self.m().now - t0)
     }

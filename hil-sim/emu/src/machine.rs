@@ -51,6 +51,16 @@ impl Hasher for BlockKeyHasher {
 
 pub const SRAM: u32 = 0x2000_0000;
 pub const SRAM_BYTES: u32 = 128 * 1024;
+/// System memory (bootloader, FLASH_SIZE and the other device data).
+pub const SYSMEM: u32 = 0x1FFF_0000;
+pub const SYSMEM_BYTES: u32 = 0x8000;
+/// The peripheral regions the models answer (base, bytes): APB/AHB1, AHB2 GPIO, AHB2
+/// ADC; the CPU and a probe's bus both reach them through `mmio_read`/`mmio_write`.
+pub const PERIPHERALS: [(u32, u32); 3] = [
+    (0x4000_0000, 0x4_0000),
+    (0x4800_0000, 0x2000),
+    (0x5000_0000, 0x1000),
+];
 /// The control interrupt: ADC1_2 is IRQ 18 (RM0440 §16.3 table 97).
 pub const ADC1_2_IRQ: u16 = 18;
 /// The adaptation task: RTIC binds it to USART3's vector, IRQ 39 (RM0440 §16.3 table
@@ -1144,7 +1154,9 @@ impl Machine {
             0xE000_ED88 => self.cpacr,
             0xE000_EDFC => self.demcr,
             crate::debug::DHCSR => self.dhcsr_read(),
-            a if self.fpb.read(a).is_some() => self.fpb.read(a).unwrap_or(0),
+            a if (crate::debug::FP_CTRL..crate::debug::FP_END).contains(&a) => {
+                self.fpb.read(a).unwrap_or(0)
+            }
             crate::debug::DFSR => self.dbg.dfsr,
             crate::debug::DCRDR => self.dbg.dcrdr,
             // MVFR0/MVFR1 of the Cortex-M4F (Cortex-M4 TRM r0p1 §7.3).
