@@ -204,7 +204,13 @@ impl Outcome {
 
 /// The firmware's stream: states per boot (a new boot starts at the banner) and events.
 fn read_stream(emu: &Emu, out: &mut Outcome) -> Result<()> {
-    let d = stream::decode(&emu.elf, &emu.m().rtt.bytes).context("decoding the RTT stream")?;
+    read_stream_of(&emu.elf, &emu.m().rtt.bytes, out)
+}
+
+/// [`read_stream`] of `bytes` written by the firmware `elf` (a capture, or the part of
+/// the board's stream a newly flashed firmware wrote).
+pub fn read_stream_of(elf: &[u8], bytes: &[u8], out: &mut Outcome) -> Result<()> {
+    let d = stream::decode(elf, bytes).context("decoding the RTT stream")?;
     out.losses = d.losses();
     let mut boot = 0usize;
     let mut seen_banner = false;
@@ -778,11 +784,7 @@ pub fn attach_halt(emu: &mut Emu, hold_s: f64) -> Result<AttachHalt> {
     let window = |emu: &mut Emu, s: f64| -> Result<Option<CurrentVectorStats>> {
         let from = period_truth(emu, 0).len();
         emu.run_for(s)?;
-        let mut cv = CurrentVector::new(&emu.m().board.plant.motor);
-        for p in &period_truth(emu, 0)[from..] {
-            cv.add_period(p);
-        }
-        Ok(cv.stats())
+        Ok(current_over(emu, &period_truth(emu, 0)[from..]))
     };
     let before = window(emu, 0.25)?;
     let speed_at_halt_rad_s = emu.m().board.plant.omega_rad_s();
@@ -1024,8 +1026,13 @@ fn run_estimate(emu: &Emu, o: &Outcome, boot: usize) -> Result<EstimateScore> {
 
 /// The current vector over a boot's Run (plant).
 fn run_current(emu: &Emu, o: &Outcome, boot: usize) -> Option<CurrentVectorStats> {
+    current_over(emu, run_periods(emu, o, boot))
+}
+
+/// The current vector the bridge drove against the rotor over `periods` (plant).
+fn current_over(emu: &Emu, periods: &[PeriodTruth]) -> Option<CurrentVectorStats> {
     let mut cv = CurrentVector::new(&emu.m().board.plant.motor);
-    for p in run_periods(emu, o, boot) {
+    for p in periods {
         cv.add_period(p);
     }
     cv.stats()

@@ -13,6 +13,8 @@ use drive_emu::vprobe::{is_unplugged, EmuThread, Pacing};
 use probe_rs::{MemoryInterface, Permissions, RegisterValue};
 
 const TICK_HZ: f64 = 170e6;
+/// The chip probe-rs is told it attaches to.
+const CHIP: &str = "STM32G474RETx";
 
 const DHCSR: u32 = 0xE000_EDF0;
 const DCRSR: u32 = 0xE000_EDF4;
@@ -215,9 +217,7 @@ fn wall_pacing_never_runs_ahead_of_the_clock() -> Result<()> {
 
     // Halted, time still passes (the plant runs at the wall's pace; the port decides
     // what runs).
-    let mut session = emu
-        .probe()
-        .attach("STM32G474RETx", Permissions::default())?;
+    let mut session = emu.probe().attach(CHIP, Permissions::default())?;
     session.core(0)?.halt(Duration::from_millis(100))?;
     let h0 = emu.with(|p| p.halted_ticks)?;
     std::thread::sleep(Duration::from_millis(200));
@@ -295,7 +295,7 @@ fn with_and_finish_reach_the_port() -> Result<()> {
     // The thread is gone: a probe of it fails, it does not hang.
     let t0 = Instant::now();
     let err = probe_rs::probe::Probe::from_specific_probe(Box::new(probe))
-        .attach("STM32G474RETx", Permissions::default())
+        .attach(CHIP, Permissions::default())
         .err()
         .ok_or_else(|| anyhow!("attached to a finished board"))?;
     println!("after finish: {}", chain(&err));
@@ -313,9 +313,7 @@ fn a_factory_error_is_reported() {
 #[test]
 fn a_dead_thread_gives_errors_not_hangs() -> Result<()> {
     let emu = fake(Pacing::Free);
-    let mut session = emu
-        .probe()
-        .attach("STM32G474RETx", Permissions::default())?;
+    let mut session = emu.probe().attach(CHIP, Permissions::default())?;
     emu.with(|p| p.panic_at = Some(p.now))?;
     std::thread::sleep(Duration::from_millis(50));
     assert!(emu.with(|p| p.now).is_err());
@@ -338,9 +336,7 @@ fn a_dead_thread_gives_errors_not_hangs() -> Result<()> {
 fn attach_halt_read_pc_resume_on_the_fake() -> Result<()> {
     let emu = fake(Pacing::Wall);
     for session_no in 0..2 {
-        let mut session = emu
-            .probe()
-            .attach("STM32G474RETx", Permissions::default())?;
+        let mut session = emu.probe().attach(CHIP, Permissions::default())?;
         let mut core = session.core(0)?;
         let idcode = core.read_word_32(DBGMCU_IDCODE as u64)?;
         assert_eq!(idcode & 0xFFF, 0x469, "DBGMCU_IDCODE {idcode:#010x}");
@@ -373,9 +369,7 @@ fn attach_halt_read_pc_resume_on_the_fake() -> Result<()> {
 #[test]
 fn unplugging_fails_the_next_access() -> Result<()> {
     let emu = fake(Pacing::Wall);
-    let mut session = emu
-        .probe()
-        .attach("STM32G474RETx", Permissions::default())?;
+    let mut session = emu.probe().attach(CHIP, Permissions::default())?;
     let mut core = session.core(0)?;
     core.read_word_32(DBGMCU_IDCODE as u64)?;
     emu.unplug();
@@ -393,13 +387,13 @@ fn unplugging_fails_the_next_access() -> Result<()> {
     // A new session fails the same way; plugged back, it attaches.
     let err = emu
         .probe()
-        .attach("STM32G474RETx", Permissions::default())
+        .attach(CHIP, Permissions::default())
         .err()
         .ok_or_else(|| anyhow!("attached through an unplugged probe"))?;
     assert!(is_unplugged(&err), "{err:?}");
     emu.replug();
     emu.probe()
-        .attach("STM32G474RETx", Permissions::default())?
+        .attach(CHIP, Permissions::default())?
         .core(0)?
         .read_word_32(DBGMCU_IDCODE as u64)?;
     Ok(())
@@ -428,6 +422,13 @@ fn release_elf() -> (std::path::PathBuf, Vec<u8>) {
         )
     });
     (path, elf)
+}
+
+/// The ELF's RTT control block (`_SEGGER_RTT`).
+fn rtt_block(elf: &[u8]) -> Result<u32> {
+    drive_emu::elf::load(elf)?
+        .rtt_block
+        .ok_or_else(|| anyhow!("no _SEGGER_RTT"))
 }
 
 fn running_board() -> Result<EmuThread<Emu>> {
@@ -460,9 +461,7 @@ fn flash_elf(emu: &EmuThread<Emu>, path: &std::path::Path) -> Result<(Flashed, D
         .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
         .with_writer(std::io::stderr)
         .try_init();
-    let mut session = emu
-        .probe()
-        .attach("STM32G474RETx", Permissions::default())?;
+    let mut session = emu.probe().attach(CHIP, Permissions::default())?;
     let counts = std::cell::RefCell::new(Flashed::default());
     let mut opts = DownloadOptions::default();
     opts.verify = true;
@@ -494,9 +493,7 @@ fn flash_elf(emu: &EmuThread<Emu>, path: &std::path::Path) -> Result<(Flashed, D
 fn attach_to_the_running_firmware() -> Result<()> {
     let emu = running_board()?;
     std::thread::sleep(Duration::from_millis(500));
-    let mut session = emu
-        .probe()
-        .attach("STM32G474RETx", Permissions::default())?;
+    let mut session = emu.probe().attach(CHIP, Permissions::default())?;
     let mut core = session.core(0)?;
     let idcode = core.read_word_32(DBGMCU_IDCODE as u64)?;
     println!("DBGMCU_IDCODE {idcode:#010x}");
@@ -530,9 +527,7 @@ fn probe_rs_reflashes_resets_reads_rtt_and_keeps_the_calibration() -> Result<()>
 
     // Reset: the firmware runs; its RTT block fills with defmt frames.
     {
-        let mut session = emu
-            .probe()
-            .attach("STM32G474RETx", Permissions::default())?;
+        let mut session = emu.probe().attach(CHIP, Permissions::default())?;
         let mut core = session.core(0)?;
         core.reset()?;
         drop(core);
@@ -575,14 +570,10 @@ fn probe_rs_reflashes_resets_reads_rtt_and_keeps_the_calibration() -> Result<()>
 #[test]
 fn unplugging_mid_run_fails_the_rtt_read() -> Result<()> {
     let (_, elf) = release_elf();
-    let rtt_block = drive_emu::elf::load(&elf)?
-        .rtt_block
-        .ok_or_else(|| anyhow!("no _SEGGER_RTT"))?;
+    let rtt_block = rtt_block(&elf)?;
     let emu = running_board()?;
     std::thread::sleep(Duration::from_millis(500));
-    let mut session = emu
-        .probe()
-        .attach("STM32G474RETx", Permissions::default())?;
+    let mut session = emu.probe().attach(CHIP, Permissions::default())?;
     let mut core = session.core(0)?;
     let mut rtt = Rtt::attach_region(&mut core, &ScanRegion::Exact(rtt_block as u64))?;
     let mut buf = vec![0; 1024];
@@ -625,9 +616,7 @@ fn program_record(emu: &EmuThread<Emu>, record: Vec<u8>) -> Result<()> {
 
 /// probe-rs writes `data` at `addr` with its own algorithm (erasing the sector first).
 fn flash_data(emu: &EmuThread<Emu>, addr: u64, data: &[u8]) -> Result<()> {
-    let mut session = emu
-        .probe()
-        .attach("STM32G474RETx", Permissions::default())?;
+    let mut session = emu.probe().attach(CHIP, Permissions::default())?;
     let mut loader = session.target().flash_loader();
     loader.add_data(addr, data)?;
     let mut opts = DownloadOptions::default();
@@ -715,26 +704,23 @@ fn the_bench_workflow_flashes_commissions_reflashes_and_loads_the_calibration() 
     Ok(())
 }
 
-/// The stream of the board so far, decoded against `elf`: the states entered (per
-/// boot, a boot starts at the banner) and the fault and calibration events.
+/// The stream of the board from byte `from`, decoded against `elf` as the scenarios
+/// read it: the states entered (per boot, a boot starts at the banner) and the drive's
+/// events other than its states, as `kind text`.
 fn stream_of(e: &Emu, elf: &[u8], from: usize) -> Result<(Vec<Vec<String>>, Vec<String>)> {
-    use hil_sim::stream::{decode, is_banner, Item};
-    let d = decode(elf, &e.m().rtt.bytes[from..])?;
-    let (mut states, mut events) = (Vec::new(), Vec::new());
-    for item in d.items {
-        match item {
-            Item::Other(t) if is_banner(&t) => states.push(Vec::new()),
-            Item::Line(l) if l.kind == "mras-state" => {
-                if let (Some(s), Some(v)) = (states.last_mut(), l.get("state")) {
-                    s.push(v.text());
-                }
-            }
-            Item::Line(l) if l.kind.starts_with("mras-") && l.kind != "mras-paths" => {
-                events.push(format!("{} {}", l.kind, l.describe()));
-            }
-            _ => {}
-        }
-    }
+    let mut o = drive_emu::scenarios::Outcome::default();
+    drive_emu::scenarios::read_stream_of(elf, &e.m().rtt.bytes[from..], &mut o)?;
+    let states = o
+        .states
+        .iter()
+        .map(|b| b.iter().map(|(s, _)| s.clone()).collect())
+        .collect();
+    let events = o
+        .events
+        .iter()
+        .filter(|ev| ev.kind.starts_with("mras-") && ev.kind != "mras-state")
+        .map(|ev| format!("{} {}", ev.kind, ev.text))
+        .collect();
     Ok((states, events))
 }
 
@@ -775,18 +761,14 @@ fn in_run(states: &[Vec<String>]) -> bool {
 #[test]
 fn probe_rs_attaches_to_the_drive_in_run_halts_it_and_the_drive_runs_on() -> Result<()> {
     let (_, elf) = release_elf();
-    let rtt_block = drive_emu::elf::load(&elf)?
-        .rtt_block
-        .ok_or_else(|| anyhow!("no _SEGGER_RTT"))?;
+    let rtt_block = rtt_block(&elf)?;
     let emu = running_board()?;
     wait_for(&emu, &elf, 0, Duration::from_secs(60), |s, _| in_run(s))?;
     let speed = |emu: &EmuThread<Emu>| emu.with(|e| e.m().board.plant.omega_rad_s());
     std::thread::sleep(Duration::from_millis(300));
     let run_speed = speed(&emu)?;
     for hold in [Duration::from_millis(1), Duration::from_millis(100)] {
-        let mut session = emu
-            .probe()
-            .attach("STM32G474RETx", Permissions::default())?;
+        let mut session = emu.probe().attach(CHIP, Permissions::default())?;
         let mut core = session.core(0)?;
         core.halt(Duration::from_millis(100))?;
         let t_halt = emu.with(|e| e.m().now)?;
@@ -855,9 +837,7 @@ fn reflash_and_reset(emu: &EmuThread<Emu>, path: &std::path::Path, elf: &[u8]) -
         path.display(),
         wall.as_secs_f64()
     );
-    let mut session = emu
-        .probe()
-        .attach("STM32G474RETx", Permissions::default())?;
+    let mut session = emu.probe().attach(CHIP, Permissions::default())?;
     let mut core = session.core(0)?;
     core.reset_and_halt(Duration::from_millis(100))?;
     let e = elf.to_vec();
@@ -926,9 +906,7 @@ fn a_hardware_breakpoint_halts_the_control_interrupt_on_its_first_instruction() 
     let (_, elf) = release_elf();
     let emu = running_board()?;
     wait_for(&emu, &elf, 0, Duration::from_secs(60), |s, _| in_run(s))?;
-    let mut session = emu
-        .probe()
-        .attach("STM32G474RETx", Permissions::default())?;
+    let mut session = emu.probe().attach(CHIP, Permissions::default())?;
     let mut core = session.core(0)?;
     assert_eq!(core.available_breakpoint_units()?, 6);
     // The vector table's entry of ADC1_2 (IRQ 18), the Thumb bit dropped.
