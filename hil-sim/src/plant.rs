@@ -8,7 +8,14 @@
 //! 2. [`Plant::advance`]: the inverter applies the duties the control period computed in
 //!    the *previous* period (average-value inverter: the duties' line-to-line voltages,
 //!    one PWM period of delay), or opens the windings while the bridge is off, and the
-//!    motor and mechanics integrate over T in `SUBSTEPS` substeps.
+//!    motor and mechanics integrate over T in `SUBSTEPS` substeps (more where a short
+//!    L/R or the inverter's error needs them, [`substeps_for`]). Each phase's voltage
+//!    falls short by `Vdc·dead_time/T + device_drop` against its current's sign
+//!    ([`MotorParams::dead_time_s`]): the average error of the dead time and of the
+//!    conducting devices. It ramps linearly across the band in which the PWM ripple
+//!    takes the phase current through zero within a period (`|v|·T/(2L)` for the
+//!    applied voltage v), or across what keeps the substeps stable if that is wider
+//!    (at most [`INVERTER_BAND_A`] with the substeps [`substeps_for`] picks).
 //!
 //! The electrical state is integrated in the stationary αβ frame, semi-implicitly in R,
 //! with the back-EMF and torque evaluated at each substep's mid angle (one sin/cos per
@@ -24,6 +31,26 @@ use crate::sensor::SensorSim;
 /// Electrical substeps per control period (see the module doc for the accuracy).
 pub const SUBSTEPS: u32 = 2;
 const SQRT3: f64 = 1.732_050_807_568_877_2;
+
+/// The smallest band the inverter's error may be spread over for the substeps to
+/// resolve it (A): narrower than the PWM ripple of any identification level.
+pub const INVERTER_BAND_A: f64 = 0.2;
+
+/// [`SUBSTEPS`], or more where the motor needs them: a substep within a tenth of L/R
+/// (the semi-implicit step's decay rate then within 0.5 %), and the inverter's error,
+/// whose slope across [`INVERTER_BAND_A`] acts as a resistance the explicit substep must
+/// resolve (`h·(4/3)·v_err/(band·L)` ≤ 1/3); at most 256.
+pub fn substeps_for(m: &MotorParams, t_s: f64) -> u32 {
+    let v_err = m.vdc_v * m.dead_time_s / t_s + m.device_drop_v;
+    let n = (4.0 * t_s * v_err / (m.l_h * INVERTER_BAND_A))
+        .max(10.0 * t_s * m.r_ohm / m.l_h)
+        .ceil();
+    if n.is_finite() {
+        (n as u32).clamp(SUBSTEPS, 256)
+    } else {
+        SUBSTEPS
+    }
+}
 
 /// (sin δ, cos δ), by Taylor series for the small angles a substep or a PWM period
 /// turns through (error < 2e-12 for |δ| ≤ 0.3), else the library call. Saves most of the
@@ -83,6 +110,11 @@ pub struct MotorParams {
     /// Phase a and b current-sensor offsets (A) and relative gain errors (§V.C).
     pub current_offset_a: [f64; 3],
     pub current_gain_error: [f64; 3],
+    /// The inverter's dead time (s) and each conducting device's voltage drop (V): a
+    /// phase's voltage falls short by `Vdc·dead_time/T + drop` against its current's
+    /// sign ([`Plant`]'s module doc). 0 and 0: the ideal inverter.
+    pub dead_time_s: f64,
+    pub device_drop_v: f64,
 }
 
 impl Default for MotorParams {
@@ -103,6 +135,8 @@ impl Default for MotorParams {
             load_steps: Vec::new(),
             current_offset_a: [0.0; 3],
             current_gain_error: [0.0; 3],
+            dead_time_s: 0.0,
+            device_drop_v: 0.0,
         }
     }
 }
@@ -140,6 +174,8 @@ impl MotorParams {
         for (name, v) in [
             ("motor.coulomb_nm", self.coulomb_nm),
             ("motor.viscous_nm_s_rad", self.viscous_nm_s_rad),
+            ("motor.dead_time_s", self.dead_time_s),
+            ("motor.device_drop_v", self.device_drop_v),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(InvalidParam::OutOfRange {
@@ -151,6 +187,18 @@ impl MotorParams {
         }
         Ok(())
     }
+}
+
+/// The inverter's voltage error in αβ for the current (αβ, A): each phase's voltage
+/// falls short by `v_err` against its current, linearly across `band_a` either side of
+/// zero (the current's PWM ripple crosses zero there, and the dead time's error with it).
+fn inverter_error_ab(v_err: f64, band_a: f64, ia: f64, ib: f64) -> (f64, f64) {
+    if v_err == 0.0 {
+        return (0.0, 0.0);
+    }
+    let [a, b, c] = ab_to_phases([ia, ib]).map(|i| -v_err * (i / band_a).clamp(-1.0, 1.0));
+    // The common mode drops out: amplitude-invariant Clarke.
+    (2.0 / 3.0 * (a - 0.5 * (b + c)), (b - c) / SQRT3)
 }
 
 /// The phase-current sensing front end: what a count means.
@@ -253,6 +301,13 @@ struct PlantConsts {
     h_over_l: f64,
     h_over_j: f64,
     kt: f64,
+    /// The inverter's voltage error per phase at full conduction (V), and the smallest
+    /// band it is spread over (A): one that keeps the substeps stable
+    /// (`h·(4/3)·v_err/(band·L)` ≤ 1/3).
+    v_err: f64,
+    band_floor_a: f64,
+    /// T/(2L): times the applied voltage, the PWM ripple's half-amplitude (A).
+    ripple_per_v: f64,
 }
 
 impl PlantConsts {
@@ -265,6 +320,10 @@ impl PlantConsts {
             h_over_l: h_s / m.l_h,
             h_over_j: h_s / m.j_kg_m2,
             kt: m.torque_constant_nm_a(),
+            v_err: m.vdc_v * m.dead_time_s / t_s + m.device_drop_v,
+            band_floor_a: (4.0 * h_s * (m.vdc_v * m.dead_time_s / t_s + m.device_drop_v) / m.l_h)
+                .max(1e-3),
+            ripple_per_v: t_s / (2.0 * m.l_h),
         }
     }
 }
@@ -295,7 +354,11 @@ impl Plant {
             return Err(InvalidParam::Rule("initial rotor angle must be finite"));
         }
         Ok(Self {
-            consts: PlantConsts::new(&motor, sample_period_s, SUBSTEPS),
+            consts: PlantConsts::new(
+                &motor,
+                sample_period_s,
+                substeps_for(&motor, sample_period_s),
+            ),
             motor: motor.clone(),
             current_adc: CurrentAdc::for_motor(&motor),
             sensor_count_size: 2.0 * adc.full_scale / (1u64 << adc.bits) as f64,
@@ -489,6 +552,9 @@ impl Plant {
         let (mut omega, mut theta) = (self.omega_rm, self.theta_rm);
         let [mut ia, mut ib] = self.i_ab;
         let [va, vb] = self.v_ab_applied;
+        // The band a phase current's inverter error ramps over: where the PWM ripple
+        // takes it through zero within a period.
+        let band_a = (va.hypot(vb) * c.ripple_per_v).max(c.band_floor_a);
         let mut torque = 0.0;
         // The comparator's timing (read by a modelled timer; nothing below depends on it
         // except the armed break path's opening).
@@ -525,8 +591,9 @@ impl Plant {
                 // Bridge off: open windings (the freewheel transient is not modelled).
                 (ia, ib) = (0.0, 0.0);
             } else {
-                ia = (ia + c.h_over_l * (va - ea)) * c.k_r;
-                ib = (ib + c.h_over_l * (vb - eb)) * c.k_r;
+                let (da, db) = inverter_error_ab(c.v_err, band_a, ia, ib);
+                ia = (ia + c.h_over_l * (va + da - ea)) * c.k_r;
+                ib = (ib + c.h_over_l * (vb + db - eb)) * c.k_r;
             }
             // The over-current comparator on any phase (a NaN current does not trip it).
             let level = self.break_level_a;

@@ -70,6 +70,25 @@ impl Boot {
         crate::stream::losses_of(&self.streamed)
     }
 
+    /// The motor's constants the identification streamed (the last, if several).
+    pub fn identified(&self) -> Option<drive::ident::Identified> {
+        self.streamed.iter().rev().find_map(|s| match s.line {
+            Line::Event(Event::Identified {
+                r_ohm,
+                ld_h,
+                lq_h,
+                v_inverter_v,
+                ..
+            }) => Some(drive::ident::Identified {
+                r_ohm,
+                ld_h,
+                lq_h,
+                v_inverter_v,
+            }),
+            _ => None,
+        })
+    }
+
     /// The records streamed, in order.
     pub fn records(&self) -> impl Iterator<Item = &drive::telemetry::Record> + '_ {
         self.streamed.iter().filter_map(|s| match &s.line {
@@ -100,7 +119,13 @@ pub fn rig_with(
         .commissioning
         .ok_or_else(|| anyhow!("{}: no [commissioning] table", sc.origin))?;
     let cfg = sc.core_config(None)?;
-    let rig = sc.rig_with(cfg, seed, adjust)?;
+    // The plant is not the controller: the drive starts from the firmware's nominal R
+    // and L and identifies the plant's at power-up.
+    let rig = sc.rig_with(cfg, seed, |d| {
+        d.motor.r_ohm = board_map::motor::R_OHM;
+        d.motor.l_h = board_map::motor::L_H;
+        adjust(d)
+    })?;
     let d = rig.period.config();
     let hash = rig.period.calibration_hash();
     let rate_hz = (1.0 / sc.sample_period_s()).round() as u32;
@@ -357,6 +382,17 @@ fn describe(e: &Event) -> String {
         Event::OffsetCorrected { offset_e_rad, .. } => {
             format!("electrical offset moved onto the corrected angle: {offset_e_rad:+.3} rad")
         }
+        Event::Identified {
+            r_ohm,
+            ld_h,
+            lq_h,
+            v_inverter_v,
+            ..
+        } => format!(
+            "identified: R {r_ohm:.4} ohm, Ld {:.1} uH, Lq {:.1} uH, inverter error {v_inverter_v:.3} V",
+            1e6 * ld_h,
+            1e6 * lq_h
+        ),
         Event::Refined {
             speed_rad_s,
             second_speed_rad_s,

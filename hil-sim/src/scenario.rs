@@ -296,6 +296,9 @@ pub struct MotorToml {
     pub current_offset_a: [f64; 3],
     #[serde(deserialize_with = "per_phase")]
     pub current_gain_error: [f64; 3],
+    /// The inverter's dead time (s) and device drop (V); 0: ideal.
+    pub dead_time_s: f64,
+    pub device_drop_v: f64,
 }
 
 /// Two or three values, one per phase (a missing phase c reads 0).
@@ -329,6 +332,8 @@ impl Default for MotorToml {
             load_steps: Vec::new(),
             current_offset_a: [0.0; 3],
             current_gain_error: [0.0; 3],
+            dead_time_s: d.dead_time_s,
+            device_drop_v: d.device_drop_v,
         }
     }
 }
@@ -381,6 +386,8 @@ impl MotorToml {
                 .collect(),
             current_offset_a: self.current_offset_a,
             current_gain_error: self.current_gain_error,
+            dead_time_s: self.dead_time_s,
+            device_drop_v: self.device_drop_v,
         };
         m.coulomb_nm = self.coulomb_pu * m.rated_torque_nm;
         m.validate()?;

@@ -99,14 +99,15 @@ pub const CURRENT_A_PER_COUNT: f32 = board_map::current_sense::AMPS_PER_COUNT;
 /// A measured zero further than this from the nominal means broken current sensing.
 pub const CURRENT_ZERO_TOLERANCE_COUNTS: u16 = 200;
 
-/// Motor (ElectroCraft RP34 class, the paper's) and supply.
-pub const POLE_PAIRS: u16 = 4;
-pub const R_OHM: f32 = 0.3;
-pub const L_H: f32 = 0.5e-3;
-pub const FLUX_WB: f32 = 0.02;
-pub const INERTIA_KG_M2: f32 = 2.0e-4;
-pub const VDC_V: f32 = 24.0;
-pub const I_MAX_A: f32 = 10.0;
+/// Motor (ElectroCraft RP34 class, the paper's) and supply: R and L are starting
+/// points, identified at every power-up (`drive::ident`).
+pub const POLE_PAIRS: u16 = board_map::motor::POLE_PAIRS;
+pub const R_OHM: f32 = board_map::motor::R_OHM;
+pub const L_H: f32 = board_map::motor::L_H;
+pub const FLUX_WB: f32 = board_map::motor::FLUX_WB;
+pub const INERTIA_KG_M2: f32 = board_map::motor::INERTIA_KG_M2;
+pub const VDC_V: f32 = board_map::motor::VDC_V;
+pub const I_MAX_A: f32 = board_map::motor::I_MAX_A;
 pub const CURRENT_BANDWIDTH_HZ: f32 = 1000.0;
 /// Speed held in Run by this firmware's placeholder application (mechanical rad/s).
 /// With the feature `fast-run`, 24 rev/s: a back-EMF of 12.1 V, with the load's current

@@ -470,6 +470,20 @@ pub mod gate_driver {
     pub const INTERNAL_DEAD_TIME_NS: u32 = 320;
 }
 
+/// The motor the firmware's constants describe (ElectroCraft RP34 class, the paper's
+/// bench motor), and the bench supply: where a drive starts before it identifies its
+/// motor. The identification (`drive::ident` in the firmware) replaces R and L at
+/// every power-up; the rest are used as they are.
+pub mod motor {
+    pub const POLE_PAIRS: u16 = 4;
+    pub const R_OHM: f32 = 0.3;
+    pub const L_H: f32 = 0.5e-3;
+    pub const FLUX_WB: f32 = 0.02;
+    pub const INERTIA_KG_M2: f32 = 2.0e-4;
+    pub const VDC_V: f32 = 24.0;
+    pub const I_MAX_A: f32 = 10.0;
+}
+
 /// The shield's over-current protection.
 pub mod over_current {
     /// Whether the board pulls the comparator's output up. Not found in a published

@@ -1,7 +1,10 @@
 //! The power-up self-commissioning sequence, as a hardware-independent state machine.
 //!
 //! Check sensor health (and measure the current sensors' zero) → load the stored
-//! calibration if valid (then run, with slow tracking if enabled) → otherwise align the
+//! calibration if valid → identify the motor's resistance and inductances and check the
+//! current sensing's sign ([`crate::ident`]; the current loop is designed on them from
+//! then on): on the rotor's d axis when a calibration was loaded (nothing moves; then
+//! run, with slow tracking if enabled), otherwise at electrical angle 0 → align the
 //! rotor → sweep the field open loop over one sensor period and back (the sensor's
 //! electrical offset and direction against the phase sequence, and a check of the
 //! pole-pair count) → spin up on the uncorrected sensor to the commissioning speed →
@@ -14,6 +17,7 @@
 //! [`crate::supervisor::Supervisor`] steps it with the control period's telemetry; the
 //! firmware and hil-sim both run that supervisor.
 
+use crate::ident::{IdentError, IdentStatus};
 use crate::telemetry::{Fault, SweepResult};
 
 /// Where the sequence is.
@@ -21,6 +25,8 @@ use crate::telemetry::{Fault, SweepResult};
 pub enum State {
     CheckSensor,
     LoadCalibration,
+    /// The motor's R, Ld, Lq and the current sensing's sign ([`crate::ident`]).
+    Identify,
     Align,
     Sweep,
     SpinUp,
@@ -37,9 +43,10 @@ pub enum State {
 }
 
 impl State {
-    pub const ALL: [State; 12] = [
+    pub const ALL: [State; 13] = [
         State::CheckSensor,
         State::LoadCalibration,
+        State::Identify,
         State::Align,
         State::Sweep,
         State::SpinUp,
@@ -61,6 +68,7 @@ impl State {
         match self {
             State::CheckSensor => "CheckSensor",
             State::LoadCalibration => "LoadCalibration",
+            State::Identify => "Identify",
             State::Align => "Align",
             State::Sweep => "Sweep",
             State::SpinUp => "SpinUp",
@@ -86,6 +94,8 @@ pub enum Cause {
     OverCurrent,
     /// The current sensors' zero, measured with the bridge off, is implausible.
     CurrentSensor,
+    /// The motor's identification stopped ([`crate::ident::IdentError`] names why).
+    Identify(IdentError),
     /// Non-finite or negative time step: a bug in the caller, refused safely.
     BadInput,
     /// The state did not finish in time (spin-up speed not reached, no convergence).
@@ -128,6 +138,8 @@ impl From<Fault> for Cause {
 pub struct Params {
     /// The sensor must be healthy this long before anything moves.
     pub check_s: f32,
+    /// The identification's current (A, at least: [`crate::ident::IdentConfig`]).
+    pub identify_current_a: f32,
     /// d-axis current and duration of the alignment (and current of the sweep).
     pub align_current_a: f32,
     pub align_s: f32,
@@ -187,6 +199,7 @@ impl Default for Params {
     fn default() -> Self {
         Self {
             check_s: 0.05,
+            identify_current_a: 2.0,
             align_current_a: 2.0,
             align_s: 0.3,
             sweep_s: 0.4,
@@ -208,6 +221,9 @@ impl Default for Params {
         }
     }
 }
+
+/// The identification's own stages are bounded (1 s each); this bounds the whole.
+pub const IDENTIFY_TIMEOUT_S: f32 = 5.0;
 
 /// The smallest second speed, relative to the first: the separation divides by
 /// 1 - 1/ratio², which amplifies the estimates' noise by 2.1x at 1.5 and 1.3x at 2.
@@ -285,6 +301,8 @@ pub struct Inputs {
     pub refine: RefineStatus,
     /// The alignment sweep's result, once it finished.
     pub sweep: Option<SweepResult>,
+    /// The identification's progress (the control period's).
+    pub ident: IdentStatus,
     /// The control period ran on a locked estimate in every period since the previous
     /// step (no refused sample, no re-acquisition under way).
     pub locked: bool,
@@ -304,6 +322,7 @@ impl Default for Inputs {
             store: StoreStatus::Pending,
             refine: RefineStatus::Pending,
             sweep: None,
+            ident: IdentStatus::Pending,
             locked: true,
         }
     }
@@ -314,6 +333,10 @@ impl Default for Inputs {
 pub enum Setpoint {
     /// PWM outputs off (MOE cleared).
     Off,
+    /// The motor's identification, at `current_a` at least ([`crate::ident`]), in the
+    /// frame of the rotor's d axis when `on_rotor` (a calibration is in force: no
+    /// torque, nothing moves), else at electrical angle 0 (the rotor aligns to it).
+    Identify { current_a: f32, on_rotor: bool },
     /// d-axis current at electrical angle 0, open loop: pulls the rotor to a known angle.
     Align { current_a: f32 },
     /// d-axis current on a field turned open loop over one sensor period and back, in
@@ -506,10 +529,20 @@ impl Commissioning {
                 LoadStatus::Pending => {}
                 LoadStatus::Loaded => {
                     self.loaded = true;
-                    self.go(State::Run);
+                    self.go(State::Identify);
                 }
-                LoadStatus::Unavailable => self.go(State::Align),
+                LoadStatus::Unavailable => self.go(State::Identify),
                 LoadStatus::Refused => self.force_safe(Cause::LoadRefused),
+            },
+            State::Identify => match i.ident {
+                IdentStatus::Done(_) if self.loaded => self.go(State::Run),
+                IdentStatus::Done(_) => self.go(State::Align),
+                IdentStatus::Failed(e) => self.force_safe(Cause::Identify(e)),
+                // Its stages have their own limits; this one only catches a stall.
+                IdentStatus::Pending if self.in_state_s >= IDENTIFY_TIMEOUT_S => {
+                    self.force_safe(Cause::Timeout(State::Identify))
+                }
+                IdentStatus::Pending => {}
             },
             State::Align => {
                 if self.in_state_s >= p.align_s {
@@ -640,6 +673,14 @@ impl Commissioning {
         let (setpoint, adaptation, request) = match self.state {
             State::CheckSensor => (Setpoint::Off, Adaptation::Frozen, Request::None),
             State::LoadCalibration => (Setpoint::Off, Adaptation::Frozen, Request::LoadCalibration),
+            State::Identify => (
+                Setpoint::Identify {
+                    current_a: p.identify_current_a,
+                    on_rotor: self.loaded,
+                },
+                Adaptation::Frozen,
+                Request::None,
+            ),
             State::Align => (
                 Setpoint::Align {
                     current_a: p.align_current_a,

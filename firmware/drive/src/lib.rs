@@ -19,6 +19,7 @@ pub mod control;
 pub mod cordic;
 pub mod foc;
 pub mod handoff;
+pub mod ident;
 pub mod motion;
 mod mutant;
 pub mod refine;

@@ -17,6 +17,7 @@
 use crate::commissioning::{
     Cause, Commissioning, Inputs, LoadStatus, Params, RefineStatus, Request, State, StoreStatus,
 };
+use crate::ident::IdentStatus;
 use crate::refine::{separate, CoefficientMean, RefineError, Refined};
 use crate::telemetry::{Command, Event, Install, Line, Record, Telemetry, INIT_SEQ};
 use calib_record::{Alignment, Calibration, FlashSlots, StoreError};
@@ -432,6 +433,7 @@ impl<const E: usize> Supervisor<E> {
             store: self.store,
             refine: self.refine,
             sweep: tm.snapshot.sweep,
+            ident: tm.snapshot.ident,
             locked: !tm.snapshot.unlocked,
         });
         let state = self.sm.state();
@@ -440,6 +442,17 @@ impl<const E: usize> Supervisor<E> {
                 self.alignment.offset_e_rad = offset_e_rad;
                 events.push(Event::OffsetCorrected { t_ms, offset_e_rad });
             }
+        }
+        if let (State::Identify, State::Align | State::Run, IdentStatus::Done(x)) =
+            (before, state, tm.snapshot.ident)
+        {
+            events.push(Event::Identified {
+                t_ms,
+                r_ohm: x.r_ohm,
+                ld_h: x.ld_h,
+                lq_h: x.lq_h,
+                v_inverter_v: x.v_inverter_v,
+            });
         }
         if before == State::Sweep && state == State::SpinUp {
             if let Some(r) = tm.snapshot.sweep {

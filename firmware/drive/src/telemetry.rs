@@ -168,6 +168,8 @@ pub struct Snapshot {
     pub amplitude: f32,
     /// The alignment sweep's result, once it finished.
     pub sweep: Option<SweepResult>,
+    /// The motor's identification (Pending until one ran).
+    pub ident: crate::ident::IdentStatus,
     /// The offset in force moved by the measured mean shift of the corrected angle
     /// against the raw one: the alignment for the corrected angle (once measured over
     /// enough samples).
@@ -354,6 +356,15 @@ pub enum Event {
         second_speed_rad_s: f32,
         motion_max: f32,
     },
+    /// The motor's constants, identified ([`crate::ident::Identified`]); the current loop
+    /// is designed on them from then on.
+    Identified {
+        t_ms: u32,
+        r_ohm: f32,
+        ld_h: f32,
+        lq_h: f32,
+        v_inverter_v: f32,
+    },
 }
 
 /// A value of a streamed field, as its defmt parameter carries it.
@@ -398,7 +409,7 @@ impl Record {
 }
 
 /// Most fields an event line has.
-pub const MAX_EVENT_FIELDS: usize = 4;
+pub const MAX_EVENT_FIELDS: usize = 5;
 
 impl Event {
     /// Whether this is a fault (the safe state's entry): never dropped from a step's
@@ -419,6 +430,7 @@ impl Event {
             Event::Aligned { .. } => "mras-aligned",
             Event::OffsetCorrected { .. } => "mras-offset-corrected",
             Event::Refined { .. } => "mras-refined",
+            Event::Identified { .. } => "mras-identified",
         }
     }
 
@@ -463,6 +475,19 @@ impl Event {
                 ("motion_max", F32(motion_max)),
                 ("t_ms", U32(t_ms)),
             ],
+            Event::Identified {
+                t_ms,
+                r_ohm,
+                ld_h,
+                lq_h,
+                v_inverter_v,
+            } => &[
+                ("r_ohm", F32(r_ohm)),
+                ("ld_h", F32(ld_h)),
+                ("lq_h", F32(lq_h)),
+                ("v_inverter_v", F32(v_inverter_v)),
+                ("t_ms", U32(t_ms)),
+            ],
         };
         for f in fields {
             // At most MAX_EVENT_FIELDS by construction.
@@ -479,6 +504,7 @@ pub fn cause_name(c: Cause) -> &'static str {
         Cause::AdcOutOfRange => "AdcOutOfRange",
         Cause::OverCurrent => "OverCurrent",
         Cause::CurrentSensor => "CurrentSensor",
+        Cause::Identify(e) => e.name(),
         Cause::BadInput => "BadInput",
         Cause::Timeout(_) => "Timeout",
         Cause::NoRotation => "NoRotation",
@@ -611,6 +637,21 @@ fn log_event(seq: u32, e: &Event) {
             speed_rad_s,
             second_speed_rad_s,
             motion_max,
+            t_ms
+        ),
+        Event::Identified {
+            t_ms,
+            r_ohm,
+            ld_h,
+            lq_h,
+            v_inverter_v,
+        } => defmt::info!(
+            "mras-identified seq={=u32} r_ohm={=f32} ld_h={=f32} lq_h={=f32} v_inverter_v={=f32} t_ms={=u32}",
+            seq,
+            r_ohm,
+            ld_h,
+            lq_h,
+            v_inverter_v,
             t_ms
         ),
     }

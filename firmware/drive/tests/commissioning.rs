@@ -2,6 +2,7 @@
 
 use calib_record::Alignment;
 use drive::commissioning::*;
+use drive::ident::{IdentError, IdentStatus, Identified};
 use drive::telemetry::{Fault, SweepResult};
 
 const DT: f32 = 1e-3;
@@ -51,10 +52,21 @@ fn swept(ratio: f32) -> Option<SweepResult> {
     })
 }
 
-/// A responsive hardware layer: no calibration in flash, the sweep done at once, store
-/// succeeds, converges as soon as adaptation runs.
+/// What an identification found.
+const IDENTIFIED: Identified = Identified {
+    r_ohm: 0.3,
+    ld_h: 0.5e-3,
+    lq_h: 0.5e-3,
+    v_inverter_v: 0.4,
+};
+
+/// A responsive hardware layer: no calibration in flash, the identification and the
+/// sweep done at once, store succeeds, converges as soon as adaptation runs.
 fn hardware(c: &Commissioning) -> Inputs {
     let mut i = healthy();
+    if c.state() == State::Identify {
+        i.ident = IdentStatus::Done(IDENTIFIED);
+    }
     i.load = LoadStatus::Unavailable;
     i.store = StoreStatus::Done;
     i.converged = c.state() == State::Adapt;
@@ -91,6 +103,7 @@ fn full_sequence_without_calibration() {
         [
             CheckSensor,
             LoadCalibration,
+            Identify,
             Align,
             Sweep,
             SpinUp,
@@ -104,6 +117,8 @@ fn full_sequence_without_calibration() {
     assert_eq!(c.cause(), None);
 }
 
+/// A stored calibration: the identification on the rotor's d axis (nothing moves), then
+/// Run, with no alignment, sweep or adaptation.
 #[test]
 fn stored_calibration_skips_commissioning() {
     let mut c = Commissioning::new(params());
@@ -116,6 +131,19 @@ fn stored_calibration_skips_commissioning() {
     }
     let o = c.step(&Inputs {
         load: LoadStatus::Loaded,
+        ..healthy()
+    });
+    assert_eq!(c.state(), State::Identify);
+    assert_eq!(
+        o.setpoint,
+        Setpoint::Identify {
+            current_a: params().identify_current_a,
+            on_rotor: true
+        }
+    );
+    assert_eq!(o.adaptation, Adaptation::Frozen);
+    let o = c.step(&Inputs {
+        ident: IdentStatus::Done(IDENTIFIED),
         ..healthy()
     });
     assert_eq!(c.state(), State::Run);
@@ -239,6 +267,7 @@ fn outputs_per_state() {
             Adaptation::Frozen,
             Request::LoadCalibration,
         ),
+        (Identify, true, Adaptation::Frozen, Request::None),
         (Align, true, Adaptation::Frozen, Request::None),
         (Sweep, true, Adaptation::Frozen, Request::None),
         (SpinUp, true, Adaptation::Frozen, Request::None),
@@ -255,6 +284,9 @@ fn outputs_per_state() {
         assert_eq!(o.adaptation, adaptation, "{state:?}");
         assert_eq!(o.request, request, "{state:?}");
     }
+    assert!(
+        matches!(drive_to(Identify).outputs().setpoint, Setpoint::Identify { current_a, on_rotor: false } if current_a > 0.0)
+    );
     assert!(
         matches!(drive_to(Align).outputs().setpoint, Setpoint::Align { current_a } if current_a > 0.0)
     );
@@ -354,6 +386,7 @@ fn every_fault_in_every_state_ends_safe_with_its_cause() {
     for state in [
         CheckSensor,
         LoadCalibration,
+        Identify,
         Align,
         Sweep,
         SpinUp,
@@ -675,4 +708,32 @@ fn refinement_settings_are_validated() {
         ..params()
     };
     assert_eq!(ok.validate(), Ok(()));
+}
+
+/// A failed identification ends safe with its own name; one that never ends, with a
+/// timeout; neither stores anything (nothing past Identify runs).
+#[test]
+fn a_failed_or_stalled_identification_ends_safe_by_name() {
+    for e in [
+        IdentError::CurrentSign,
+        IdentError::CurrentNotReached,
+        IdentError::OverCurrent,
+        IdentError::Unsettled,
+        IdentError::OutOfRange,
+    ] {
+        let mut c = drive_to(State::Identify);
+        let o = c.step(&Inputs {
+            ident: IdentStatus::Failed(e),
+            ..healthy()
+        });
+        assert_eq!(c.state(), State::Safe);
+        assert_eq!(c.cause(), Some(Cause::Identify(e)));
+        assert_eq!(o.setpoint, Setpoint::Off);
+        assert_eq!(o.request, Request::None);
+    }
+    let mut c = drive_to(State::Identify);
+    run_until(&mut c, State::Safe, IDENTIFY_TIMEOUT_S + 0.01, |_| {
+        healthy()
+    });
+    assert_eq!(c.cause(), Some(Cause::Timeout(State::Identify)));
 }

@@ -67,6 +67,13 @@ fn coefficients() -> Coefficients {
     c
 }
 
+const IDENTIFIED: drive::ident::Identified = drive::ident::Identified {
+    r_ohm: 0.3,
+    ld_h: 0.5e-3,
+    lq_h: 0.5e-3,
+    v_inverter_v: 0.4,
+};
+
 /// A healthy control period at the commissioning speed.
 fn telemetry(ticks: u32) -> Telemetry {
     Telemetry {
@@ -80,6 +87,8 @@ fn telemetry(ticks: u32) -> Telemetry {
             omega_rad_s: Params::default().speed_rad_s,
             amplitude: 1.0,
             sweep: None,
+            // Done at once: the identification's own tests are `ident.rs`.
+            ident: drive::ident::IdentStatus::Done(IDENTIFIED),
             corrected_offset_e_rad: None,
             currents_ready: true,
             currents_implausible: false,
@@ -183,6 +192,7 @@ fn first_power_up_commissions_and_stores_the_alignment() {
         states,
         [
             LoadCalibration,
+            Identify,
             Align,
             Sweep,
             SpinUp,
@@ -195,6 +205,10 @@ fn first_power_up_commissions_and_stores_the_alignment() {
     assert!(events
         .iter()
         .any(|e| matches!(e, Event::Aligned { reversed: true, .. })));
+    assert!(events.iter().any(|e| matches!(
+        e,
+        Event::Identified { r_ohm, ld_h, .. } if *r_ohm == IDENTIFIED.r_ohm && *ld_h == IDENTIFIED.ld_h
+    )));
     assert!(events.iter().any(|e| matches!(e, Event::Stored { .. })));
     assert_eq!(cmd.alignment, sweep_result().alignment);
     assert_eq!(cmd.setpoint, Setpoint::Application);
@@ -250,12 +264,20 @@ fn a_load_is_reported_only_once_the_control_period_accepted_it() {
         });
         let out = s.step(&tm, &mut flash);
         if accepted {
-            assert_eq!(s.state(), State::Run);
+            // The identification on the rotor's d axis, then Run.
+            assert_eq!(s.state(), State::Identify);
             assert!(s.calibration_loaded());
             assert!(out
                 .events
                 .iter()
                 .any(|e| matches!(e, Event::Loaded { sequence: 1, .. })));
+            ticks += 20;
+            let out = s.step(&telemetry(ticks), &mut flash);
+            assert_eq!(s.state(), State::Run);
+            assert!(out
+                .events
+                .iter()
+                .any(|e| matches!(e, Event::Identified { .. })));
         } else {
             assert_eq!(s.cause(), Some(Cause::LoadRefused));
             assert!(out.events.iter().any(|e| matches!(
@@ -481,7 +503,7 @@ fn a_two_speed_commissioning_installs_and_stores_the_sensor_error_alone() {
         if accepted {
             assert_eq!(s.state(), Run);
             assert_eq!(
-                states[3..],
+                states[4..],
                 [
                     SpinUp,
                     Adapt,

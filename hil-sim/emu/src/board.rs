@@ -15,7 +15,7 @@ use crate::periph::{flash, ticks, TICK_HZ};
 use crate::regfile::RegFile;
 use board_map::{Function, Signal, Tim1Signal};
 use drive::control::{Output, Sample};
-use hil_sim::plant::{CurrentAdc, Plant, Truth};
+use hil_sim::plant::{CurrentAdc, MotorParams, Plant, Truth};
 use hil_sim::plant_truth::PeriodTruth;
 use hil_sim::scenario::Scenario;
 
@@ -150,10 +150,28 @@ impl Board {
         Self::with_sensor_of("ripple-1rev", seed)
     }
 
+    /// The `commissioning` scenario's sensor on another motor: the firmware's constants
+    /// stay the nominal ones (`board_map::motor`), the plant is `adjust`'s.
+    pub fn commissioning_with_motor(
+        seed: u64,
+        adjust: impl FnOnce(&mut MotorParams),
+    ) -> anyhow::Result<Self> {
+        Self::build("commissioning", seed, adjust)
+    }
+
     /// The `commissioning` scenario's motor with the sensor of scenario `sensor_of`.
     fn with_sensor_of(sensor_of: &str, seed: u64) -> anyhow::Result<Self> {
+        Self::build(sensor_of, seed, |_| {})
+    }
+
+    fn build(
+        sensor_of: &str,
+        seed: u64,
+        adjust: impl FnOnce(&mut MotorParams),
+    ) -> anyhow::Result<Self> {
         let sc = Scenario::load("commissioning")?;
         let mut motor = sc.file.motor.to_params()?;
+        adjust(&mut motor);
         // The bench supply of docs/hardware.md (the shield takes 10-48 V).
         motor.vdc_v = BENCH_SUPPLY_V;
         // The sensor amplifier: the scenario's converter (12 bits over ±1.5 units), so

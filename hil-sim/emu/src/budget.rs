@@ -92,6 +92,15 @@ pub const KNOWN_FAILURES: &[KnownFailure] = &[
         recorded: 6_501.0 / 8_500.0,
         why: "the survey's bank install inside the control interrupt (Injection::rebank); building the bank in the adaptation task would take it out",
     },
+    KnownFailure {
+        build: Build {
+            pwm_hz: 20_000,
+            sensor: SensorBoard::N1,
+        },
+        check: Check::RunIsrCycles,
+        recorded: 2_135.0,
+        why: "the dead-time compensation the motor's identification feeds forward (about 50 cycles) on the build with the largest core; the code it moved costs the unchanged PWM write and SVPWM about 50 more",
+    },
 ];
 
 /// What a run measured against the budgets.

@@ -525,6 +525,22 @@ fn run_until_state(emu: &mut Emu, state: &str, limit_s: f64) -> Result<f64> {
     })
 }
 
+/// One power-up on an erased flash with the plant's motor changed by `adjust` (the
+/// firmware keeps its nominal constants and identifies the plant's): to Run, then
+/// 0.2 s in it. Also the plant's motor, to measure the identification against.
+pub fn motor_run(
+    elf: &[u8],
+    adjust: impl FnOnce(&mut hil_sim::plant::MotorParams),
+) -> Result<(Outcome, hil_sim::plant::MotorParams)> {
+    let t0 = std::time::Instant::now();
+    let board = Board::commissioning_with_motor(1, adjust)?;
+    let motor = board.plant.motor.clone();
+    let mut emu = Emu::new(elf, board, None)?;
+    run_until_state(&mut emu, "Run", 4.0)?;
+    emu.run_for(0.2)?;
+    Ok((finish("motor", &emu, t0, Vec::new())?, motor))
+}
+
 /// A board with an erased calibration area, powered on.
 fn fresh(elf: &[u8], flash: Option<crate::cpu::KeptFlash>) -> Result<Emu> {
     Emu::new(elf, Board::commissioning(1)?, flash)

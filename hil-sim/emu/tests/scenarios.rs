@@ -92,8 +92,9 @@ fn states(o: &Outcome, boot: usize) -> Vec<&str> {
     o.states[boot].iter().map(|(s, _)| s.as_str()).collect()
 }
 
-const COMMISSIONING: [&str; 8] = [
+const COMMISSIONING: [&str; 9] = [
     "LoadCalibration",
+    "Identify",
     "Align",
     "Sweep",
     "SpinUp",
@@ -109,7 +110,7 @@ fn erased_flash_commissions_to_run_then_the_next_power_up_loads() {
     healthy(&o);
     assert_eq!(states(&o, 0), COMMISSIONING);
     assert!(o.has_event("mras-stored", ""));
-    assert_eq!(states(&o, 1), ["LoadCalibration", "Run"]);
+    assert_eq!(states(&o, 1), ["LoadCalibration", "Identify", "Run"]);
     assert!(o.has_event("mras-loaded", ""));
     assert!(
         o.entered(1, "Run").unwrap() < 200,
@@ -123,8 +124,10 @@ fn erased_flash_commissions_to_run_then_the_next_power_up_loads() {
 /// control periods. The figures this release ELF gives are published by
 /// `cargo xtask docs emu-report` (docs/figures/emu-report.md, the power-up's notes);
 /// the bounds sit at about twice them: the current's mean angle within 10 mrad
-/// electrical and its pk-pk over the rotor angle within 40 mrad (bin means of 64 periods
-/// each: the shunts' noise of ±2 counts, 30 mA, leaves about 20), torque per amp at
+/// electrical and its pk-pk over the rotor angle within 120 mrad (bin means of 64
+/// periods each: the shunts' noise of ±2 counts, 30 mA, leaves about 20; the board's
+/// 820 ns of dead time distorts the 0.8 A current at each phase's zero crossing, to
+/// about 57 mrad with or without the identified error fed forward), torque per amp at
 /// least 0.999 (the cost of a 45 mrad error), θ̂'s spatial error within 1 mrad pk-pk
 /// and at least 180x below the raw sensor's. A drive commuting 0.3 rad off gives
 /// 300 mrad and 0.955; a correction of the wrong sign doubles the raw sensor's error
@@ -149,7 +152,7 @@ fn in_run_the_current_and_the_streamed_angle_follow_the_rotor_at_the_plant() {
         let c = c.unwrap_or_else(|| panic!("boot {}: no Run window", b + 1));
         eprintln!("boot {}: {c:?}", b + 1);
         assert!(c.periods > 2_000, "boot {}: {c:?}", b + 1);
-        if c.angle_error_e_rad.abs() >= 10e-3 || c.angle_error_e_pk_pk_rad >= 40e-3 {
+        if c.angle_error_e_rad.abs() >= 10e-3 || c.angle_error_e_pk_pk_rad >= 120e-3 {
             off.push(format!(
                 "boot {}: the current's electrical angle error at the plant: mean {:+.1} mrad, pk-pk {:.1} mrad",
                 b + 1,
@@ -187,7 +190,7 @@ fn in_run_the_current_and_the_streamed_angle_follow_the_rotor_at_the_plant() {
         .unwrap_or_else(|e| panic!("{e:#}"));
     let c = c.expect("a Run window");
     eprintln!("remounted: {c:?}");
-    assert_eq!(states(&o, 0), ["LoadCalibration", "Run"]);
+    assert_eq!(states(&o, 0), ["LoadCalibration", "Identify", "Run"]);
     assert!(c.angle_error_e_rad.abs() > 0.2, "{c:?}");
     assert!(c.torque_per_amp < 0.98, "{c:?}");
 }
@@ -315,7 +318,7 @@ fn a_power_cut_during_the_store_tears_the_record_and_the_next_power_up_commissio
     );
     assert_eq!(states(&o, 1), COMMISSIONING);
     assert!(event_in(&o, 1, "mras-stored", ""));
-    assert_eq!(states(&o, 2), ["LoadCalibration", "Run"]);
+    assert_eq!(states(&o, 2), ["LoadCalibration", "Identify", "Run"]);
     assert!(event_in(&o, 2, "mras-loaded", ""));
 }
 
@@ -428,7 +431,7 @@ fn near_the_voltage_limit_the_current_loop_keeps_its_torque_per_amp_at_the_plant
                     lm.mean * 100.0
                 ));
             }
-            if c.angle_error_e_rad.abs() >= 10e-3 || c.angle_error_e_pk_pk_rad >= 40e-3 {
+            if c.angle_error_e_rad.abs() >= 10e-3 || c.angle_error_e_pk_pk_rad >= 120e-3 {
                 off.push(format!(
                     "the current's electrical angle error at the plant: mean {:+.1} mrad, pk-pk {:.1} mrad",
                     c.angle_error_e_rad * 1e3,
@@ -484,4 +487,50 @@ fn attaching_in_run_halts_with_the_bridge_off_and_the_drive_runs_on() {
             .all(|v| v.starts_with("ADC: 4 wrong results")),
         "one wrong conversion per ADC and halt, no more: {erratum:?}"
     );
+}
+
+/// The release ELF identifies motors its constants do not describe (they stay the
+/// nominal R 0.3 ohm, L 0.5 mH): the smallest inductance, the highest resistance and the
+/// lowest resistance of the ratings, behind the board's 820 ns of dead time. Each
+/// commissions to Run within budget, with R within 5 % and Ld, Lq within 10 % of the
+/// plant's, as the stream's `mras-identified` says.
+#[test]
+fn the_release_elf_identifies_three_motors_it_was_not_built_for() {
+    let elf = elf();
+    for (r_ohm, l_h) in [(0.2, 30e-6), (1.8, 1.5e-3), (0.06, 0.15e-3)] {
+        let (o, m) = scenarios::motor_run(&elf, |m| {
+            m.r_ohm = r_ohm;
+            m.l_h = l_h;
+        })
+        .unwrap_or_else(|e| panic!("R {r_ohm} L {l_h}: {e:#}"));
+        let what = format!("R {r_ohm} ohm, L {:.0} uH", 1e6 * l_h);
+        healthy(&o);
+        assert_eq!(states(&o, 0), COMMISSIONING, "{what}");
+        let text = &o
+            .events
+            .iter()
+            .find(|e| e.kind == "mras-identified")
+            .unwrap_or_else(|| panic!("{what}: no mras-identified"))
+            .text;
+        let field = |k: &str| -> f64 {
+            text.split_whitespace()
+                .find_map(|kv| kv.strip_prefix(&format!("{k}=")))
+                .and_then(|v| v.parse().ok())
+                .unwrap_or_else(|| panic!("{what}: no {k} in `{text}`"))
+        };
+        let (r, ld, lq) = (field("r_ohm"), field("ld_h"), field("lq_h"));
+        eprintln!(
+            "{what}: identified R {r:.4} ohm ({:+.2} %), Ld {:.1} uH ({:+.2} %), Lq {:.1} uH ({:+.2} %), inverter {} V; Identify {} ms",
+            100.0 * (r / m.r_ohm - 1.0),
+            1e6 * ld,
+            100.0 * (ld / m.l_h - 1.0),
+            1e6 * lq,
+            100.0 * (lq / m.l_h - 1.0),
+            field("v_inverter_v"),
+            o.entered(0, "Align").unwrap() - o.entered(0, "Identify").unwrap()
+        );
+        assert!((r / m.r_ohm - 1.0).abs() < 0.05, "{what}: R {r}");
+        assert!((ld / m.l_h - 1.0).abs() < 0.10, "{what}: Ld {ld}");
+        assert!((lq / m.l_h - 1.0).abs() < 0.10, "{what}: Lq {lq}");
+    }
 }

@@ -1,0 +1,484 @@
+//! The motor's electrical constants identified at power-up: the current sensing's sign,
+//! the stator resistance (with the inverter's dead-time voltage error and device drops
+//! cancelled) and the d and q inductances, before any loop relies on them.
+//!
+//! It works in a fixed frame: electrical angle 0 (α) before any alignment is known, so
+//! that the rotor aligns there as it would in the alignment, or the rotor's d axis when
+//! a calibration is in force, where its current makes no torque (the control period
+//! chooses, `commissioning::Setpoint::Identify`). "α" and "β" below are that frame's
+//! axes. Per period: the measured current in, the voltage for the next period out
+//! ([`Identifier::step`]), in five stages:
+//!
+//! 1. **Probe**, open loop: voltage pulses on α of [`PROBE_ON_PERIODS`], each twice the
+//!    last, until one drives the current to half the identification level. Its steepest
+//!    rise and its final current bound L and R from above (the dead-time voltage and the
+//!    resistive drop only lower both); they place a conservative PI for stage 2. The
+//!    measured current must point along the applied voltage: a reversed or crossed
+//!    current sense is refused here ([`IdentError::CurrentSign`]), before any loop
+//!    could run it as positive feedback.
+//! 2. **Levels**: that PI holds the α current at half the level, then at the level, until
+//!    the mean voltage settles at each. The levels rise above the identification
+//!    current where the probe's rise says the PWM ripple takes a phase current through
+//!    zero (small L): there the inverter's error is not yet its full value. The inverter's error (dead time, device drops)
+//!    has the same sign and size at both, so `R = ΔV/ΔI` leaves it out and the
+//!    intercept measures it.
+//! 3. **Ripple d**, open loop at the second level's settled voltage: ±ΔV added on α,
+//!    alternating every period. The current zig-zags by `D` peak to peak around the
+//!    level without changing sign, so the inverter's error stays constant and drops
+//!    out. For a first-order R-L with the voltage constant over each period (exact, for
+//!    any L/R against the period): `x = R·D/(2ΔV) = (1-a)/(1+a)`, `a = exp(-R·T/L)`.
+//!    A short trial burst sizes ΔV for a ripple of [`RIPPLE_TARGET`] of the level.
+//! 4. **Ripple q**: the same on β, α still at the level: the rotor is held by the d
+//!    current and sees a torque alternating every period, with no mean.
+//! 5. **Release**: zero voltage until the current has decayed, so that the loop that
+//!    follows starts from rest.
+//!
+//! Everything is bounded: the current (an over-current is refused at once), the voltage
+//! (the loop's limit) and each stage's time.
+
+use crate::foc::Pi;
+
+/// Periods of one probe pulse: long enough for a measurable rise on the largest L, short
+/// enough that a pulse stays below the current limit on the smallest (each pulse is at
+/// most twice one that stayed below half the level).
+pub const PROBE_ON_PERIODS: u32 = 40;
+/// Periods the mean voltage and current are taken over while a level settles.
+const WINDOW_PERIODS: u32 = 100;
+/// Consecutive settled windows a level needs.
+const SETTLED_WINDOWS: u32 = 3;
+/// Each stage's time limit (s): the probe's decay and a level's settling scale with L/R,
+/// up to 40 ms on the slowest motor in the ratings; this leaves about 7x.
+const STAGE_TIMEOUT_S: f32 = 1.0;
+/// Peak-to-peak ripple aimed at, as a share of the level: well clear of zero current on
+/// either axis (on β, a phase current changes sign only beyond `level/√3`).
+pub const RIPPLE_TARGET: f32 = 0.3;
+/// Ripple periods measured, after `RIPPLE_SKIP` periods of transient.
+const RIPPLE_TRIAL_PERIODS: u32 = 64;
+const RIPPLE_PERIODS: u32 = 400;
+const RIPPLE_SKIP: u32 = 8;
+/// Bandwidth of the stage-2 PI (Hz), designed on the probe's upper bounds: an L bound up
+/// to a few times too high raises it that much, an R bound too high lowers its damping,
+/// to no less than 0.5 as long as the probe's rise time is within 1/(2π·f).
+const LEVEL_BANDWIDTH_HZ: f32 = 100.0;
+/// Plausible results: beyond these the measurement is broken, not the motor.
+const R_RANGE_OHM: (f32, f32) = (1e-3, 100.0);
+const L_RANGE_H: (f32, f32) = (1e-6, 0.1);
+
+/// What the identification needs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IdentConfig {
+    /// The identification level (A, peak phase current), at least: the probe's pulses
+    /// end at half of it; the two levels are it and half of it, or higher where the
+    /// PWM ripple needs (at most 0.8 `i_limit_a`, and within the voltage).
+    pub current_a: f32,
+    /// The largest voltage magnitude it may apply (V): the current loop's limit.
+    pub v_max_v: f32,
+    /// A measured current beyond this (A) ends it at once.
+    pub i_limit_a: f32,
+    /// The control period (s).
+    pub period_s: f32,
+}
+
+/// The identified constants.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Identified {
+    pub r_ohm: f32,
+    pub ld_h: f32,
+    pub lq_h: f32,
+    /// The inverter's voltage error along α at the levels (dead time and device drops
+    /// together, V): what `R·I` leaves of the voltage.
+    pub v_inverter_v: f32,
+}
+
+/// Why the identification stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum IdentError {
+    /// The measured current does not point along the applied voltage: a current
+    /// amplifier's sign, a phase's wiring or its channel is wrong.
+    CurrentSign,
+    /// The largest voltage did not drive half the identification level: R too high for
+    /// it, or a phase open.
+    CurrentNotReached,
+    /// A measured current beyond the limit.
+    OverCurrent,
+    /// A stage did not settle (or decay) in its time.
+    Unsettled,
+    /// A result outside what any motor in the drive's ratings could give.
+    OutOfRange,
+}
+
+impl IdentError {
+    pub const fn name(&self) -> &'static str {
+        match self {
+            IdentError::CurrentSign => "CurrentSign",
+            IdentError::CurrentNotReached => "CurrentNotReached",
+            IdentError::OverCurrent => "IdentOverCurrent",
+            IdentError::Unsettled => "IdentUnsettled",
+            IdentError::OutOfRange => "IdentOutOfRange",
+        }
+    }
+}
+
+/// Where the identification is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum IdentStatus {
+    Pending,
+    Done(Identified),
+    Failed(IdentError),
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Stage {
+    /// A pulse of `volts` (`on`), then the current's decay.
+    Probe {
+        volts: f32,
+        on: bool,
+    },
+    Level {
+        index: u8,
+    },
+    /// `trial`: sizing ΔV; then measuring.
+    Ripple {
+        q: bool,
+        trial: bool,
+    },
+    /// Zero voltage until the current has decayed: the next state's loop starts from
+    /// rest (its step response is then its design's).
+    Release,
+    Finished,
+}
+
+/// The identification's state: one per attempt.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Identifier {
+    cfg: IdentConfig,
+    stage: Stage,
+    status: IdentStatus,
+    /// Periods in the stage (or the pulse), and the stage's time.
+    k: u32,
+    stage_s: f32,
+    // Probe.
+    last_i: f32,
+    max_rise_a: f32,
+    l_bound_h: f32,
+    r_bound_ohm: f32,
+    /// The second level (A); the first is half of it.
+    level_target_a: f32,
+    // Levels.
+    pi: Pi,
+    v_alpha: f32,
+    sum_i: f32,
+    sum_v: f32,
+    last_mean_v: f32,
+    settled: u32,
+    level_v: [f32; 2],
+    level_a: [f32; 2],
+    r_ohm: f32,
+    // Ripple.
+    dv_v: f32,
+    ripple_sum: f32,
+    ld_h: f32,
+    /// Everything found, reported once the current has decayed.
+    found: Identified,
+}
+
+impl Identifier {
+    pub fn new(cfg: IdentConfig) -> Self {
+        Self {
+            cfg,
+            // A hundredth of a volt at first: below any dead-time voltage, so the first
+            // pulses measure nothing and the doubling finds the level from below.
+            stage: Stage::Probe {
+                volts: 0.01,
+                on: true,
+            },
+            status: IdentStatus::Pending,
+            k: 0,
+            stage_s: 0.0,
+            last_i: 0.0,
+            max_rise_a: 0.0,
+            l_bound_h: 0.0,
+            r_bound_ohm: 0.0,
+            level_target_a: 0.0,
+            pi: Pi::default(),
+            v_alpha: 0.0,
+            sum_i: 0.0,
+            sum_v: 0.0,
+            last_mean_v: f32::NAN,
+            settled: 0,
+            level_v: [0.0; 2],
+            level_a: [0.0; 2],
+            r_ohm: 0.0,
+            dv_v: 0.0,
+            ripple_sum: 0.0,
+            ld_h: 0.0,
+            found: Identified {
+                r_ohm: 0.0,
+                ld_h: 0.0,
+                lq_h: 0.0,
+                v_inverter_v: 0.0,
+            },
+        }
+    }
+
+    pub fn status(&self) -> IdentStatus {
+        self.status
+    }
+
+    fn fail(&mut self, e: IdentError) -> (f32, f32) {
+        self.status = IdentStatus::Failed(e);
+        self.stage = Stage::Finished;
+        (0.0, 0.0)
+    }
+
+    fn enter(&mut self, s: Stage) {
+        self.stage = s;
+        self.k = 0;
+        self.stage_s = 0.0;
+    }
+
+    /// One period: the measured αβ current of this period's sample (A) → the αβ voltage
+    /// for the next period (V). After the end, (0, 0).
+    pub fn step(&mut self, (i_alpha, i_beta): (f32, f32)) -> (f32, f32) {
+        let c = self.cfg;
+        if self.stage == Stage::Finished {
+            return (0.0, 0.0);
+        }
+        if !(i_alpha.is_finite() && i_beta.is_finite()) {
+            return self.fail(IdentError::OutOfRange);
+        }
+        if libm::fabsf(i_alpha) > c.i_limit_a || libm::fabsf(i_beta) > c.i_limit_a {
+            return self.fail(IdentError::OverCurrent);
+        }
+        self.stage_s += c.period_s;
+        if self.stage_s > STAGE_TIMEOUT_S {
+            return self.fail(IdentError::Unsettled);
+        }
+        self.k += 1;
+        match self.stage {
+            Stage::Probe { volts, on } => self.probe(volts, on, i_alpha, i_beta),
+            Stage::Level { index } => self.level(index, i_alpha),
+            Stage::Ripple { q, trial } => self.ripple(q, trial, if q { i_beta } else { i_alpha }),
+            Stage::Release => {
+                let rest = 0.02 * self.level_target_a;
+                if self.k >= 3 && libm::fabsf(i_alpha) < rest && libm::fabsf(i_beta) < rest {
+                    self.status = IdentStatus::Done(self.found);
+                    self.stage = Stage::Finished;
+                }
+                (0.0, 0.0)
+            }
+            Stage::Finished => (0.0, 0.0),
+        }
+    }
+
+    fn probe(&mut self, volts: f32, on: bool, i_alpha: f32, i_beta: f32) -> (f32, f32) {
+        let c = self.cfg;
+        // Commanded in periods 1..=ON, applied one period later each, seen in the
+        // samples 3..=ON+2 (a period's sample shows the voltage of the period before).
+        const ON: u32 = PROBE_ON_PERIODS;
+        let k = self.k;
+        let rise = i_alpha - self.last_i;
+        self.last_i = i_alpha;
+        if !on {
+            // Off until the pulse has passed and the current decayed.
+            if k >= 3 && libm::fabsf(i_alpha) < 0.02 * c.current_a {
+                if self.l_bound_h > 0.0 {
+                    self.start_levels();
+                    return (self.v_alpha, 0.0);
+                }
+                let volts = 2.0 * volts;
+                if volts > c.v_max_v {
+                    return self.fail(IdentError::CurrentNotReached);
+                }
+                self.max_rise_a = 0.0;
+                self.enter_keeping_time(Stage::Probe { volts, on: true });
+            }
+            return (0.0, 0.0);
+        }
+        if k >= 3 {
+            self.max_rise_a = mras::max_f32(self.max_rise_a, rise);
+        }
+        let magnitude = libm::sqrtf(i_alpha * i_alpha + i_beta * i_beta);
+        let reached = magnitude >= 0.5 * c.current_a;
+        if reached || k >= ON + 2 {
+            if magnitude >= 0.25 * c.current_a && i_alpha < 0.8 * magnitude {
+                return self.fail(IdentError::CurrentSign);
+            }
+            if reached && self.max_rise_a > 0.0 {
+                // Both bounds from above: the inverter's error and R·i only lower the
+                // rise and the current.
+                self.l_bound_h = volts * c.period_s / self.max_rise_a;
+                self.r_bound_ohm = volts / i_alpha;
+                // The levels clear the band the PWM ripple makes a phase current cross
+                // zero in (its inverter error is not yet the full one there): the
+                // smaller phases carry half the level, and the ripple is of the order
+                // of a period's rise at this voltage.
+                // Within the current limit and, by the R bound, the voltage.
+                let low = mras::max_f32(0.5 * c.current_a, 4.0 * self.max_rise_a);
+                let high = mras::min_f32(0.8 * c.i_limit_a, 0.7 * c.v_max_v / self.r_bound_ohm);
+                self.level_target_a = mras::min_f32(2.0 * low, high);
+            }
+            self.enter_keeping_time(Stage::Probe { volts, on: false });
+            return (0.0, 0.0);
+        }
+        (if k <= ON { volts } else { 0.0 }, 0.0)
+    }
+
+    /// A new pulse or its decay: the stage's time goes on.
+    fn enter_keeping_time(&mut self, s: Stage) {
+        self.stage = s;
+        self.k = 0;
+    }
+
+    fn start_levels(&mut self) {
+        let wc = core::f32::consts::TAU * LEVEL_BANDWIDTH_HZ;
+        self.pi = Pi {
+            kp: self.l_bound_h * wc,
+            ki: self.r_bound_ohm * wc,
+            integral: 0.0,
+        };
+        self.v_alpha = 0.0;
+        self.reset_window();
+        self.enter(Stage::Level { index: 0 });
+    }
+
+    fn reset_window(&mut self) {
+        self.sum_i = 0.0;
+        self.sum_v = 0.0;
+        self.last_mean_v = f32::NAN;
+        self.settled = 0;
+    }
+
+    fn level(&mut self, index: u8, i_alpha: f32) -> (f32, f32) {
+        let c = self.cfg;
+        let target = if index == 0 { 0.5 } else { 1.0 } * self.level_target_a;
+        // The mean of what was commanded against what was measured: in steady state
+        // both are the period's.
+        self.sum_i += i_alpha;
+        self.sum_v += self.v_alpha;
+        if self.k % WINDOW_PERIODS == 0 {
+            let n = WINDOW_PERIODS as f32;
+            let (mean_i, mean_v) = (self.sum_i / n, self.sum_v / n);
+            self.sum_i = 0.0;
+            self.sum_v = 0.0;
+            let steady = libm::fabsf(mean_i - target) <= 0.01 * target
+                && libm::fabsf(mean_v - self.last_mean_v) <= 2e-3 * libm::fabsf(mean_v) + 1e-3;
+            self.settled = if steady { self.settled + 1 } else { 0 };
+            self.last_mean_v = mean_v;
+            if self.settled >= SETTLED_WINDOWS {
+                // Constant indices: no bounds check in the control interrupt.
+                if index == 0 {
+                    self.level_v[0] = mean_v;
+                    self.level_a[0] = mean_i;
+                    self.reset_window();
+                    self.enter(Stage::Level { index: 1 });
+                } else {
+                    self.level_v[1] = mean_v;
+                    self.level_a[1] = mean_i;
+                    return self.finish_levels();
+                }
+            }
+        }
+        let unlimited = self.pi.step(target - i_alpha, c.period_s, false);
+        let v = mras::min_f32(mras::max_f32(unlimited, -c.v_max_v), c.v_max_v);
+        if v != unlimited {
+            // Anti-windup: the integrator holds what the limit allows.
+            self.pi.integral = v - self.pi.kp * (target - i_alpha);
+        }
+        self.v_alpha = v;
+        (v, 0.0)
+    }
+
+    fn finish_levels(&mut self) -> (f32, f32) {
+        let di = self.level_a[1] - self.level_a[0];
+        let r = (self.level_v[1] - self.level_v[0]) / di;
+        if !(r.is_finite() && r > R_RANGE_OHM.0 && r < R_RANGE_OHM.1) {
+            return self.fail(IdentError::OutOfRange);
+        }
+        self.r_ohm = r;
+        self.v_alpha = self.level_v[1];
+        // A trial ΔV from the L bound: at most the aimed ripple (the bound is high).
+        self.dv_v = RIPPLE_TARGET * self.level_target_a * self.l_bound_h / self.cfg.period_s;
+        self.dv_v = mras::min_f32(self.dv_v, self.ripple_room()) / 4.0;
+        self.ripple_sum = 0.0;
+        self.enter(Stage::Ripple {
+            q: false,
+            trial: true,
+        });
+        (self.v_alpha, 0.0)
+    }
+
+    /// The largest ΔV that keeps the voltage within the limit on either axis.
+    fn ripple_room(&self) -> f32 {
+        mras::max_f32(self.cfg.v_max_v - libm::fabsf(self.v_alpha), 0.0)
+    }
+
+    fn ripple(&mut self, q: bool, trial: bool, i_axis: f32) -> (f32, f32) {
+        let n = if trial {
+            RIPPLE_TRIAL_PERIODS
+        } else {
+            RIPPLE_PERIODS
+        };
+        // Alternating differences: the zig-zag adds up, a slow drift cancels.
+        if self.k > RIPPLE_SKIP + 1 {
+            let sign = if self.k & 1 == 0 { 1.0 } else { -1.0 };
+            self.ripple_sum += sign * (i_axis - self.last_i);
+        }
+        self.last_i = i_axis;
+        if self.k > RIPPLE_SKIP + 1 + n {
+            let d = libm::fabsf(self.ripple_sum) / n as f32;
+            self.ripple_sum = 0.0;
+            if trial {
+                // Size ΔV for the aimed ripple (at most 8x the trial, within the limit).
+                let want = RIPPLE_TARGET * self.level_target_a;
+                let scale = if d > 0.0 { want / d } else { 8.0 };
+                self.dv_v =
+                    mras::min_f32(self.dv_v * mras::min_f32(scale, 8.0), self.ripple_room());
+                self.enter(Stage::Ripple { q, trial: false });
+            } else {
+                let Some(l) = self.inductance(d) else {
+                    return self.fail(IdentError::OutOfRange);
+                };
+                if q {
+                    self.found = Identified {
+                        r_ohm: self.r_ohm,
+                        ld_h: self.ld_h,
+                        lq_h: l,
+                        v_inverter_v: self.level_v[1] - self.r_ohm * self.level_a[1],
+                    };
+                    self.enter(Stage::Release);
+                    return (0.0, 0.0);
+                }
+                self.ld_h = l;
+                self.dv_v /= 4.0;
+                self.enter(Stage::Ripple {
+                    q: true,
+                    trial: true,
+                });
+            }
+            return (self.v_alpha, 0.0);
+        }
+        let dv = if self.k & 1 == 0 {
+            self.dv_v
+        } else {
+            -self.dv_v
+        };
+        if q {
+            (self.v_alpha, dv)
+        } else {
+            (self.v_alpha + dv, 0.0)
+        }
+    }
+
+    /// L from the peak-to-peak ripple `d` of ±ΔV: `x = R·d/(2ΔV) = (1-a)/(1+a)`,
+    /// `a = exp(-R·T/L)`.
+    fn inductance(&self, d: f32) -> Option<f32> {
+        let x = self.r_ohm * d / (2.0 * self.dv_v);
+        if !(x > 0.0 && x < 1.0) {
+            return None;
+        }
+        let a = (1.0 - x) / (1.0 + x);
+        let l = -self.r_ohm * self.cfg.period_s / libm::logf(a);
+        (l.is_finite() && l > L_RANGE_H.0 && l < L_RANGE_H.1).then_some(l)
+    }
+}
