@@ -46,7 +46,7 @@ pub struct Generator {
     run: fn() -> Result<Sections>,
 }
 
-pub const GENERATORS: [Generator; 6] = [
+pub const GENERATORS: [Generator; 7] = [
     Generator {
         name: "scenarios",
         sections: &["scenarios", "scenarios-ci", "scenarios-summary"],
@@ -58,6 +58,12 @@ pub const GENERATORS: [Generator; 6] = [
         sections: &["commissioning"],
         in_ci: true,
         run: commissioning,
+    },
+    Generator {
+        name: "identification",
+        sections: &["identification"],
+        in_ci: true,
+        run: identification,
     },
     Generator {
         name: "laws",
@@ -493,6 +499,95 @@ fn commissioning() -> Result<Sections> {
 }
 
 // ---- the kinematic studies ----
+
+/// The random motors of [`crate::identification`], each commissioned from the
+/// firmware's nominal R and L: what was found against the plant, the current loop's
+/// step, the time Identify took and the spatial error in Run.
+fn identification() -> Result<Sections> {
+    use crate::identification::{commission, population, Draw, MOTORS, SEED};
+    use drive::commissioning::State;
+    use rayon::prelude::*;
+    let sc = Scenario::load("commissioning")?;
+    let design_hz = sc.file.control.current_bandwidth_hz;
+    let mut runs: Vec<_> = population(MOTORS, SEED, sc.sample_period_s())
+        .into_par_iter()
+        .map(|d| commission(&sc, d))
+        .collect::<Result<_>>()?;
+    runs.sort_by(|a, b| a.draw.l_h.total_cmp(&b.draw.l_h));
+    let nominal = commission(
+        &sc,
+        Draw {
+            r_ohm: board_map::motor::R_OHM as f64,
+            l_h: board_map::motor::L_H as f64,
+            dead_time_s: 0.5e-6,
+            device_drop_v: 0.1,
+        },
+    )?;
+    let pct = |found: f32, truth: f64| format!("{:+.2} %", 100.0 * (found as f64 / truth - 1.0));
+    let mut s = String::from(
+        "| R (Ω) | L (µH) | dead time (ns) | device drop (V) | end state | R found | Ld found | Lq found | current loop (Hz) | Identify (s) | Run: θ̂ spatial error (mrad pk-pk) |\n|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|\n",
+    );
+    let mut worst = [0f64; 3];
+    let (mut bw_lo, mut bw_hi) = (f64::INFINITY, 0f64);
+    let mut in_run = 0;
+    for o in &runs {
+        let (d, b) = (o.draw, &o.boot);
+        in_run += (b.final_state == State::Run) as usize;
+        let found = b.identified();
+        let cell = |f: &dyn Fn(&drive::ident::Identified) -> (f32, f64)| {
+            found.as_ref().map_or("—".to_string(), |x| {
+                let (v, t) = f(x);
+                pct(v, t)
+            })
+        };
+        if let Some(x) = &found {
+            for (w, e) in worst.iter_mut().zip([
+                x.r_ohm as f64 / d.r_ohm,
+                x.ld_h as f64 / d.l_h,
+                x.lq_h as f64 / d.l_h,
+            ]) {
+                *w = w.max((e - 1.0).abs());
+            }
+        }
+        let bw = o.loop_bandwidth_hz();
+        if let Some(f) = bw {
+            (bw_lo, bw_hi) = (bw_lo.min(f), bw_hi.max(f));
+        }
+        let identify_s = b
+            .entered(State::Align)
+            .zip(b.entered(State::Identify))
+            .map_or("—".to_string(), |(a, i)| format!("{:.3}", a - i));
+        let _ = writeln!(
+            s,
+            "| {:.3} | {:.1} | {:.0} | {:.2} | {} | {} | {} | {} | {} | {identify_s} | {} |",
+            d.r_ohm,
+            1e6 * d.l_h,
+            1e9 * d.dead_time_s,
+            d.device_drop_v,
+            b.final_state.name(),
+            cell(&|x| (x.r_ohm, d.r_ohm)),
+            cell(&|x| (x.ld_h, d.l_h)),
+            cell(&|x| (x.lq_h, d.l_h)),
+            bw.map_or("—".to_string(), |f| format!("{f:.0}")),
+            b.run.as_ref().map_or("—".to_string(), |r| format!(
+                "{:.4}",
+                r.estimate_pk_pk_mrad
+            )),
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\n{in_run} of {} motors to Run. Worst error: R {:.2} %, Ld {:.2} %, Lq {:.2} %. The current loop, designed for {design_hz:.0} Hz, steps at {bw_lo:.0}-{bw_hi:.0} Hz (the firmware's nominal motor: {}).",
+        runs.len(),
+        100.0 * worst[0],
+        100.0 * worst[1],
+        100.0 * worst[2],
+        nominal
+            .loop_bandwidth_hz()
+            .map_or("—".to_string(), |f| format!("{f:.0} Hz"))
+    );
+    Ok(vec![("identification", s)])
+}
 
 fn laws() -> Result<Sections> {
     const REVS: u32 = 30;

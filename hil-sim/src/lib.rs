@@ -11,6 +11,7 @@ pub mod exact;
 pub(crate) mod figure;
 pub mod figures;
 pub mod front_end;
+pub mod identification;
 pub mod input_error;
 pub(crate) mod pending;
 pub mod plant;

@@ -5,123 +5,39 @@
 
 use calib_record::RamFlash;
 use drive::commissioning::State;
+use hil_sim::identification::{commission, population, Draw, MOTORS, SEED};
 use hil_sim::power_up;
 use hil_sim::rig::SimFlash;
 use hil_sim::scenario::Scenario;
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
-
-/// A motor of the population: R and L log-uniform over the ratings, the inverter's dead
-/// time and device drop uniform.
-#[derive(Clone, Copy, Debug)]
-struct Draw {
-    r_ohm: f64,
-    l_h: f64,
-    dead_time_s: f64,
-    device_drop_v: f64,
-}
-
-fn log_uniform(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
-    (rng.random_range(lo.ln()..hi.ln())).exp()
-}
-
-/// R 0.05-2 Ω, L 20 µH-2 mH with L/R at least two control periods (below that the
-/// current follows each period's voltage within the period: the samples hardly see L,
-/// and the loop needs only R), dead time 0.1-1 µs, drop 0-0.3 V.
-fn population(n: usize, seed: u64, period_s: f64) -> Vec<Draw> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut v = Vec::new();
-    while v.len() < n {
-        let r_ohm = log_uniform(&mut rng, 0.05, 2.0);
-        let l_h = log_uniform(&mut rng, 20e-6, 2e-3);
-        let dead_time_s = rng.random_range(0.1e-6..1.0e-6);
-        let device_drop_v = rng.random_range(0.0..0.3);
-        if l_h / r_ohm >= 2.0 * period_s {
-            v.push(Draw {
-                r_ohm,
-                l_h,
-                dead_time_s,
-                device_drop_v,
-            });
-        }
-    }
-    v
-}
-
-struct Outcome {
-    draw: Draw,
-    boot: power_up::Boot,
-    /// The d current's step at Align's start, measured at the plant: the time to 63.2 %
-    /// of its final value from the first period in Align (interpolated between periods).
-    t63_s: Option<f64>,
-}
-
-fn commission(sc: &Scenario, d: Draw) -> Outcome {
-    let mut sc = sc.clone();
-    // The alignment's d-current step is the current loop's step response: 2 A keeps it
-    // linear on every motor (at 4 A the largest L would ask for more than the voltage
-    // limit in its first period).
-    if let Some(c) = sc.file.commissioning.as_mut() {
-        c.align_current_a = Some(2.0);
-    }
-    let m = &mut sc.file.motor;
-    m.r_ohm = d.r_ohm;
-    m.l_h = d.l_h;
-    m.dead_time_s = d.dead_time_s;
-    m.device_drop_v = d.device_drop_v;
-    let mut rig = power_up::rig(&sc, SimFlash::new(RamFlash::default()), sc.file.seed).unwrap();
-    // The α current (the alignment's d axis) over Align's first 2 ms.
-    let mut trace: Vec<(f64, f64)> = Vec::new();
-    let mut hook = |rig: &mut hil_sim::rig::Rig, s: &hil_sim::rig::Step| {
-        if rig.supervisor().map(|x| x.state()) == Some(State::Align) && trace.len() < 40 {
-            trace.push((s.truth.t_s, rig.plant.currents_ab()[0]));
-        }
-    };
-    let boot = power_up::run_boot(&mut rig, &sc, 3.5, Some(&mut hook));
-    let mut t63_s = None;
-    if trace.len() == 40 {
-        let last = trace[30..].iter().map(|(_, i)| i).sum::<f64>() / 10.0;
-        // Linear between the samples around a crossing.
-        let crossing = |share: f64| {
-            let level = share * last;
-            trace.windows(2).find(|w| w[1].1 >= level).map(|w| {
-                let ((t0, i0), (t1, i1)) = (w[0], w[1]);
-                t0 + (t1 - t0) * ((level - i0) / (i1 - i0)).clamp(0.0, 1.0)
-            })
-        };
-        t63_s = crossing(0.632).map(|t| t - trace[0].0);
-    }
-    Outcome {
-        draw: d,
-        boot,
-        t63_s,
-    }
-}
 
 #[test]
 fn twenty_random_motors_are_identified_and_commissioned() {
     let sc = Scenario::load("commissioning").unwrap();
     let period_s = sc.sample_period_s();
     let design_hz = sc.file.control.current_bandwidth_hz;
-    let draws = population(20, 30, period_s);
+    let draws = population(MOTORS, SEED, period_s);
     // For reference: the same on the firmware's nominal motor.
     let nominal = commission(
         &sc,
         Draw {
-            r_ohm: board_map_r(),
-            l_h: board_map_l(),
+            r_ohm: board_map::motor::R_OHM as f64,
+            l_h: board_map::motor::L_H as f64,
             dead_time_s: 0.5e-6,
             device_drop_v: 0.1,
         },
-    );
+    )
+    .unwrap();
     let reference_s = nominal.t63_s.unwrap();
     eprintln!(
         "nominal motor: d-current step to 63.2 % in {:.1} us from the command ({:.0} Hz; design {design_hz:.0} Hz)",
         1e6 * reference_s,
         1.0 / (std::f64::consts::TAU * reference_s)
     );
-    let mut outcomes: Vec<Outcome> = draws.par_iter().map(|&d| commission(&sc, d)).collect();
+    let mut outcomes: Vec<_> = draws
+        .par_iter()
+        .map(|&d| commission(&sc, d).unwrap())
+        .collect();
     outcomes.sort_by(|a, b| a.draw.l_h.total_cmp(&b.draw.l_h));
     let mut worst = [0f64; 4];
     for o in &outcomes {
@@ -189,14 +105,6 @@ fn twenty_random_motors_are_identified_and_commissioned() {
         100.0 * worst[2],
         100.0 * worst[3]
     );
-}
-
-fn board_map_r() -> f64 {
-    board_map::motor::R_OHM as f64
-}
-
-fn board_map_l() -> f64 {
-    board_map::motor::L_H as f64
 }
 
 /// Outside the ratings: a winding the bridge cannot drive the identification's current

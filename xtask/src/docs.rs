@@ -48,7 +48,7 @@ struct Generator {
     in_ci: InCi,
 }
 
-const GENERATORS: [Generator; 11] = [
+const GENERATORS: [Generator; 12] = [
     Generator {
         name: "size",
         command: "cargo xtask size",
@@ -95,6 +95,13 @@ const GENERATORS: [Generator; 11] = [
         name: "commissioning",
         command: "cargo xtask docs commissioning",
         sections: &["commissioning"],
+        data: &[],
+        in_ci: InCi::Rerun,
+    },
+    Generator {
+        name: "identification",
+        command: "cargo xtask docs identification",
+        sections: &["identification"],
         data: &[],
         in_ci: InCi::Rerun,
     },

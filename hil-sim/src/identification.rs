@@ -1,0 +1,111 @@
+//! The motor identification across the drive's ratings: random motors behind an
+//! inverter with dead time and device drops, each commissioned by the firmware's
+//! supervisor from the firmware's nominal R and L (`tests/identification.rs` asserts on
+//! it, `hil-sim figures identification` publishes it).
+
+use crate::power_up::{self, Boot};
+use crate::rig::{Rig, SimFlash, Step};
+use crate::scenario::Scenario;
+use anyhow::Result;
+use calib_record::RamFlash;
+use drive::commissioning::State;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// A motor of the population.
+#[derive(Clone, Copy, Debug)]
+pub struct Draw {
+    pub r_ohm: f64,
+    pub l_h: f64,
+    pub dead_time_s: f64,
+    pub device_drop_v: f64,
+}
+
+/// The population's seed and size.
+pub const SEED: u64 = 30;
+pub const MOTORS: usize = 20;
+
+/// `n` motors: R 0.05-2 Ω and L 20 µH-2 mH log-uniform, with L/R at least two control
+/// periods (below that the current follows each period's voltage within the period: the
+/// samples hardly see L, and the loop needs only R); dead time 0.1-1 µs and device drop
+/// 0-0.3 V uniform.
+pub fn population(n: usize, seed: u64, period_s: f64) -> Vec<Draw> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let log_uniform =
+        |rng: &mut ChaCha8Rng, lo: f64, hi: f64| rng.random_range(f64::ln(lo)..f64::ln(hi)).exp();
+    let mut v = Vec::new();
+    while v.len() < n {
+        let r_ohm = log_uniform(&mut rng, 0.05, 2.0);
+        let l_h = log_uniform(&mut rng, 20e-6, 2e-3);
+        let dead_time_s = rng.random_range(0.1e-6..1.0e-6);
+        let device_drop_v = rng.random_range(0.0..0.3);
+        if l_h / r_ohm >= 2.0 * period_s {
+            v.push(Draw {
+                r_ohm,
+                l_h,
+                dead_time_s,
+                device_drop_v,
+            });
+        }
+    }
+    v
+}
+
+/// One motor's power-up.
+pub struct Outcome {
+    pub draw: Draw,
+    pub boot: Boot,
+    /// The d current's step at Align's start, measured at the plant: the time to 63.2 %
+    /// of its final value from the first period in Align (interpolated between periods).
+    pub t63_s: Option<f64>,
+}
+
+impl Outcome {
+    /// The current loop's bandwidth as its step shows it (Hz): 1/(2π·t63).
+    pub fn loop_bandwidth_hz(&self) -> Option<f64> {
+        self.t63_s.map(|t| 1.0 / (std::f64::consts::TAU * t))
+    }
+}
+
+/// The alignment's d-current step is the current loop's step response: this level
+/// keeps it linear on every motor (at the scenario's 4 A the largest L would ask for
+/// more than the voltage limit in its first period).
+pub const STEP_A: f64 = 2.0;
+
+/// `sc` (the `commissioning` scenario) on motor `d`, from an erased flash, 3.5 s.
+pub fn commission(sc: &Scenario, d: Draw) -> Result<Outcome> {
+    let mut sc = sc.clone();
+    if let Some(c) = sc.file.commissioning.as_mut() {
+        c.align_current_a = Some(STEP_A);
+    }
+    let m = &mut sc.file.motor;
+    m.r_ohm = d.r_ohm;
+    m.l_h = d.l_h;
+    m.dead_time_s = d.dead_time_s;
+    m.device_drop_v = d.device_drop_v;
+    let mut rig = power_up::rig(&sc, SimFlash::new(RamFlash::default()), sc.file.seed)?;
+    // The α current (the alignment's d axis) over Align's first 2 ms.
+    const TRACE: usize = 40;
+    let mut trace: Vec<(f64, f64)> = Vec::new();
+    let mut hook = |rig: &mut Rig, s: &Step| {
+        if rig.supervisor().map(|x| x.state()) == Some(State::Align) && trace.len() < TRACE {
+            trace.push((s.truth.t_s, rig.plant.currents_ab()[0]));
+        }
+    };
+    let boot = power_up::run_boot(&mut rig, &sc, 3.5, Some(&mut hook));
+    let mut t63_s = None;
+    if let (true, Some(&(t0, _))) = (trace.len() == TRACE, trace.first()) {
+        let tail = &trace[TRACE - 10..];
+        let last = tail.iter().map(|(_, i)| i).sum::<f64>() / tail.len() as f64;
+        let level = 0.632 * last;
+        t63_s = trace.windows(2).find(|w| w[1].1 >= level).map(|w| {
+            let ((ta, ia), (tb, ib)) = (w[0], w[1]);
+            ta + (tb - ta) * ((level - ia) / (ib - ia)).clamp(0.0, 1.0) - t0
+        });
+    }
+    Ok(Outcome {
+        draw: d,
+        boot,
+        t63_s,
+    })
+}
