@@ -504,7 +504,7 @@ fn commissioning() -> Result<Sections> {
 /// firmware's nominal R and L: what was found against the plant, the current loop's
 /// step, the time Identify took and the spatial error in Run.
 fn identification() -> Result<Sections> {
-    use crate::identification::{commission, population, Draw, MOTORS, SEED};
+    use crate::identification::{commission, nominal, population, MOTORS, SEED};
     use drive::commissioning::State;
     use rayon::prelude::*;
     let sc = Scenario::load("commissioning")?;
@@ -514,15 +514,7 @@ fn identification() -> Result<Sections> {
         .map(|d| commission(&sc, d))
         .collect::<Result<_>>()?;
     runs.sort_by(|a, b| a.draw.l_h.total_cmp(&b.draw.l_h));
-    let nominal = commission(
-        &sc,
-        Draw {
-            r_ohm: board_map::motor::R_OHM as f64,
-            l_h: board_map::motor::L_H as f64,
-            dead_time_s: 0.5e-6,
-            device_drop_v: 0.1,
-        },
-    )?;
+    let nominal = commission(&sc, nominal())?;
     let pct = |found: f32, truth: f64| format!("{:+.2} %", 100.0 * (found as f64 / truth - 1.0));
     let mut s = String::from(
         "| R (Ω) | L (µH) | dead time (ns) | device drop (V) | end state | R found | Ld found | Lq found | current loop (Hz) | Identify (s) | Run: θ̂ spatial error (mrad pk-pk) |\n|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|\n",

@@ -21,6 +21,17 @@ pub struct Draw {
     pub device_drop_v: f64,
 }
 
+/// The firmware's nominal motor (`board_map::motor`) behind a typical inverter: the
+/// reference the population's current loops are compared with.
+pub fn nominal() -> Draw {
+    Draw {
+        r_ohm: board_map::motor::R_OHM as f64,
+        l_h: board_map::motor::L_H as f64,
+        dead_time_s: 0.5e-6,
+        device_drop_v: 0.1,
+    }
+}
+
 /// The population's seed and size.
 pub const SEED: u64 = 30;
 pub const MOTORS: usize = 20;

@@ -5,7 +5,7 @@
 
 use calib_record::RamFlash;
 use drive::commissioning::State;
-use hil_sim::identification::{commission, population, Draw, MOTORS, SEED};
+use hil_sim::identification::{commission, nominal, population, MOTORS, SEED};
 use hil_sim::power_up;
 use hil_sim::rig::SimFlash;
 use hil_sim::scenario::Scenario;
@@ -18,16 +18,7 @@ fn twenty_random_motors_are_identified_and_commissioned() {
     let design_hz = sc.file.control.current_bandwidth_hz;
     let draws = population(MOTORS, SEED, period_s);
     // For reference: the same on the firmware's nominal motor.
-    let nominal = commission(
-        &sc,
-        Draw {
-            r_ohm: board_map::motor::R_OHM as f64,
-            l_h: board_map::motor::L_H as f64,
-            dead_time_s: 0.5e-6,
-            device_drop_v: 0.1,
-        },
-    )
-    .unwrap();
+    let nominal = commission(&sc, nominal()).unwrap();
     let reference_s = nominal.t63_s.unwrap();
     eprintln!(
         "nominal motor: d-current step to 63.2 % in {:.1} us from the command ({:.0} Hz; design {design_hz:.0} Hz)",
