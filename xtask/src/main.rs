@@ -21,7 +21,8 @@ const CORE_CRATES: &[&str] = &["mras", "mras-sim", "drive", "calib-record"];
 pub(crate) const FIRMWARE: &str = "drive-fw";
 /// The emulator image of the core (target only, built by `xtask qemu`).
 const QEMU_IMAGE: &str = "mras-qemu";
-/// The firmware-in-the-loop emulator (GPL-2.0, links Unicorn); its tests run in release.
+/// The firmware-in-the-loop emulator (GPL-2.0, links Unicorn); its tests run in the
+/// host profile ([`HOST_PROFILE`]).
 pub(crate) const EMULATOR: &str = "drive-emu";
 /// Budgets of the size report: growth is a decision, not an accident. The part has
 /// 256 KiB in the bank the code runs from (memory.x); 96 KiB leaves room for the
@@ -165,6 +166,10 @@ pub(crate) fn root() -> PathBuf {
     .clone()
 }
 
+/// The cargo profile of every host build `cargo xtask` makes (Cargo.toml): one build
+/// serves the host tests, the simulator and the emulator.
+pub(crate) const HOST_PROFILE: &str = "host";
+
 /// The release firmware ELF the cross build writes (and `cargo xtask flash` flashes).
 pub(crate) fn release_elf() -> PathBuf {
     root()
@@ -223,6 +228,8 @@ fn test_host() -> Result<()> {
     let mut c = cargo();
     c.args([
         "test",
+        "--profile",
+        HOST_PROFILE,
         "--workspace",
         "--exclude",
         FIRMWARE,
@@ -362,7 +369,15 @@ fn emu(args: &[&str], extra: &[String]) -> Result<()> {
     emu_setup()?;
     run(cross_build(FIRMWARE))?;
     let mut c = cargo();
-    c.args(["run", "--release", "--locked", "-p", EMULATOR, "--"]);
+    c.args([
+        "run",
+        "--profile",
+        HOST_PROFILE,
+        "--locked",
+        "-p",
+        EMULATOR,
+        "--",
+    ]);
     c.args(args);
     c.args(extra);
     run(c)
@@ -435,7 +450,16 @@ fn perf(report: Option<&Path>) -> Result<()> {
     }
     builds.reverse();
     let mut c = cargo();
-    c.args(["run", "--release", "--locked", "-p", EMULATOR, "--", "perf"]);
+    c.args([
+        "run",
+        "--profile",
+        HOST_PROFILE,
+        "--locked",
+        "-p",
+        EMULATOR,
+        "--",
+        "perf",
+    ]);
     for (board, b) in &builds {
         c.arg(board).arg(b);
     }
@@ -487,7 +511,14 @@ fn ci() -> Result<()> {
     // ConfigMismatch).
     other_configs_aside()?;
     let mut c = cargo();
-    c.args(["test", "--release", "--locked", "-p", EMULATOR]);
+    c.args([
+        "test",
+        "--profile",
+        HOST_PROFILE,
+        "--locked",
+        "-p",
+        EMULATOR,
+    ]);
     run(c)?;
     // The same tests fail on firmware broken on purpose: the checks can fail.
     mutants::check()?;
@@ -506,10 +537,19 @@ fn bench_accuracy(extra: &[String]) -> Result<()> {
     run(hil_sim(&args))
 }
 
-/// `cargo run --release -p hil-sim -- <args>`.
+/// `cargo run --profile host -p hil-sim -- <args>`.
 pub(crate) fn hil_sim(args: &[&str]) -> Command {
     let mut c = cargo();
-    c.args(["run", "--locked", "--release", "-q", "-p", "hil-sim", "--"]);
+    c.args([
+        "run",
+        "--locked",
+        "--profile",
+        HOST_PROFILE,
+        "-q",
+        "-p",
+        "hil-sim",
+        "--",
+    ]);
     c.args(args);
     c
 }
