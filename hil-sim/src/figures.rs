@@ -61,7 +61,7 @@ pub const GENERATORS: [Generator; 7] = [
     },
     Generator {
         name: "identification",
-        sections: &["identification"],
+        sections: &["identification", "identification-without"],
         in_ci: true,
         run: identification,
     },
@@ -501,45 +501,35 @@ fn commissioning() -> Result<Sections> {
 // ---- the kinematic studies ----
 
 /// The random motors of [`crate::identification`], each commissioned from the
-/// firmware's nominal R and L: what was found against the plant, the current loop's
-/// step, the time Identify took and the spatial error in Run.
+/// firmware's nominal motor: what was found against the plant, the current loop's step,
+/// the time Identify took, when Run came and the spatial error in Run.
 fn identification() -> Result<Sections> {
-    use crate::identification::{commission, nominal, population, MOTORS, SEED};
+    use crate::identification::{
+        commission, commission_as, nominal, population, Errors, MOTORS, SEED,
+    };
     use drive::commissioning::State;
     use rayon::prelude::*;
     let sc = Scenario::load("commissioning")?;
     let design_hz = sc.file.control.current_bandwidth_hz;
-    let mut runs: Vec<_> = population(MOTORS, SEED, sc.sample_period_s())
+    let mut runs: Vec<_> = population(MOTORS, SEED, sc.sample_period_s(), sc.file.motor.pole_pairs)
         .into_par_iter()
         .map(|d| commission(&sc, d))
         .collect::<Result<_>>()?;
     runs.sort_by(|a, b| a.draw.l_h.total_cmp(&b.draw.l_h));
-    let nominal = commission(&sc, nominal())?;
-    let pct = |found: f32, truth: f64| format!("{:+.2} %", 100.0 * (found as f64 / truth - 1.0));
+    let nominal_run = commission(&sc, nominal())?;
+    let pct = |e: Option<f64>| e.map_or("—".to_string(), |e| format!("{:+.2} %", 100.0 * e));
     let mut s = String::from(
-        "| R (Ω) | L (µH) | dead time (ns) | device drop (V) | end state | R found | Ld found | Lq found | current loop (Hz) | Identify (s) | Run: θ̂ spatial error (mrad pk-pk) |\n|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|\n",
+        "| R (Ω) | L (µH) | ψ (mWb) | J (kg·m²) | dead time (ns) | device drop (V) | end state | R found | Ld found | Lq found | ψ found | J found | current loop (Hz) | Identify (s) | Run at (s) | Run: θ̂ spatial error (mrad pk-pk) |\n|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
-    let mut worst = [0f64; 3];
+    let mut worst = Errors::default();
     let (mut bw_lo, mut bw_hi) = (f64::INFINITY, 0f64);
     let mut in_run = 0;
     for o in &runs {
         let (d, b) = (o.draw, &o.boot);
         in_run += (b.final_state == State::Run) as usize;
-        let found = b.identified();
-        let cell = |f: &dyn Fn(&drive::ident::Identified) -> (f32, f64)| {
-            found.as_ref().map_or("—".to_string(), |x| {
-                let (v, t) = f(x);
-                pct(v, t)
-            })
-        };
-        if let Some(x) = &found {
-            for (w, e) in worst.iter_mut().zip([
-                x.r_ohm as f64 / d.r_ohm,
-                x.ld_h as f64 / d.l_h,
-                x.lq_h as f64 / d.l_h,
-            ]) {
-                *w = w.max((e - 1.0).abs());
-            }
+        let e = o.errors();
+        if let Some(e) = e {
+            worst = worst.worst(e);
         }
         let bw = o.loop_bandwidth_hz();
         if let Some(f) = bw {
@@ -549,17 +539,24 @@ fn identification() -> Result<Sections> {
             .entered(State::Align)
             .zip(b.entered(State::Identify))
             .map_or("—".to_string(), |(a, i)| format!("{:.3}", a - i));
+        let run_s = b
+            .entered(State::Run)
+            .map_or("—".to_string(), |t| format!("{t:.2}"));
         let _ = writeln!(
             s,
-            "| {:.3} | {:.1} | {:.0} | {:.2} | {} | {} | {} | {} | {} | {identify_s} | {} |",
+            "| {:.3} | {:.1} | {:.1} | {:.2e} | {:.0} | {:.2} | {} | {} | {} | {} | {} | {} | {} | {identify_s} | {run_s} | {} |",
             d.r_ohm,
             1e6 * d.l_h,
+            1e3 * d.flux_wb,
+            d.j_kg_m2,
             1e9 * d.dead_time_s,
             d.device_drop_v,
             b.final_state.name(),
-            cell(&|x| (x.r_ohm, d.r_ohm)),
-            cell(&|x| (x.ld_h, d.l_h)),
-            cell(&|x| (x.lq_h, d.l_h)),
+            pct(e.map(|e| e.r)),
+            pct(e.map(|e| e.ld)),
+            pct(e.map(|e| e.lq)),
+            pct(e.and_then(|e| e.flux)),
+            pct(e.and_then(|e| e.inertia)),
             bw.map_or("—".to_string(), |f| format!("{f:.0}")),
             b.run.as_ref().map_or("—".to_string(), |r| format!(
                 "{:.4}",
@@ -569,16 +566,93 @@ fn identification() -> Result<Sections> {
     }
     let _ = writeln!(
         s,
-        "\n{in_run} of {} motors to Run. Worst error: R {:.2} %, Ld {:.2} %, Lq {:.2} %. The current loop, designed for {design_hz:.0} Hz, steps at {bw_lo:.0}-{bw_hi:.0} Hz (the firmware's nominal motor: {}).",
+        "\n{in_run} of {} motors to Run. Worst error: R {:.2} %, Ld {:.2} %, Lq {:.2} %, ψ {}, J {}. The current loop, designed for {design_hz:.0} Hz, steps at {bw_lo:.0}-{bw_hi:.0} Hz (the firmware's nominal motor: {}).",
         runs.len(),
-        100.0 * worst[0],
-        100.0 * worst[1],
-        100.0 * worst[2],
-        nominal
+        100.0 * worst.r,
+        100.0 * worst.ld,
+        100.0 * worst.lq,
+        pct(worst.flux).trim_start_matches('+'),
+        pct(worst.inertia).trim_start_matches('+'),
+        nominal_run
             .loop_bandwidth_hz()
             .map_or("—".to_string(), |f| format!("{f:.0} Hz"))
     );
-    Ok(vec![("identification", s)])
+    // The reason for it: the firmware before it identified its motor, on the smallest L
+    // and on the largest J of the population.
+    let smallest_l = runs.first().map(|o| o.draw);
+    let largest_j = runs
+        .iter()
+        .map(|o| o.draw)
+        .max_by(|a, b| a.j_kg_m2.total_cmp(&b.j_kg_m2));
+    let mut without = String::from(
+        "| motor | R (Ω) | L (µH) | ψ (mWb) | J (kg·m²) | 1.5·p·ψ/J (rad/s²/A) | with identification | without (the nominal constants) |\n|---|---:|---:|---:|---:|---:|---|---|\n",
+    );
+    // Outside the population's acceleration per amp, on the nominal R and L: a heavy load
+    // on a weak magnet, and a light one on a strong magnet.
+    let outside = |flux_wb: f64, j_kg_m2: f64| {
+        Some(crate::identification::Draw {
+            flux_wb,
+            j_kg_m2,
+            ..nominal()
+        })
+    };
+    for (what, d) in [
+        ("smallest L", smallest_l),
+        ("largest J", largest_j),
+        ("below the range", outside(20e-3, 1e-2)),
+        ("above the range", outside(25e-3, 1e-5)),
+    ] {
+        let Some(d) = d else { continue };
+        let ended = |o: &crate::identification::Outcome| {
+            let b = &o.boot;
+            match (b.final_state, b.cause) {
+                (State::Run, _) => format!(
+                    "Run at {:.2} s; θ̂ {} mrad pk-pk in Run",
+                    b.entered(State::Run).unwrap_or(f64::NAN),
+                    b.run.as_ref().map_or("—".to_string(), |r| format!(
+                        "{:.4}",
+                        r.estimate_pk_pk_mrad
+                    ))
+                ),
+                (state, cause) => {
+                    let t = b.transitions.last().map_or(f64::NAN, |(t, _)| *t);
+                    let from = b
+                        .transitions
+                        .iter()
+                        .rev()
+                        .nth(1)
+                        .map_or("?", |(_, s)| s.name());
+                    format!(
+                        "{} at {t:.3} s in {from} ({})",
+                        state.name(),
+                        cause.map_or("—", drive::telemetry::cause_name)
+                    )
+                }
+            }
+        };
+        let with = match runs
+            .iter()
+            .find(|o| o.draw.l_h == d.l_h && o.draw.j_kg_m2 == d.j_kg_m2)
+        {
+            Some(o) => ended(o),
+            None => ended(&commission(&sc, d)?),
+        };
+        let old = commission_as(&sc, d, false)?;
+        let _ = writeln!(
+            without,
+            "| {what} | {:.3} | {:.1} | {:.1} | {:.2e} | {:.0} | {with} | {} |",
+            d.r_ohm,
+            1e6 * d.l_h,
+            1e3 * d.flux_wb,
+            d.j_kg_m2,
+            1.5 * sc.file.motor.pole_pairs as f64 * d.flux_wb / d.j_kg_m2,
+            ended(&old)
+        );
+    }
+    Ok(vec![
+        ("identification", s),
+        ("identification-without", without),
+    ])
 }
 
 fn laws() -> Result<Sections> {

@@ -1,6 +1,6 @@
 //! The motor identification across the drive's ratings: random motors behind an
 //! inverter with dead time and device drops, each commissioned by the firmware's
-//! supervisor from the firmware's nominal R and L (`tests/identification.rs` asserts on
+//! supervisor from the firmware's nominal motor (`tests/identification.rs` asserts on
 //! it, `hil-sim figures identification` publishes it).
 
 use crate::power_up::{self, Boot};
@@ -19,18 +19,31 @@ pub struct Draw {
     pub l_h: f64,
     pub dead_time_s: f64,
     pub device_drop_v: f64,
+    pub flux_wb: f64,
+    /// Rotor and load together.
+    pub j_kg_m2: f64,
 }
 
 /// The firmware's nominal motor (`board_map::motor`) behind a typical inverter: the
 /// reference the population's current loops are compared with.
 pub fn nominal() -> Draw {
+    use board_map::motor;
     Draw {
-        r_ohm: board_map::motor::R_OHM as f64,
-        l_h: board_map::motor::L_H as f64,
+        r_ohm: motor::R_OHM as f64,
+        l_h: motor::L_H as f64,
         dead_time_s: 0.5e-6,
         device_drop_v: 0.1,
+        flux_wb: motor::FLUX_WB as f64,
+        j_kg_m2: motor::INERTIA_KG_M2 as f64,
     }
 }
+
+/// The accelerations per amp the population spans (rad/s²/A, `1.5·p·ψ/J`): the drive's
+/// commissioning sweeps and spins up a rotor in this range at its nominal currents
+/// (below, the sweep's field turns faster than a heavy rotor on a weak magnet follows;
+/// above, the observer's feed-forward at the nominal J outruns the rotor's lock before
+/// the spin-up has measured it).
+pub const ACCEL_PER_AMP_RAD_S2_A: (f64, f64) = (80.0, 10_000.0);
 
 /// The population's seed and size.
 pub const SEED: u64 = 30;
@@ -39,9 +52,13 @@ pub const MOTORS: usize = 20;
 /// `n` motors: R 0.05-2 Ω and L 20 µH-2 mH log-uniform, with L/R at least two control
 /// periods (below that the current follows each period's voltage within the period: the
 /// samples hardly see L, and the loop needs only R); dead time 0.1-1 µs and device drop
-/// 0-0.3 V uniform.
-pub fn population(n: usize, seed: u64, period_s: f64) -> Vec<Draw> {
+/// 0-0.3 V uniform; ψ 2-50 mWb and J 1e-5-1e-2 kg·m² log-uniform, within
+/// [`ACCEL_PER_AMP_RAD_S2_A`] at `pole_pairs`. The mechanical constants come from a
+/// stream of their own, so the electrical ones are those of the same seed without them.
+pub fn population(n: usize, seed: u64, period_s: f64, pole_pairs: u32) -> Vec<Draw> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut mech = ChaCha8Rng::seed_from_u64(seed);
+    mech.set_stream(1);
     let log_uniform =
         |rng: &mut ChaCha8Rng, lo: f64, hi: f64| rng.random_range(f64::ln(lo)..f64::ln(hi)).exp();
     let mut v = Vec::new();
@@ -50,14 +67,25 @@ pub fn population(n: usize, seed: u64, period_s: f64) -> Vec<Draw> {
         let l_h = log_uniform(&mut rng, 20e-6, 2e-3);
         let dead_time_s = rng.random_range(0.1e-6..1.0e-6);
         let device_drop_v = rng.random_range(0.0..0.3);
-        if l_h / r_ohm >= 2.0 * period_s {
-            v.push(Draw {
-                r_ohm,
-                l_h,
-                dead_time_s,
-                device_drop_v,
-            });
+        if l_h / r_ohm < 2.0 * period_s {
+            continue;
         }
+        let (flux_wb, j_kg_m2) = loop {
+            let flux_wb = log_uniform(&mut mech, 2e-3, 50e-3);
+            let j_kg_m2 = log_uniform(&mut mech, 1e-5, 1e-2);
+            let a = 1.5 * pole_pairs as f64 * flux_wb / j_kg_m2;
+            if (ACCEL_PER_AMP_RAD_S2_A.0..=ACCEL_PER_AMP_RAD_S2_A.1).contains(&a) {
+                break (flux_wb, j_kg_m2);
+            }
+        };
+        v.push(Draw {
+            r_ohm,
+            l_h,
+            dead_time_s,
+            device_drop_v,
+            flux_wb,
+            j_kg_m2,
+        });
     }
     v
 }
@@ -71,10 +99,53 @@ pub struct Outcome {
     pub t63_s: Option<f64>,
 }
 
+/// What was identified against the plant: each relative error (found/true - 1).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Errors {
+    pub r: f64,
+    pub ld: f64,
+    pub lq: f64,
+    /// None: the power-up ended before the spin-up's constants were streamed.
+    pub flux: Option<f64>,
+    pub inertia: Option<f64>,
+}
+
+impl Errors {
+    /// The larger magnitude of each error, field by field.
+    pub fn worst(self, o: Errors) -> Errors {
+        let opt = |a: Option<f64>, b: Option<f64>| match (a, b) {
+            (Some(a), Some(b)) => Some(a.abs().max(b.abs())),
+            (a, b) => a.or(b).map(f64::abs),
+        };
+        Errors {
+            r: self.r.abs().max(o.r.abs()),
+            ld: self.ld.abs().max(o.ld.abs()),
+            lq: self.lq.abs().max(o.lq.abs()),
+            flux: opt(self.flux, o.flux),
+            inertia: opt(self.inertia, o.inertia),
+        }
+    }
+}
+
 impl Outcome {
     /// The current loop's bandwidth as its step shows it (Hz): 1/(2π·t63).
     pub fn loop_bandwidth_hz(&self) -> Option<f64> {
         self.t63_s.map(|t| 1.0 / (std::f64::consts::TAU * t))
+    }
+
+    /// The identified constants against the plant's (None if R, L were not identified).
+    pub fn errors(&self) -> Option<Errors> {
+        let d = &self.draw;
+        let rel = |found: f32, truth: f64| found as f64 / truth - 1.0;
+        let x = self.boot.identified()?;
+        let m = self.boot.motion();
+        Some(Errors {
+            r: rel(x.r_ohm, d.r_ohm),
+            ld: rel(x.ld_h, d.l_h),
+            lq: rel(x.lq_h, d.l_h),
+            flux: m.map(|m| rel(m.flux_wb, d.flux_wb)),
+            inertia: m.map(|m| rel(m.inertia_kg_m2, d.j_kg_m2)),
+        })
     }
 }
 
@@ -83,17 +154,29 @@ impl Outcome {
 /// more than the voltage limit in its first period).
 pub const STEP_A: f64 = 2.0;
 
-/// `sc` (the `commissioning` scenario) on motor `d`, from an erased flash, 3.5 s.
+/// `sc` (the `commissioning` scenario) on motor `d`, from an erased flash, 4.5 s. The
+/// scenario's fan-like load is scaled with the torque constant, so that every motor
+/// carries the same current at speed.
 pub fn commission(sc: &Scenario, d: Draw) -> Result<Outcome> {
+    commission_as(sc, d, true)
+}
+
+/// [`commission`] with the motor's identification on or off (off: the firmware's nominal
+/// constants all along, as the firmware did before it identified its motor).
+pub fn commission_as(sc: &Scenario, d: Draw, identify: bool) -> Result<Outcome> {
     let mut sc = sc.clone();
     if let Some(c) = sc.file.commissioning.as_mut() {
         c.align_current_a = Some(STEP_A);
+        c.identify_motor = Some(identify);
     }
     let m = &mut sc.file.motor;
+    m.viscous_nm_s_rad *= d.flux_wb / m.flux_wb;
     m.r_ohm = d.r_ohm;
     m.l_h = d.l_h;
     m.dead_time_s = d.dead_time_s;
     m.device_drop_v = d.device_drop_v;
+    m.flux_wb = d.flux_wb;
+    m.j_kg_m2 = d.j_kg_m2;
     let mut rig = power_up::rig(&sc, SimFlash::new(RamFlash::default()), sc.file.seed)?;
     // The α current (the alignment's d axis) over Align's first 2 ms.
     const TRACE: usize = 40;
@@ -103,7 +186,7 @@ pub fn commission(sc: &Scenario, d: Draw) -> Result<Outcome> {
             trace.push((s.truth.t_s, rig.plant.currents_ab()[0]));
         }
     };
-    let boot = power_up::run_boot(&mut rig, &sc, 3.5, Some(&mut hook));
+    let boot = power_up::run_boot(&mut rig, &sc, 4.5, Some(&mut hook));
     let mut t63_s = None;
     if let (true, Some(&(t0, _))) = (trace.len() == TRACE, trace.first()) {
         let tail = &trace[TRACE - 10..];

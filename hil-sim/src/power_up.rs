@@ -89,6 +89,25 @@ impl Boot {
         })
     }
 
+    /// The motion constants the last `mras-motion` event put in force.
+    pub fn motion(&self) -> Option<Motion> {
+        self.streamed.iter().rev().find_map(|s| match s.line {
+            Line::Event(Event::Motion {
+                flux_wb,
+                inertia_kg_m2,
+                viscous_nm_s_rad,
+                coulomb_nm,
+                ..
+            }) => Some(Motion {
+                flux_wb,
+                inertia_kg_m2,
+                viscous_nm_s_rad,
+                coulomb_nm,
+            }),
+            _ => None,
+        })
+    }
+
     /// The records streamed, in order.
     pub fn records(&self) -> impl Iterator<Item = &drive::telemetry::Record> + '_ {
         self.streamed.iter().filter_map(|s| match &s.line {
@@ -96,6 +115,15 @@ impl Boot {
             _ => None,
         })
     }
+}
+
+/// The motor's mechanical constants as a power-up streamed them (`mras-motion`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Motion {
+    pub flux_wb: f32,
+    pub inertia_kg_m2: f32,
+    pub viscous_nm_s_rad: f32,
+    pub coulomb_nm: f32,
 }
 
 /// What an experiment does to the rig during a power-up, after each period.
@@ -118,18 +146,26 @@ pub fn rig_with(
     let c = f
         .commissioning
         .ok_or_else(|| anyhow!("{}: no [commissioning] table", sc.origin))?;
-    let cfg = sc.core_config(None)?;
-    // The plant is not the controller: the drive starts from the firmware's nominal R
-    // and L and identifies the plant's at power-up.
+    let mut cfg = sc.core_config(None)?;
+    // The plant is not the controller: the drive starts from the firmware's nominal
+    // motor (R, L, ψ, and J for the motion loops and the observer, unless the scenario
+    // configures another J) and identifies the plant's at power-up.
+    let j = c
+        .inertia_kg_m2
+        .map_or(board_map::motor::INERTIA_KG_M2, |j| j as f32);
+    cfg.observer.inertia_kg_m2 = j;
     let rig = sc.rig_with(cfg, seed, |d| {
-        d.motor.r_ohm = board_map::motor::R_OHM;
-        d.motor.l_h = board_map::motor::L_H;
+        let m = &mut d.motor;
+        m.r_ohm = board_map::motor::R_OHM;
+        m.l_h = board_map::motor::L_H;
+        m.flux_wb = board_map::motor::FLUX_WB;
+        m.inertia_kg_m2 = j;
         adjust(d)
     })?;
     let d = rig.period.config();
     let hash = rig.period.calibration_hash();
     let rate_hz = (1.0 / sc.sample_period_s()).round() as u32;
-    let sup = Supervisor::new(c.params()?, hash, rate_hz, d.supervisor_divider);
+    let sup = Supervisor::new(c.params()?, hash, rate_hz, d.supervisor_divider, &d.motor);
     Ok(rig.with_supervisor(sup, flash))
 }
 
@@ -392,6 +428,16 @@ fn describe(e: &Event) -> String {
             "identified: R {r_ohm:.4} ohm, Ld {:.1} uH, Lq {:.1} uH, inverter error {v_inverter_v:.3} V",
             1e6 * ld_h,
             1e6 * lq_h
+        ),
+        Event::Motion {
+            flux_wb,
+            inertia_kg_m2,
+            viscous_nm_s_rad,
+            coulomb_nm,
+            ..
+        } => format!(
+            "motion constants in force: flux linkage {:.3} mWb, inertia {inertia_kg_m2:.4e} kg m^2, friction {viscous_nm_s_rad:.3e} N m s/rad and {coulomb_nm:.3e} N m",
+            1e3 * flux_wb
         ),
         Event::Refined {
             speed_rad_s,

@@ -99,6 +99,14 @@ pub struct CommissioningToml {
     pub refine_s: Option<f64>,
     pub second_speed_ratio: Option<f64>,
     pub learn_torque_ripple: Option<bool>,
+    /// Identify the motor at power-up (default on; off: the controller keeps the
+    /// firmware's nominal constants, as it did before it identified its motor).
+    pub identify_motor: Option<bool>,
+    /// The inertia the controller is configured with before it identifies the plant's
+    /// (kg·m², board.rs's `INERTIA_KG_M2`): the firmware's nominal unless given. A board
+    /// whose observer is tuned slow (the default eigenvalues, 100/10/1 Hz) needs it within
+    /// a few times of the load's for the spin-up to keep its lock.
+    pub inertia_kg_m2: Option<f64>,
 }
 
 impl CommissioningToml {
@@ -121,6 +129,7 @@ impl CommissioningToml {
                 .second_speed_ratio
                 .map_or(d.second_speed_ratio, |v| v as f32),
             learn_torque_ripple: self.learn_torque_ripple.unwrap_or(d.learn_torque_ripple),
+            identify_motor: self.identify_motor.unwrap_or(d.identify_motor),
             ..d
         };
         p.validate()

@@ -120,10 +120,15 @@ fn a_wire_break_in_run_is_ridden_through_unless_it_lasts() {
         let mut enabled_while_broken = 0u32;
         let mut restarted_at = None;
         let mut enabled_after_restart = 0u32;
+        let mut run_from = None;
         let mut hook = |rig: &mut hil_sim::rig::Rig, s: &hil_sim::rig::Step| {
             let t = s.truth.t_s;
             let state = rig.supervisor().unwrap().state();
-            if t_break.is_none() && state == State::Run && t > 3.0 {
+            if state == State::Run {
+                run_from.get_or_insert(t);
+            }
+            // Well into Run: the slow tracking adapts (steady for its settling time).
+            if t_break.is_none() && run_from.is_some_and(|r| t > r + 0.6) {
                 t_break = Some(t);
                 rig.plant.sensor = hil_sim::sensor::SensorSim::new(broken.clone(), 7).unwrap();
             }

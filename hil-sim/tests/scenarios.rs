@@ -196,6 +196,7 @@ fn commissioning_scenario_commissions_stores_and_reloads() {
             SpinUp,
             Adapt,
             Verify,
+            Motion,
             Store,
             Run
         ]
@@ -240,6 +241,18 @@ fn commissioning_scenario_commissions_stores_and_reloads() {
         assert!((x.ld_h as f64 / m.l_h - 1.0).abs() < 0.10, "{x:?}");
         assert!((x.lq_h as f64 / m.l_h - 1.0).abs() < 0.10, "{x:?}");
     }
+    // The first identified the plant's flux linkage and inertia at speed (from the
+    // nominal ones), the second loaded them with the calibration.
+    let (found, loaded) = (first.motion().expect("identified"), second.motion());
+    assert!(
+        (found.flux_wb as f64 / m.flux_wb - 1.0).abs() < 0.03,
+        "{found:?}"
+    );
+    assert!(
+        (found.inertia_kg_m2 as f64 / m.j_kg_m2 - 1.0).abs() < 0.10,
+        "{found:?}"
+    );
+    assert_eq!(loaded, Some(found), "the record's motor");
     let run = second.run.as_ref().unwrap();
     assert!(
         run.raw_pk_pk_mrad / run.estimate_pk_pk_mrad > 1660.0,

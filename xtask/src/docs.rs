@@ -101,7 +101,7 @@ const GENERATORS: [Generator; 12] = [
     Generator {
         name: "identification",
         command: "cargo xtask docs identification",
-        sections: &["identification"],
+        sections: &["identification", "identification-without"],
         data: &[],
         in_ci: InCi::Rerun,
     },

@@ -136,6 +136,7 @@ mod app {
             period.calibration_hash(),
             board::PWM_HZ,
             board::SUPERVISOR_DIVIDER,
+            &period.config().motor,
         );
 
         // Why did the last run end? (The fault record in RAM, then the reset flags.)

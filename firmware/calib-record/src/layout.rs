@@ -8,11 +8,13 @@
 //! in the flash bank it does not run from (read-while-write). The addresses belong to
 //! `memory.x`; this crate only sees slots through [`crate::FlashSlots`].
 //!
-//! # Record (little-endian, [`RECORD_BYTES`] = 224 bytes at the start of a slot)
+//! # Record (little-endian, [`RECORD_BYTES`] = 256 bytes at the start of a slot)
 //!
-//! Format version 3: version 2 (128 bytes, room for 8 paths) and version 1 (120 bytes,
-//! no alignment, a configuration hash without the pole-pair count) are refused as
-//! [`crate::RecordError::UnsupportedVersion`], and the drive commissions again.
+//! Format version 4. Version 3 (224 bytes: this layout without the motor block, the CRC
+//! over bytes 0..216 at offset 216), version 2 (128 bytes, room for 8 paths) and
+//! version 1 (120 bytes, no alignment, a configuration hash without the pole-pair
+//! count) are refused as [`crate::RecordError::UnsupportedVersion`], and the drive
+//! commissions again.
 //!
 //! | offset | size | field |
 //! |---:|---:|---|
@@ -25,13 +27,26 @@
 //! | 16 | 4 | alignment `offset_e_rad` (f32 bits, finite, within [-π, π]) |
 //! | 20 | 4 | reserved, written 0 |
 //! | 24 + 12·i | 12 | path i: kind tag (u8), h (i8), 2 reserved (0), re (f32 bits), im (f32 bits) |
-//! | 216 | 4 | CRC-32/ISO-HDLC over bytes 0..216 |
-//! | 220 | 4 | commit mark [`COMMIT_MARK`] |
+//! | 216 | 4 | motor `r_ohm` (f32 bits, finite, > 0) |
+//! | 220 | 4 | motor `ld_h` (f32 bits, finite, > 0) |
+//! | 224 | 4 | motor `lq_h` (f32 bits, finite, > 0) |
+//! | 228 | 4 | motor `v_inverter_v` (f32 bits, finite, ≥ 0) |
+//! | 232 | 4 | motor `flux_wb` (f32 bits, finite, > 0) |
+//! | 236 | 4 | motor `inertia_kg_m2` (f32 bits, finite, > 0) |
+//! | 240 | 4 | motor `viscous_nm_s_rad` (f32 bits, finite, any sign) |
+//! | 244 | 4 | motor `coulomb_nm` (f32 bits, finite, any sign) |
+//! | 248 | 4 | CRC-32/ISO-HDLC over bytes 0..248 |
+//! | 252 | 4 | commit mark [`COMMIT_MARK`] |
 //!
-//! All sixteen path entries are always present (unused ones are zero), so the CRC sits at
-//! a fixed offset that does not depend on the (untrusted) path count. The last double
-//! word (CRC + commit mark) is programmed last; since the mark is not 0xFFFF_FFFF, a
-//! write interrupted before it can never look complete, whatever the CRC value.
+//! The motor block ([`MOTOR_OFFSET`], [`MOTOR_BYTES`]) holds the [`MOTOR_FIELDS`]
+//! [`crate::MotorConstants`] in their declaration order, and nothing else (no reserved
+//! bytes).
+//!
+//! All sixteen path entries are always present (unused ones are zero), so the motor
+//! block and the CRC sit at fixed offsets that do not depend on the (untrusted) path
+//! count. The last double word (CRC + commit mark) is programmed last; since the mark
+//! is not 0xFFFF_FFFF, a write interrupted before it can never look complete, whatever
+//! the CRC value.
 //! Reserved bytes are covered by the CRC but not otherwise checked: a layout change
 //! bumps [`FORMAT_VERSION`] rather than giving them a meaning.
 
@@ -50,7 +65,7 @@ pub const DOUBLE_WORDS_PER_PAGE: usize = PAGE_BYTES / DOUBLE_WORD_BYTES;
 /// "MRAS" as a big-endian u32; stored little-endian.
 pub const MAGIC: u32 = 0x4D52_4153;
 /// Bumped whenever the layout or the meaning of a field (or of the config hash) changes.
-pub const FORMAT_VERSION: u16 = 3;
+pub const FORMAT_VERSION: u16 = 4;
 /// Second half of the last double word: any value other than all-ones proves that the
 /// last double word was programmed.
 pub const COMMIT_MARK: u32 = !MAGIC;
@@ -59,8 +74,14 @@ pub const COMMIT_MARK: u32 = !MAGIC;
 pub const HEADER_BYTES: usize = 24;
 /// Tag, h, 2 reserved, re, im.
 pub const PATH_ENTRY_BYTES: usize = 12;
+/// Start of the motor block, right after the sixteen path entries.
+pub const MOTOR_OFFSET: usize = HEADER_BYTES + MAX_PATHS * PATH_ENTRY_BYTES;
+/// The [`crate::MotorConstants`] fields in the record (one f32 each).
+pub const MOTOR_FIELDS: usize = 8;
+/// Motor block: the [`MOTOR_FIELDS`] constants (f32 bits), nothing reserved.
+pub const MOTOR_BYTES: usize = MOTOR_FIELDS * 4;
 /// Offset of the CRC, i.e. length of the CRC-protected part.
-pub const CRC_OFFSET: usize = HEADER_BYTES + MAX_PATHS * PATH_ENTRY_BYTES;
+pub const CRC_OFFSET: usize = MOTOR_OFFSET + MOTOR_BYTES;
 /// The last double word (CRC + commit mark) starts here; it is programmed last.
 pub const COMMIT_OFFSET: usize = CRC_OFFSET;
 /// Size of an encoded record: a whole number of double words.
@@ -76,6 +97,9 @@ pub(crate) const TAG_HARMONIC: u8 = 2;
 
 const _: () = {
     assert!(HEADER_BYTES % DOUBLE_WORD_BYTES == 0);
+    assert!(MOTOR_OFFSET % DOUBLE_WORD_BYTES == 0);
+    assert!(MOTOR_BYTES % DOUBLE_WORD_BYTES == 0);
+    assert!(CRC_OFFSET == MOTOR_OFFSET + MOTOR_BYTES);
     assert!(COMMIT_OFFSET % DOUBLE_WORD_BYTES == 0);
     assert!(RECORD_BYTES % DOUBLE_WORD_BYTES == 0);
     assert!(RECORD_BYTES <= PAGE_BYTES);
@@ -83,5 +107,8 @@ const _: () = {
     assert!(COMMIT_MARK != u32::MAX);
     assert!(MAX_PATHS <= u8::MAX as usize);
     // The table above.
-    assert!(RECORD_BYTES == 224 && MAX_PATHS == 16);
+    assert!(MAX_PATHS == 16);
+    assert!(MOTOR_FIELDS == 8 && MOTOR_OFFSET == 216 && MOTOR_BYTES == 32);
+    assert!(CRC_OFFSET == 248 && COMMIT_OFFSET == 248);
+    assert!(RECORD_BYTES == 256);
 };

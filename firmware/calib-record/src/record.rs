@@ -1,10 +1,12 @@
 //! The record codec and the configuration hash.
 //!
 //! Flash content is untrusted input: [`decode`] checks everything (length, erased
-//! state, magic, version, commit mark, CRC, path list, finiteness, alignment,
-//! configuration) and never panics. Coefficients are not range-checked against the
-//! coefficient limit: that limit depends on the health configuration, and
-//! `mras::Tracker::set_coefficients` enforces it when the record is applied.
+//! state, magic, version, commit mark, CRC, path list, finiteness, alignment, motor
+//! constants, configuration) and never panics. Coefficients are not range-checked
+//! against the coefficient limit: that limit depends on the health configuration, and
+//! `mras::Tracker::set_coefficients` enforces it when the record is applied. Motor
+//! constants are checked for sign and finiteness only (plausibility is the
+//! identification's business).
 
 use core::f32::consts::PI;
 
@@ -14,8 +16,8 @@ use mras::{Coefficients, Config, Cplx, PathKind, MAX_PATHS};
 
 use crate::layout::{
     COMMIT_MARK, COMMIT_OFFSET, CRC_OFFSET, DOUBLE_WORD_BYTES, ERASED_BYTE, FLAG_REVERSED,
-    FORMAT_VERSION, HEADER_BYTES, MAGIC, PATH_ENTRY_BYTES, RECORD_BYTES, TAG_AMPLITUDE_QUADRATURE,
-    TAG_HARMONIC, TAG_OFFSET,
+    FORMAT_VERSION, HEADER_BYTES, MAGIC, MOTOR_BYTES, MOTOR_FIELDS, MOTOR_OFFSET, PATH_ENTRY_BYTES,
+    RECORD_BYTES, TAG_AMPLITUDE_QUADRATURE, TAG_HARMONIC, TAG_OFFSET,
 };
 
 /// Bitwise CRC (no 1 KiB table in flash): the record is checked once per boot.
@@ -43,11 +45,94 @@ impl Alignment {
     };
 }
 
+/// The motor's constants identified at commissioning (what the drive runs on).
+///
+/// A record holds only finite values, with `r_ohm`, `ld_h`, `lq_h`, `flux_wb` and
+/// `inertia_kg_m2` > 0, `v_inverter_v` ≥ 0, and `viscous_nm_s_rad` and `coulomb_nm` of
+/// any sign ([`RecordError::BadMotor`] otherwise). The two friction terms are a
+/// least-squares fit at one speed region, where viscous and constant friction are
+/// separated only weakly: either may come out negative while their sum is right. Stored
+/// bit for bit, in declaration order ([`crate::layout`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MotorConstants {
+    /// Phase (stator) resistance (Ω).
+    pub r_ohm: f32,
+    /// d-axis inductance (H).
+    pub ld_h: f32,
+    /// q-axis inductance (H).
+    pub lq_h: f32,
+    /// The inverter's voltage error (dead time and device drops) along the identification's axis (V).
+    pub v_inverter_v: f32,
+    /// Permanent-magnet flux linkage (Wb).
+    pub flux_wb: f32,
+    /// Rotor (and load) inertia (kg·m²).
+    pub inertia_kg_m2: f32,
+    /// Viscous friction (N·m·s/rad).
+    pub viscous_nm_s_rad: f32,
+    /// The constant friction torque (N·m): Coulomb's at the commissioning's sign of speed, or a constant load.
+    pub coulomb_nm: f32,
+}
+
+impl MotorConstants {
+    /// The fields in record order.
+    const fn to_fields(self) -> [f32; MOTOR_FIELDS] {
+        [
+            self.r_ohm,
+            self.ld_h,
+            self.lq_h,
+            self.v_inverter_v,
+            self.flux_wb,
+            self.inertia_kg_m2,
+            self.viscous_nm_s_rad,
+            self.coulomb_nm,
+        ]
+    }
+
+    /// Inverse of [`MotorConstants::to_fields`].
+    const fn from_fields(f: [f32; MOTOR_FIELDS]) -> Self {
+        let [r_ohm, ld_h, lq_h, v_inverter_v, flux_wb, inertia_kg_m2, viscous_nm_s_rad, coulomb_nm] =
+            f;
+        Self {
+            r_ohm,
+            ld_h,
+            lq_h,
+            v_inverter_v,
+            flux_wb,
+            inertia_kg_m2,
+            viscous_nm_s_rad,
+            coulomb_nm,
+        }
+    }
+
+    /// All finite; the resistance, inductances, flux and inertia > 0; the inverter's
+    /// voltage error ≥ 0 (`-0.0` included); the viscous and the constant friction of
+    /// any sign.
+    fn is_valid(&self) -> bool {
+        // Both comparisons are false for NaN; `is_finite` excludes +∞.
+        let positive = |v: f32| v.is_finite() && v > 0.0;
+        let non_negative = |v: f32| v.is_finite() && v >= 0.0;
+        [
+            self.r_ohm,
+            self.ld_h,
+            self.lq_h,
+            self.flux_wb,
+            self.inertia_kg_m2,
+        ]
+        .into_iter()
+        .all(positive)
+            && non_negative(self.v_inverter_v)
+            && [self.viscous_nm_s_rad, self.coulomb_nm]
+                .into_iter()
+                .all(f32::is_finite)
+    }
+}
+
 /// What a record persists.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Calibration {
     pub coefficients: Coefficients,
     pub alignment: Alignment,
+    pub motor: MotorConstants,
 }
 
 /// A decoded, fully validated record.
@@ -84,6 +169,10 @@ pub enum RecordError {
     /// The alignment offset is not finite or outside [-π, π], or a direction flag
     /// other than bit 0 is set.
     BadAlignment,
+    /// A motor constant is not finite, the resistance, an inductance, the flux linkage
+    /// or the inertia is not > 0, or the inverter's voltage error is < 0 (the friction
+    /// terms may have any sign).
+    BadMotor,
     /// Intact, but produced under another configuration (sensor periods, pole pairs,
     /// input scaling or path list differ).
     ConfigMismatch { stored: u32, expected: u32 },
@@ -103,6 +192,7 @@ impl RecordError {
             RecordError::BadPathList => "BadPathList",
             RecordError::NonFiniteValue => "NonFiniteValue",
             RecordError::BadAlignment => "BadAlignment",
+            RecordError::BadMotor => "BadMotor",
             RecordError::ConfigMismatch { .. } => "ConfigMismatch",
         }
     }
@@ -200,10 +290,10 @@ fn kind_from_bytes(tag: u8, h: u8) -> Option<PathKind> {
 
 /// Encode a record into `buf`; returns the number of bytes to program ([`RECORD_BYTES`]).
 ///
-/// Does not validate: a calibration with non-finite values, an invalid path list or
-/// an out-of-range alignment offset encodes, and [`decode`] refuses it
-/// ([`crate::store`] checks before erasing anything). The offset is stored bit for bit
-/// (`-0.0` stays `-0.0`).
+/// Does not validate: a calibration with non-finite values, an invalid path list, an
+/// out-of-range alignment offset or invalid motor constants encodes, and [`decode`]
+/// refuses it ([`crate::store`] checks before erasing anything). The offset and the
+/// motor constants are stored bit for bit (`-0.0` stays `-0.0`).
 pub fn encode(
     calibration: &Calibration,
     seq: u32,
@@ -229,6 +319,13 @@ pub fn encode(
         w.put(v.re.to_bits().to_le_bytes());
         w.put(v.im.to_bits().to_le_bytes());
     }
+    // At a fixed offset whatever the path count; it fills the bytes up to the CRC.
+    if let Some(block) = buf.get_mut(MOTOR_OFFSET..CRC_OFFSET) {
+        let mut w = Writer { rest: block };
+        for v in calibration.motor.to_fields() {
+            w.put(v.to_bits().to_le_bytes());
+        }
+    }
     let crc = crc_of(buf);
     if let Some(commit) = buf.get_mut(COMMIT_OFFSET..RECORD_BYTES) {
         let mut w = Writer { rest: commit };
@@ -242,7 +339,7 @@ pub fn encode(
 ///
 /// Checks, in order: length, erased, magic, version (it fixes the layout), commit
 /// double word programmed, CRC and commit mark, path list, finite values, alignment,
-/// and last the configuration hash.
+/// motor constants, and last the configuration hash.
 pub fn decode(bytes: &[u8], expected_hash: u32) -> Result<Record, RecordError> {
     let rec = decode_intact(bytes)?;
     if rec.config_hash != expected_hash {
@@ -334,6 +431,19 @@ pub(crate) fn decode_intact(bytes: &[u8]) -> Result<Record, RecordError> {
     if !(-PI..=PI).contains(&offset_e_rad) {
         return Err(RecordError::BadAlignment);
     }
+    let mut m = Reader {
+        rest: rec
+            .get(MOTOR_OFFSET..CRC_OFFSET)
+            .ok_or(RecordError::Truncated)?,
+    };
+    let mut fields = [0.0f32; MOTOR_FIELDS];
+    for f in &mut fields {
+        *f = f32::from_bits(m.u32()?);
+    }
+    let motor = MotorConstants::from_fields(fields);
+    if !motor.is_valid() {
+        return Err(RecordError::BadMotor);
+    }
     Ok(Record {
         calibration: Calibration {
             coefficients,
@@ -341,6 +451,7 @@ pub(crate) fn decode_intact(bytes: &[u8]) -> Result<Record, RecordError> {
                 offset_e_rad,
                 reversed,
             },
+            motor,
         },
         sequence,
         config_hash,
@@ -394,5 +505,10 @@ impl Writer<'_> {
     }
 }
 
-// The field sizes written above (4+2+1+1+4+4+4+4, 4+4+4, 4+4) match the layout.
-const _: () = assert!(HEADER_BYTES == 24 && PATH_ENTRY_BYTES == 12 && DOUBLE_WORD_BYTES == 8);
+// The field sizes written above (4+2+1+1+4+4+4+4, 4+4+4, 8·4, 4+4) match the layout.
+const _: () = assert!(
+    HEADER_BYTES == 24
+        && PATH_ENTRY_BYTES == 12
+        && MOTOR_BYTES == MOTOR_FIELDS * 4
+        && DOUBLE_WORD_BYTES == 8
+);

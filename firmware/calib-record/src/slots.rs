@@ -85,7 +85,8 @@ impl<E> Rejected<E> {
             Rejected::Record(RecordError::BadPathList) => 7,
             Rejected::Record(RecordError::NonFiniteValue) => 8,
             Rejected::Record(RecordError::BadAlignment) => 9,
-            Rejected::Record(RecordError::ConfigMismatch { .. }) => 10,
+            Rejected::Record(RecordError::BadMotor) => 10,
+            Rejected::Record(RecordError::ConfigMismatch { .. }) => 11,
         }
     }
 }
@@ -145,7 +146,8 @@ impl<E> LoadError<E> {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum StoreError<E> {
     /// The calibration would not decode (non-finite coefficient, invalid path list,
-    /// alignment offset not finite or outside [-π, π]); flash was not touched.
+    /// alignment offset not finite or outside [-π, π], invalid motor constants); flash
+    /// was not touched.
     InvalidCalibration(RecordError),
     /// Erase, program or read failed.
     Flash(E),

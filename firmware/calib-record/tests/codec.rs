@@ -4,14 +4,18 @@ mod common;
 
 use core::f32::consts::PI;
 
-use calib_record::layout::{COMMIT_OFFSET, DOUBLE_WORD_BYTES, FORMAT_VERSION, HEADER_BYTES};
+use calib_record::layout::{
+    COMMIT_OFFSET, CRC_OFFSET, DOUBLE_WORD_BYTES, FORMAT_VERSION, HEADER_BYTES, MOTOR_BYTES,
+    MOTOR_FIELDS, MOTOR_OFFSET,
+};
 use calib_record::{
-    config_hash, decode, encode, Alignment, Calibration, InputScaling, Record, RecordError,
-    PAGE_BYTES, RECORD_BYTES,
+    config_hash, decode, encode, Alignment, Calibration, InputScaling, MotorConstants, Record,
+    RecordError, PAGE_BYTES, RECORD_BYTES,
 };
 use common::{
-    calib, coefs, encoded, reseal, same_bits, v1_record, v2_record, with_identity, DEFAULT_PATHS,
-    HASH, OTHER_HASH, V1_RECORD_BYTES, V2_RECORD_BYTES,
+    calib, coefs, encoded, motor_fields, reseal, same_bits, same_motor_bits, v1_record, v2_record,
+    v3_record, with_identity, DEFAULT_PATHS, HASH, MOTOR, OTHER_HASH, V1_RECORD_BYTES,
+    V2_RECORD_BYTES, V3_RECORD_BYTES,
 };
 use mras::{Coefficients, Config, Cplx, PathKind, MAX_PATHS};
 
@@ -26,8 +30,11 @@ const PATH0_AT: usize = HEADER_BYTES;
 const ABOVE_PI: f32 = f32::from_bits(PI.to_bits() + 1);
 
 const _: () = {
-    assert!(RECORD_BYTES == 224);
+    assert!(RECORD_BYTES == 256);
     assert!(HEADER_BYTES == 24);
+    assert!(MOTOR_OFFSET == 216 && MOTOR_BYTES == 32 && CRC_OFFSET == 248);
+    // Eight f32 constants fill the motor block: no reserved bytes in it.
+    assert!(MOTOR_FIELDS == 8 && MOTOR_OFFSET + 4 * MOTOR_FIELDS == CRC_OFFSET);
     assert!(RECORD_BYTES % DOUBLE_WORD_BYTES == 0);
     assert!(COMMIT_OFFSET == RECORD_BYTES - DOUBLE_WORD_BYTES);
 };
@@ -83,6 +90,7 @@ fn round_trip_no_paths_and_max_paths() {
             offset_e_rad: -PI,
             reversed: true,
         },
+        motor: MOTOR,
     };
     let back = decode(&encoded(&full, 1, HASH), HASH).unwrap().calibration;
     assert!(same_bits(&back, &full));
@@ -111,6 +119,7 @@ fn alignment_round_trips_exactly() {
                     offset_e_rad,
                     reversed,
                 },
+                motor: MOTOR,
             };
             let buf = encoded(&c, 11, HASH);
             assert_eq!(buf[DIRECTION_AT], u8::from(reversed));
@@ -155,6 +164,7 @@ fn bad_alignment_offsets_are_rejected() {
                     offset_e_rad,
                     reversed,
                 },
+                motor: MOTOR,
             };
             // `encode` does not validate; `decode` refuses.
             let err = decode(&encoded(&c, 1, HASH), HASH).unwrap_err();
@@ -206,20 +216,260 @@ fn alignment_check_order() {
     );
 }
 
+/// Names of the motor fields, in record order (for messages).
+const MOTOR_FIELD_NAMES: [&str; 8] = [
+    "r_ohm",
+    "ld_h",
+    "lq_h",
+    "v_inverter_v",
+    "flux_wb",
+    "inertia_kg_m2",
+    "viscous_nm_s_rad",
+    "coulomb_nm",
+];
+
+/// The values a motor field accepts (besides being finite).
+#[derive(Clone, Copy, PartialEq)]
+enum Range {
+    /// > 0.
+    Positive,
+    /// ≥ 0, `-0.0` included.
+    NonNegative,
+    /// Any sign (the friction terms: a fit that separates them only weakly).
+    AnySign,
+}
+
+/// The range of each motor field, in record order.
+const MOTOR_RANGES: [Range; 8] = [
+    Range::Positive,    // r_ohm
+    Range::Positive,    // ld_h
+    Range::Positive,    // lq_h
+    Range::NonNegative, // v_inverter_v
+    Range::Positive,    // flux_wb
+    Range::Positive,    // inertia_kg_m2
+    Range::AnySign,     // viscous_nm_s_rad
+    Range::AnySign,     // coulomb_nm
+];
+
+/// [`MOTOR`] with field `n` (record order) replaced by `v`.
+fn motor_with(n: usize, v: f32) -> MotorConstants {
+    let mut m = MOTOR;
+    let f = match n {
+        0 => &mut m.r_ohm,
+        1 => &mut m.ld_h,
+        2 => &mut m.lq_h,
+        3 => &mut m.v_inverter_v,
+        4 => &mut m.flux_wb,
+        5 => &mut m.inertia_kg_m2,
+        6 => &mut m.viscous_nm_s_rad,
+        7 => &mut m.coulomb_nm,
+        _ => unreachable!(),
+    };
+    *f = v;
+    m
+}
+
+/// Every valid motor constant comes back bit for bit, the smallest and largest
+/// positive values, (where zero is allowed) ±0 and (where any sign is allowed) the
+/// negative values included, with any path count.
+#[test]
+fn motor_round_trips_exactly() {
+    let positive = [
+        f32::from_bits(1), // smallest subnormal
+        f32::MIN_POSITIVE,
+        1e-9,
+        0.3,
+        1.0,
+        1e6,
+        f32::MAX,
+    ];
+    let negative = positive.map(|v| -v);
+    let mut cases = 0;
+    for (n, range) in MOTOR_RANGES.into_iter().enumerate() {
+        let more: &[f32] = match range {
+            Range::Positive => &[],
+            Range::NonNegative => &[0.0, -0.0],
+            Range::AnySign => &[0.0, -0.0, -3e-3],
+        };
+        let negatives: &[f32] = if range == Range::AnySign {
+            &negative
+        } else {
+            &[]
+        };
+        for &v in positive.iter().chain(more).chain(negatives) {
+            for coefficients in [coefs(0.2), Coefficients::zeros(&[])] {
+                let c = Calibration {
+                    coefficients,
+                    alignment: Alignment::IDENTITY,
+                    motor: motor_with(n, v),
+                };
+                let buf = encoded(&c, 5, HASH);
+                let at = MOTOR_OFFSET + 4 * n;
+                assert_eq!(buf[at..at + 4], v.to_bits().to_le_bytes());
+                let back = decode(&buf, HASH)
+                    .unwrap_or_else(|e| panic!("{} = {v:e}: {e:?}", MOTOR_FIELD_NAMES[n]))
+                    .calibration;
+                assert_eq!(back, c);
+                assert!(same_motor_bits(&back.motor, &c.motor), "{back:?}");
+                cases += 1;
+            }
+        }
+    }
+    assert_eq!(cases, 2 * (5 * 7 + (7 + 2) + 2 * (7 + 3 + 7)));
+}
+
+/// A commissioning's friction fit may put the viscous or the constant friction (or
+/// both) below zero while their sum at its speed is right: such a record is accepted
+/// and comes back bit for bit.
+#[test]
+fn negative_friction_is_accepted() {
+    for (viscous_nm_s_rad, coulomb_nm) in [(-2e-5, 4e-3), (3e-5, -1e-3), (-1e-6, -2e-4)] {
+        let c = Calibration {
+            motor: MotorConstants {
+                viscous_nm_s_rad,
+                coulomb_nm,
+                ..MOTOR
+            },
+            ..calib(0.6)
+        };
+        let rec = decode(&encoded(&c, 3, HASH), HASH).unwrap();
+        assert_eq!(rec.calibration, c);
+        assert!(same_bits(&rec.calibration, &c));
+    }
+}
+
+/// NaN and ±∞ in any field, zero or negative values where the field must be > 0,
+/// negative values where it must be ≥ 0: each is encoded (so the CRC is right) and
+/// refused as `BadMotor`, by the motor check alone.
+#[test]
+fn bad_motor_constants_are_rejected() {
+    let non_finite = [
+        f32::NAN,
+        -f32::NAN,
+        f32::from_bits(0x7F80_0001), // signalling NaN
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+    ];
+    let negative = [
+        -f32::from_bits(1), // negative subnormal
+        -1e-9,
+        -0.3,
+        -1.0,
+        f32::MIN,
+    ];
+    let zeros = [0.0, -0.0];
+    let mut cases = 0;
+    for (n, range) in MOTOR_RANGES.into_iter().enumerate() {
+        let (negative, zeros): (&[f32], &[f32]) = match range {
+            Range::Positive => (&negative, &zeros),
+            Range::NonNegative => (&negative, &[]),
+            Range::AnySign => (&[], &[]),
+        };
+        for &v in non_finite.iter().chain(negative).chain(zeros) {
+            for reversed in [false, true] {
+                let mut base = calib(0.3);
+                base.alignment.reversed = reversed;
+                base.motor = MOTOR;
+                let c = Calibration {
+                    motor: motor_with(n, v),
+                    ..base
+                };
+                let buf = encoded(&c, 1, HASH);
+                // The record is sealed: the CRC is right, and the only change from a
+                // valid record is the motor field.
+                let good = encoded(&base, 1, HASH);
+                assert!(decode(&good, HASH).is_ok());
+                let at = MOTOR_OFFSET + 4 * n;
+                assert_eq!(buf[..at], good[..at]);
+                assert_eq!(buf[at..at + 4], v.to_bits().to_le_bytes());
+                assert_eq!(buf[at + 4..CRC_OFFSET], good[at + 4..CRC_OFFSET]);
+                let err = decode(&buf, HASH).unwrap_err();
+                assert_eq!(
+                    err,
+                    RecordError::BadMotor,
+                    "{} = {v:e}",
+                    MOTOR_FIELD_NAMES[n]
+                );
+                assert_eq!(err.name(), "BadMotor");
+                cases += 1;
+            }
+        }
+    }
+    assert_eq!(cases, 2 * (8 * 5 + 6 * 5 + 5 * 2));
+
+    // The same, patched into the bytes of a valid record and re-sealed: non-finite
+    // values are refused in every field, -1 in every field but the friction terms,
+    // which take it.
+    for (n, range) in MOTOR_RANGES.into_iter().enumerate() {
+        for v in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -1.0] {
+            let mut buf = encoded(&calib(0.4), 1, HASH);
+            let at = MOTOR_OFFSET + 4 * n;
+            buf[at..at + 4].copy_from_slice(&v.to_bits().to_le_bytes());
+            assert_eq!(decode(&buf, HASH), Err(RecordError::BadCrc));
+            reseal(&mut buf);
+            if v.is_finite() && range == Range::AnySign {
+                let m = decode(&buf, HASH).unwrap().calibration.motor;
+                assert_eq!(motor_fields(&m)[n].to_bits(), v.to_bits(), "field {n}");
+            } else {
+                assert_eq!(decode(&buf, HASH), Err(RecordError::BadMotor), "field {n}");
+            }
+        }
+    }
+    // No reserved bytes in the motor block: its last word is `coulomb_nm`, and bytes
+    // patched there are read as it (0xA5A5_A5A5 is a finite negative f32).
+    let mut buf = encoded(&calib(0.4), 1, HASH);
+    buf[CRC_OFFSET - 4..CRC_OFFSET].copy_from_slice(&[0xA5; 4]);
+    reseal(&mut buf);
+    let m = decode(&buf, HASH).unwrap().calibration.motor;
+    assert_eq!(m.coulomb_nm.to_bits(), 0xA5A5_A5A5);
+    assert!(m.coulomb_nm < 0.0);
+}
+
+/// The motor is checked after the alignment and before the configuration hash.
+#[test]
+fn motor_check_order() {
+    let mut c = calib(0.0);
+    c.motor.r_ohm = f32::NAN;
+    c.alignment.offset_e_rad = 4.0;
+    assert_eq!(
+        decode(&encoded(&c, 1, HASH), HASH),
+        Err(RecordError::BadAlignment)
+    );
+    let mut c = calib(0.0);
+    c.motor.ld_h = 0.0;
+    c.coefficients
+        .set(PathKind::Offset, Cplx::new(f32::INFINITY, 0.0));
+    assert_eq!(
+        decode(&encoded(&c, 1, HASH), HASH),
+        Err(RecordError::NonFiniteValue)
+    );
+    let mut c = calib(0.0);
+    c.motor.coulomb_nm = f32::NAN;
+    assert_eq!(
+        decode(&encoded(&c, 1, HASH), OTHER_HASH),
+        Err(RecordError::BadMotor)
+    );
+    // Negative friction is valid: the configuration hash decides.
+    let mut c = calib(0.0);
+    c.motor.viscous_nm_s_rad = -1.0;
+    c.motor.coulomb_nm = -1.0;
+    assert_eq!(
+        decode(&encoded(&c, 1, HASH), OTHER_HASH),
+        Err(RecordError::ConfigMismatch {
+            stored: HASH,
+            expected: OTHER_HASH
+        })
+    );
+}
+
 /// The format is persisted in the field: pin it byte for byte. The expected bytes,
 /// CRC included, were computed independently with Python's `struct` and `zlib.crc32`.
 #[test]
 fn golden_bytes() {
-    let c = Calibration {
-        coefficients: golden_coefficients(),
-        alignment: Alignment {
-            offset_e_rad: -1.25,
-            reversed: true,
-        },
-    };
+    let c = golden_calibration();
     #[rustfmt::skip]
     let expected: [u8; RECORD_BYTES] = [
-        0x53, 0x41, 0x52, 0x4D, 0x03, 0x00, 0x04, 0x01,
+        0x53, 0x41, 0x52, 0x4D, 0x04, 0x00, 0x04, 0x01,
         0x04, 0x03, 0x02, 0x01, 0xD4, 0xC3, 0xB2, 0xA1,
         0x00, 0x00, 0xA0, 0xBF, 0x00, 0x00, 0x00, 0x00,
         0x00, 0x00, 0x00, 0x00, 0xCD, 0xCC, 0xCC, 0x3D,
@@ -246,11 +496,87 @@ fn golden_bytes() {
         0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
         0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
         0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
-        0x48, 0x12, 0xF7, 0xFF, 0xAC, 0xBE, 0xAD, 0xB2,
+        0x9A, 0x99, 0x99, 0x3E, 0x6F, 0x12, 0x03, 0x3A,
+        0x52, 0x49, 0x1D, 0x3A, 0x00, 0x00, 0x00, 0x3F,
+        0x0A, 0xD7, 0xA3, 0x3C, 0x17, 0xB7, 0x51, 0x39,
+        0xAC, 0xC5, 0x27, 0x37, 0xA6, 0x9B, 0x44, 0x3B,
+        0xCE, 0x2C, 0x5F, 0x42, 0xAC, 0xBE, 0xAD, 0xB2,
     ];
     assert_eq!(encoded(&c, 0x0102_0304, 0xA1B2_C3D4), expected);
-    assert_eq!(decode(&expected, 0xA1B2_C3D4).unwrap().calibration, c);
+    let back = decode(&expected, 0xA1B2_C3D4).unwrap().calibration;
+    assert_eq!(back, c);
+    assert!(same_bits(&back, &c));
+    // The motor block: the eight constants in declaration order, up to the CRC.
+    let fields = motor_fields(&golden_motor());
+    for (n, v) in fields.into_iter().enumerate() {
+        let at = MOTOR_OFFSET + 4 * n;
+        assert_eq!(expected[at..at + 4], v.to_bits().to_le_bytes(), "field {n}");
+    }
+    assert_eq!(MOTOR_OFFSET + 4 * fields.len(), CRC_OFFSET);
+    assert_eq!(expected[244..248], 0.003f32.to_bits().to_le_bytes());
 }
+
+/// The motor constants of the version-4 golden record.
+fn golden_motor() -> MotorConstants {
+    MotorConstants {
+        r_ohm: 0.3,
+        ld_h: 5e-4,
+        lq_h: 6e-4,
+        v_inverter_v: 0.5,
+        flux_wb: 0.02,
+        inertia_kg_m2: 2e-4,
+        viscous_nm_s_rad: 1e-5,
+        coulomb_nm: 0.003,
+    }
+}
+
+/// The golden calibration (the alignment and coefficients of every version's golden
+/// record, and the golden motor).
+fn golden_calibration() -> Calibration {
+    Calibration {
+        coefficients: golden_coefficients(),
+        alignment: Alignment {
+            offset_e_rad: -1.25,
+            reversed: true,
+        },
+        motor: golden_motor(),
+    }
+}
+
+/// The version-3 golden record (the pinned bytes of format version 3, with the
+/// golden calibration; computed with Python's `struct` and `zlib.crc32`): what a drive
+/// commissioned by the firmware before the motor block holds in flash.
+#[rustfmt::skip]
+const V3_GOLDEN: [u8; V3_RECORD_BYTES] = [
+    0x53, 0x41, 0x52, 0x4D, 0x03, 0x00, 0x04, 0x01,
+    0x04, 0x03, 0x02, 0x01, 0xD4, 0xC3, 0xB2, 0xA1,
+    0x00, 0x00, 0xA0, 0xBF, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0xCD, 0xCC, 0xCC, 0x3D,
+    0x0A, 0xD7, 0xA3, 0xBD, 0x01, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x80, 0x3E, 0x00, 0x00, 0x00, 0xBF,
+    0x02, 0x04, 0x00, 0x00, 0xA6, 0x9B, 0xC4, 0x3A,
+    0x00, 0x00, 0x00, 0xC0, 0x02, 0x05, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x80,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x48, 0x12, 0xF7, 0xFF, 0xAC, 0xBE, 0xAD, 0xB2,
+];
 
 /// The version-2 golden record (the pinned bytes of format version 2, with the
 /// golden calibration; computed with Python's `struct` and `zlib.crc32`): what a drive
@@ -319,9 +645,9 @@ fn version_1_record_is_refused_as_unsupported_version() {
 
     let refused = Err(RecordError::UnsupportedVersion {
         found: 1,
-        expected: 3,
+        expected: 4,
     });
-    assert_eq!(FORMAT_VERSION, 3);
+    assert_eq!(FORMAT_VERSION, 4);
     // As the flash holds it: the v1 record, then the erased rest of the page.
     let mut page = [0xFFu8; PAGE_BYTES];
     page[..V1_RECORD_BYTES].copy_from_slice(&v1);
@@ -337,7 +663,7 @@ fn version_1_record_is_refused_as_unsupported_version() {
         assert_eq!(Err(err), refused);
         assert_eq!(err.name(), "UnsupportedVersion");
     }
-    // Too short for a v3 record is still Truncated (the length is checked first).
+    // Too short for a v4 record is still Truncated (the length is checked first).
     assert_eq!(decode(&v1, HASH), Err(RecordError::Truncated));
 }
 
@@ -348,15 +674,9 @@ fn version_1_record_is_refused_as_unsupported_version() {
 fn version_2_record_is_refused_as_unsupported_version() {
     let refused = Err(RecordError::UnsupportedVersion {
         found: 2,
-        expected: 3,
+        expected: 4,
     });
-    let golden = Calibration {
-        coefficients: golden_coefficients(),
-        alignment: Alignment {
-            offset_e_rad: -1.25,
-            reversed: true,
-        },
-    };
+    let golden = golden_calibration();
     // The hand-built v2 record matches the pinned v2 bytes: it is a genuine v2 record.
     assert_eq!(v2_record(&golden, 0x0102_0304, 0xA1B2_C3D4), V2_GOLDEN);
     for (n, tail) in [0x00u8, 0xFF, 0x5A].into_iter().enumerate() {
@@ -367,6 +687,51 @@ fn version_2_record_is_refused_as_unsupported_version() {
         assert_eq!(decode(&page[..RECORD_BYTES], OTHER_HASH), refused);
     }
     assert_eq!(decode(&V2_GOLDEN, 0xA1B2_C3D4), Err(RecordError::Truncated));
+}
+
+/// A record of format version 3 (sixteen paths, no motor block), as a drive
+/// commissioned before the motor's constants were recorded holds it, is refused by its
+/// version, whatever the page holds after it and whatever hash is expected: the drive
+/// commissions again (and identifies its motor) instead of reading a motor block that
+/// is not there.
+#[test]
+fn version_3_record_is_refused_as_unsupported_version() {
+    let refused = Err(RecordError::UnsupportedVersion {
+        found: 3,
+        expected: 4,
+    });
+    let golden = golden_calibration();
+    // The hand-built v3 record matches the pinned v3 bytes: it is a genuine v3 record.
+    let v3 = v3_record(&golden, 0x0102_0304, 0xA1B2_C3D4);
+    assert_eq!(v3, V3_GOLDEN);
+    let v3_crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&v3[..216]);
+    assert_eq!(v3[216..220], v3_crc.to_le_bytes());
+    // The v4 record of the same calibration starts with the same bytes but the version.
+    let v4 = encoded(&golden, 0x0102_0304, 0xA1B2_C3D4);
+    assert_eq!(v4[..4], V3_GOLDEN[..4]);
+    assert_eq!(v4[6..216], V3_GOLDEN[6..216]);
+
+    // As the flash holds it: the v3 record, then the rest of the page (erased or not).
+    for tail in [0xFFu8, 0x00, 0x5A] {
+        let mut page = [tail; PAGE_BYTES];
+        page[..V3_RECORD_BYTES].copy_from_slice(&V3_GOLDEN);
+        for hash in [0xA1B2_C3D4, HASH, OTHER_HASH] {
+            assert_eq!(decode(&page, hash), refused);
+            assert_eq!(decode(&page[..RECORD_BYTES], hash), refused);
+        }
+        // Other v3 contents.
+        for (n, c) in [calib(0.0), calib(1.0), with_identity(coefs(2.0))]
+            .iter()
+            .enumerate()
+        {
+            page[..V3_RECORD_BYTES].copy_from_slice(&v3_record(c, n as u32, HASH));
+            let err = decode(&page, HASH).unwrap_err();
+            assert_eq!(Err(err), refused);
+            assert_eq!(err.name(), "UnsupportedVersion");
+        }
+    }
+    // Too short for a v4 record is still Truncated (the length is checked first).
+    assert_eq!(decode(&V3_GOLDEN, 0xA1B2_C3D4), Err(RecordError::Truncated));
 }
 
 #[test]
@@ -429,7 +794,7 @@ fn interrupted_write_images_are_refused() {
     let good = encoded(&calib(0.05), 45, HASH);
     // Every prefix short of the whole record: the last double word is the commit.
     let total = RECORD_BYTES / DOUBLE_WORD_BYTES;
-    assert_eq!(total, 28);
+    assert_eq!(total, 32);
     for dws in 0..total {
         let mut img = [0xFFu8; RECORD_BYTES];
         img[..dws * DOUBLE_WORD_BYTES].copy_from_slice(&good[..dws * DOUBLE_WORD_BYTES]);
@@ -592,7 +957,15 @@ fn encode_returns_record_length_and_overwrites_buffer() {
         RECORD_BYTES
     );
     assert!(buf[DIRECTION_AT..DIRECTION_AT + 1].iter().all(|&b| b == 0));
-    assert!(buf[OFFSET_AT..COMMIT_OFFSET].iter().all(|&b| b == 0));
+    assert!(buf[OFFSET_AT..MOTOR_OFFSET].iter().all(|&b| b == 0));
+    // The motor block sits at its fixed offset whatever the path count (here none),
+    // and fills the bytes up to the CRC.
+    let fields = motor_fields(&MOTOR);
+    for (n, v) in fields.into_iter().enumerate() {
+        let at = MOTOR_OFFSET + 4 * n;
+        assert_eq!(buf[at..at + 4], v.to_bits().to_le_bytes(), "field {n}");
+    }
+    assert_eq!(MOTOR_OFFSET + 4 * fields.len(), CRC_OFFSET);
     assert_eq!(decode(&buf, HASH).unwrap().sequence, 9);
 }
 
@@ -692,7 +1065,7 @@ fn record_error_names() {
         (
             RecordError::UnsupportedVersion {
                 found: 1,
-                expected: 3,
+                expected: 4,
             },
             "UnsupportedVersion",
         ),
@@ -701,6 +1074,7 @@ fn record_error_names() {
         (RecordError::BadPathList, "BadPathList"),
         (RecordError::NonFiniteValue, "NonFiniteValue"),
         (RecordError::BadAlignment, "BadAlignment"),
+        (RecordError::BadMotor, "BadMotor"),
         (
             RecordError::ConfigMismatch {
                 stored: 1,
@@ -724,6 +1098,7 @@ fn record_error_names() {
             | RecordError::BadPathList
             | RecordError::NonFiniteValue
             | RecordError::BadAlignment
+            | RecordError::BadMotor
             | RecordError::ConfigMismatch { .. } => {}
         }
     }

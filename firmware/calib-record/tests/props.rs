@@ -4,10 +4,12 @@ mod common;
 
 use core::f32::consts::PI;
 
+use calib_record::layout::MOTOR_OFFSET;
 use calib_record::{
-    decode, load, store, Alignment, Calibration, RamFlash, RecordError, Slot, RECORD_BYTES,
+    decode, load, store, Alignment, Calibration, MotorConstants, RamFlash, RecordError, Slot,
+    RECORD_BYTES,
 };
-use common::{calib, encoded, reseal, same_bits, HASH};
+use common::{calib, encoded, motor_fields, reseal, same_bits, same_motor_bits, HASH};
 use mras::{Coefficients, Cplx, PathKind, MAX_PATHS};
 use proptest::prelude::*;
 
@@ -80,10 +82,54 @@ fn alignment() -> impl Strategy<Value = Alignment> {
     })
 }
 
+/// Any finite f32 > 0, subnormals and f32::MAX included.
+fn positive() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        8 => finite().prop_map(f32::abs).prop_filter("> 0", |v| *v > 0.0),
+        1 => prop_oneof![Just(f32::from_bits(1)), Just(f32::MIN_POSITIVE), Just(f32::MAX)],
+    ]
+}
+
+/// Any finite f32 ≥ 0, ±0 included.
+fn non_negative() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        8 => finite().prop_map(f32::abs),
+        1 => prop_oneof![Just(0.0), Just(-0.0)],
+    ]
+}
+
+/// Any valid motor constants (the friction terms: any finite value, either sign).
+fn motor() -> impl Strategy<Value = MotorConstants> {
+    (
+        (positive(), positive(), positive(), non_negative()),
+        (positive(), positive(), finite(), finite()),
+    )
+        .prop_map(
+            |(
+                (r_ohm, ld_h, lq_h, v_inverter_v),
+                (flux_wb, inertia_kg_m2, viscous_nm_s_rad, coulomb_nm),
+            )| {
+                MotorConstants {
+                    r_ohm,
+                    ld_h,
+                    lq_h,
+                    v_inverter_v,
+                    flux_wb,
+                    inertia_kg_m2,
+                    viscous_nm_s_rad,
+                    coulomb_nm,
+                }
+            },
+        )
+}
+
 fn calibration() -> impl Strategy<Value = Calibration> {
-    (coefficients(), alignment()).prop_map(|(coefficients, alignment)| Calibration {
-        coefficients,
-        alignment,
+    (coefficients(), alignment(), motor()).prop_map(|(coefficients, alignment, motor)| {
+        Calibration {
+            coefficients,
+            alignment,
+            motor,
+        }
     })
 }
 
@@ -96,6 +142,7 @@ proptest! {
     ) {
         let rec = decode(&encoded(&c, seq, hash), hash).unwrap();
         prop_assert!(same_bits(&rec.calibration, &c));
+        prop_assert!(same_motor_bits(&rec.calibration.motor, &c.motor));
         prop_assert_eq!(rec.sequence, seq);
         prop_assert_eq!(rec.config_hash, hash);
     }
@@ -128,6 +175,55 @@ proptest! {
             Err(e) => {
                 prop_assert!(!valid);
                 prop_assert_eq!(e, RecordError::BadAlignment);
+            }
+        }
+    }
+
+    /// Whatever the (sealed) motor block holds, the record decodes with exactly those
+    /// constants if they are valid (finite; r, Ld, Lq, flux, inertia > 0; inverter
+    /// error ≥ 0; viscous and constant friction of any sign) and is refused as
+    /// `BadMotor` otherwise.
+    #[test]
+    fn any_motor_bytes_decode_exactly_or_bad_motor(
+        // Mostly valid fields (finite, ≥ 0), so that both outcomes are common.
+        mut fields in proptest::array::uniform8(prop_oneof![
+            12 => any::<u32>().prop_map(|b| b & 0x7F7F_FFFF), // finite, ≥ 0
+            1 => any::<u32>(),
+            1 => Just(0u32),
+            1 => Just(0x8000_0000u32), // -0.0
+            1 => Just(0x7F80_0000u32), // +∞
+            1 => Just(0x7FC0_0000u32), // NaN
+        ]),
+        // Sign flips of the friction terms, so that negative ones are common too.
+        negate_friction in any::<[bool; 2]>(),
+        tag in 0.0f32..10.0,
+    ) {
+        for (bits, negate) in fields[6..].iter_mut().zip(negate_friction) {
+            if negate {
+                *bits ^= 0x8000_0000;
+            }
+        }
+        let mut buf = encoded(&calib(tag), 1, HASH);
+        for (n, bits) in fields.iter().enumerate() {
+            let at = MOTOR_OFFSET + 4 * n;
+            buf[at..at + 4].copy_from_slice(&bits.to_le_bytes());
+        }
+        reseal(&mut buf);
+        let v = fields.map(f32::from_bits);
+        let positive = |x: f32| x.is_finite() && x > 0.0;
+        let non_negative = |x: f32| x.is_finite() && x >= 0.0;
+        let valid = [v[0], v[1], v[2], v[4], v[5]].into_iter().all(positive)
+            && non_negative(v[3])
+            && [v[6], v[7]].into_iter().all(f32::is_finite);
+        match decode(&buf, HASH) {
+            Ok(rec) => {
+                prop_assert!(valid);
+                let got = motor_fields(&rec.calibration.motor).map(f32::to_bits);
+                prop_assert_eq!(got, fields);
+            }
+            Err(e) => {
+                prop_assert!(!valid);
+                prop_assert_eq!(e, RecordError::BadMotor);
             }
         }
     }

@@ -10,7 +10,9 @@ use calib_record::{
     RamFlashError, RecordError, Rejected, Slot, StoreError, FIRST_SEQUENCE, PAGE_BYTES,
     RECORD_BYTES,
 };
-use common::{calib, encoded, same_bits, v1_record, v2_record, with_identity, HASH, OTHER_HASH};
+use common::{
+    calib, encoded, same_bits, v1_record, v2_record, v3_record, with_identity, HASH, OTHER_HASH,
+};
 use mras::{Coefficients, Cplx, PathKind};
 
 type Load = Result<Loaded<RamFlashError>, LoadError<RamFlashError>>;
@@ -222,9 +224,59 @@ fn invalid_calibration_is_refused_before_touching_flash() {
         );
         assert_eq!(err.name(), "InvalidCalibration");
     }
+    // Motor constants that are not finite, not > 0 (resistance, inductances, flux,
+    // inertia) or < 0 (inverter error); the friction terms may have any sign, but must
+    // be finite.
+    let bad_motors: [fn(&mut Calibration); 11] = [
+        |c| c.motor.r_ohm = 0.0,
+        |c| c.motor.ld_h = f32::NAN,
+        |c| c.motor.lq_h = -6e-4,
+        |c| c.motor.v_inverter_v = -0.1,
+        |c| c.motor.flux_wb = f32::INFINITY,
+        |c| c.motor.inertia_kg_m2 = -0.0,
+        |c| c.motor.viscous_nm_s_rad = f32::NEG_INFINITY,
+        |c| c.motor.viscous_nm_s_rad = f32::NAN,
+        |c| c.motor.coulomb_nm = f32::INFINITY,
+        |c| c.motor.coulomb_nm = -f32::NAN,
+        |c| c.motor.v_inverter_v = f32::NAN,
+    ];
+    for (n, spoil) in bad_motors.iter().enumerate() {
+        let mut bad = calib(2.0);
+        spoil(&mut bad);
+        let err = store(&mut flash, &bad, HASH).unwrap_err();
+        assert_eq!(
+            err,
+            StoreError::InvalidCalibration(RecordError::BadMotor),
+            "case {n}: {:?}",
+            bad.motor
+        );
+    }
     assert_eq!(flash.operations(), before.operations());
     assert_eq!(flash.page(Slot::A), before.page(Slot::A));
     assert_eq!(flash.page(Slot::B), before.page(Slot::B));
+}
+
+/// Negative viscous or constant friction (a fit that separates them only weakly) is a
+/// valid calibration: stored, and loaded back bit for bit.
+#[test]
+fn negative_friction_is_stored_and_loaded() {
+    let mut flash = RamFlash::new();
+    let cases: [fn(&mut Calibration); 3] = [
+        |c| c.motor.viscous_nm_s_rad = -1e-6,
+        |c| c.motor.coulomb_nm = -2e-3,
+        |c| {
+            c.motor.viscous_nm_s_rad = -0.0;
+            c.motor.coulomb_nm = -f32::MIN_POSITIVE;
+        },
+    ];
+    for (n, set) in cases.iter().enumerate() {
+        let mut c = calib(1.0);
+        set(&mut c);
+        store(&mut flash, &c, HASH).unwrap_or_else(|e| panic!("case {n}: {e:?}"));
+        let l = loaded(&flash);
+        assert_eq!(l.record.calibration, c, "case {n}");
+        assert!(same_bits(&l.record.calibration, &c), "case {n}");
+    }
 }
 
 #[test]
@@ -240,12 +292,12 @@ fn store_error_names() {
     );
 }
 
-/// A drive updated from version-1 or version-2 (8-path) firmware: records of the old
-/// formats, however intact, are refused by name, and the first store replaces one of
-/// them.
+/// A drive updated from version-1, version-2 (8-path) or version-3 (no motor block)
+/// firmware: records of the old formats, however intact, are refused by name, and the
+/// first store (after commissioning, the motor identified) replaces one of them.
 #[test]
 fn older_format_records_are_refused_by_name() {
-    for version in [1, 2] {
+    for version in [1, 2, 3] {
         older_format_records_are_refused(version);
     }
 }
@@ -253,13 +305,14 @@ fn older_format_records_are_refused_by_name() {
 fn older_format_records_are_refused(version: u16) {
     let old_refused = rec(RecordError::UnsupportedVersion {
         found: version,
-        expected: 3,
+        expected: 4,
     });
     let plant_old = |flash: &mut RamFlash, slot: Slot, tag: f32, seq: u32| {
         flash.erase(slot).unwrap();
         let bytes = match version {
             1 => v1_record(&calib(tag).coefficients, seq, HASH).to_vec(),
-            _ => v2_record(&calib(tag), seq, HASH).to_vec(),
+            2 => v2_record(&calib(tag), seq, HASH).to_vec(),
+            _ => v3_record(&calib(tag), seq, HASH).to_vec(),
         };
         flash.program(slot, 0, &bytes).unwrap();
     };
@@ -297,7 +350,7 @@ fn older_format_records_are_refused(version: u16) {
         assert_eq!(err.reason(), &old_refused);
     }
 
-    // Commissioning stores a v3 record; it loads, the remaining old record is reported.
+    // Commissioning stores a v4 record; it loads, the remaining old record is reported.
     let c = calib(3.0);
     assert_eq!(store(&mut flash, &c, HASH), Ok(Slot::A));
     let l = loaded(&flash);
@@ -315,7 +368,7 @@ fn load_error_reports_the_most_informative_rejection() {
     let erased = rec(RecordError::Erased);
     let v1 = rec(RecordError::UnsupportedVersion {
         found: 1,
-        expected: 3,
+        expected: 4,
     });
     let mismatch = rec(RecordError::ConfigMismatch {
         stored: OTHER_HASH,
@@ -340,6 +393,13 @@ fn load_error_reports_the_most_informative_rejection() {
         (v1, rec(RecordError::BadAlignment), "BadAlignment"),
         (rec(RecordError::BadCrc), mismatch, "ConfigMismatch"),
         (mismatch, rec(RecordError::BadAlignment), "ConfigMismatch"),
+        (v1, rec(RecordError::BadMotor), "BadMotor"),
+        (
+            rec(RecordError::BadAlignment),
+            rec(RecordError::BadMotor),
+            "BadMotor",
+        ),
+        (mismatch, rec(RecordError::BadMotor), "ConfigMismatch"),
         (
             rec(RecordError::BadPathList),
             rec(RecordError::BadAlignment),
@@ -357,7 +417,7 @@ fn load_error_reports_the_most_informative_rejection() {
     // A tie: slot A's rejection, payload included.
     let other_v = rec(RecordError::UnsupportedVersion {
         found: 7,
-        expected: 3,
+        expected: 4,
     });
     let tie = LoadError::NoValidRecord { a: other_v, b: v1 };
     assert_eq!(tie.reason(), &other_v);
@@ -580,6 +640,19 @@ fn scenarios() -> Vec<Scenario> {
     }
     v.push(Scenario {
         name: "version-1 records in both slots",
+        flash: g,
+        old: None,
+    });
+
+    // Firmware updated from format version 3 (no motor block): nothing loadable either.
+    let mut g = RamFlash::new();
+    for (slot, seq) in [(Slot::A, 7), (Slot::B, 8)] {
+        g.erase(slot).unwrap();
+        g.program(slot, 0, &v3_record(&calib(seq as f32), seq, HASH))
+            .unwrap();
+    }
+    v.push(Scenario {
+        name: "version-3 records in both slots",
         flash: g,
         old: None,
     });

@@ -18,6 +18,7 @@
 //! firmware and hil-sim both run that supervisor.
 
 use crate::ident::{IdentError, IdentStatus};
+use crate::spin::{FluxMeter, InertiaFit, MotionFit};
 use crate::telemetry::{Fault, SweepResult};
 
 /// Where the sequence is.
@@ -37,13 +38,17 @@ pub enum State {
     /// converged again (then refined there too).
     SecondSpeed,
     Verify,
+    /// The motor's mechanical constants at speed, on the corrected sensor
+    /// ([`crate::spin`]): a coast (the flux linkage), then a dip of the speed setpoint
+    /// and its recovery at the first commissioning speed (the inertia and friction).
+    Motion,
     Store,
     Run,
     Safe,
 }
 
 impl State {
-    pub const ALL: [State; 13] = [
+    pub const ALL: [State; 14] = [
         State::CheckSensor,
         State::LoadCalibration,
         State::Identify,
@@ -54,6 +59,7 @@ impl State {
         State::Refine,
         State::SecondSpeed,
         State::Verify,
+        State::Motion,
         State::Store,
         State::Run,
         State::Safe,
@@ -76,6 +82,7 @@ impl State {
             State::Refine => "Refine",
             State::SecondSpeed => "SecondSpeed",
             State::Verify => "Verify",
+            State::Motion => "Motion",
             State::Store => "Store",
             State::Run => "Run",
             State::Safe => "Safe",
@@ -138,6 +145,11 @@ impl From<Fault> for Cause {
 pub struct Params {
     /// The sensor must be healthy this long before anything moves.
     pub check_s: f32,
+    /// Identify the motor (R, L and the current sensing's sign in `Identify`; ψ, J and the
+    /// friction in the spin-up and `Motion`). Off: the configuration's constants stay
+    /// (what the firmware did before it identified its motor), and the calibration
+    /// stores them.
+    pub identify_motor: bool,
     /// The identification's current (A, at least: [`crate::ident::IdentConfig`]).
     pub identify_current_a: f32,
     /// d-axis current and duration of the alignment (and current of the sweep).
@@ -155,11 +167,20 @@ pub struct Params {
     /// ripples with the sensor error's derivative (tens of % at speed).
     pub speed_filter_s: f32,
     pub spin_up_timeout_s: f32,
+    /// The spin-up's speed setpoint ramps up to the commissioning speed over this long:
+    /// every rotor accelerates for a while, however light, and the inertia's fit sees the
+    /// acceleration it needs ([`crate::spin`]).
+    pub spin_up_ramp_s: f32,
     pub adapt_timeout_s: f32,
-    /// Verification: coefficients frozen this long, residual below the limit (rad, sensor
-    /// electrical, as `Convergence::residual_rad`).
+    /// Verification: coefficients frozen this long, the residual's mean over it below the
+    /// limit (rad, sensor electrical, as `Convergence::residual_rad`).
     pub verify_s: f32,
     pub verify_residual_rad: f32,
+    /// In [`State::Motion`], the q current held at zero this long, the d current at
+    /// `coast_current_a` for the first half and at its negative for the second, while the
+    /// control period integrates the back-EMF: the flux linkage ([`crate::spin`]).
+    pub coast_s: f32,
+    pub coast_current_a: f32,
     /// After `converged`, keep adapting this long at speed and install the mean of the
     /// coefficients over its second half (0: verify the coefficients of the moment
     /// `converged` came).
@@ -199,6 +220,7 @@ impl Default for Params {
     fn default() -> Self {
         Self {
             check_s: 0.05,
+            identify_motor: true,
             identify_current_a: 2.0,
             align_current_a: 2.0,
             align_s: 0.3,
@@ -209,9 +231,12 @@ impl Default for Params {
             speed_settle_s: 0.2,
             speed_filter_s: 0.05,
             spin_up_timeout_s: 2.0,
+            spin_up_ramp_s: 0.2,
             adapt_timeout_s: 5.0,
             verify_s: 0.2,
             verify_residual_rad: 3.0e-3,
+            coast_s: 0.04,
+            coast_current_a: 1.0,
             refine_s: 0.0,
             second_speed_ratio: 0.0,
             slow_tracking: true,
@@ -225,6 +250,19 @@ impl Default for Params {
 /// The identification's own stages are bounded (1 s each); this bounds the whole.
 pub const IDENTIFY_TIMEOUT_S: f32 = 5.0;
 
+/// The speed setpoint's dip in [`State::Motion`], as a share of the commissioning
+/// speed: down and back up, each over half of `Params::spin_up_ramp_s`. It gives the
+/// inertia's fit, which starts after the coast, an acceleration whatever the friction
+/// did.
+pub const MOTION_DIP: f32 = 0.3;
+
+/// Each half of the coast begins with this long left out of the flux measurement: the
+/// currents' step.
+pub const COAST_SETTLE_S: f32 = 0.005;
+
+/// A residual this many times `Params::verify_residual_rad` fails Verify at once.
+pub const VERIFY_GROSS: f32 = 3.0;
+
 /// The smallest second speed, relative to the first: the separation divides by
 /// 1 - 1/ratio², which amplifies the estimates' noise by 2.1x at 1.5 and 1.3x at 2.
 pub const MIN_SECOND_SPEED_RATIO: f32 = 1.5;
@@ -233,6 +271,21 @@ impl Params {
     /// Check the refinement settings (the rest are the firmware's and a scenario's own
     /// constants); the error names the field.
     pub fn validate(&self) -> Result<(), (&'static str, &'static str)> {
+        if !(self.coast_s.is_finite() && self.coast_s > 4.0 * COAST_SETTLE_S) {
+            return Err(("coast_s", "must be a finite number of seconds above 0.02"));
+        }
+        if !(self.spin_up_ramp_s.is_finite()
+            && self.spin_up_ramp_s >= 0.0
+            && self.spin_up_ramp_s < self.spin_up_timeout_s)
+        {
+            return Err((
+                "spin_up_ramp_s",
+                "must be a finite number of seconds, 0 or more, below spin_up_timeout_s",
+            ));
+        }
+        if !(self.coast_current_a.is_finite() && self.coast_current_a > 0.0) {
+            return Err(("coast_current_a", "must be a finite current above 0"));
+        }
         if !(self.refine_s.is_finite() && self.refine_s >= 0.0) {
             return Err(("refine_s", "must be a finite number of seconds, 0 or more"));
         }
@@ -291,8 +344,14 @@ pub struct Inputs {
     /// The current sensors' zero is measured, and whether it is implausible.
     pub currents_ready: bool,
     pub currents_implausible: bool,
-    /// ω̂ in the motor's frame (mechanical).
+    /// The sensor vector's angle (`Snapshot::sensor_theta_rad`) and ω̂, in the motor's
+    /// frame (mechanical).
+    pub theta_rad: f32,
     pub omega_rad_s: f32,
+    /// The control period's running integrals for the motion's identification
+    /// (`Snapshot::iq_integral_a_s`, `Snapshot::flux_angle_wb_rad`).
+    pub iq_integral_a_s: f32,
+    pub flux_angle_wb_rad: [f32; 2],
     pub converged: bool,
     /// Largest per-path residual (`Convergence::residual_rad`).
     pub residual_max_rad: f32,
@@ -315,7 +374,10 @@ impl Default for Inputs {
             fault: None,
             currents_ready: true,
             currents_implausible: false,
+            theta_rad: 0.0,
             omega_rad_s: 0.0,
+            iq_integral_a_s: 0.0,
+            flux_angle_wb_rad: [0.0; 2],
             converged: false,
             residual_max_rad: f32::INFINITY,
             load: LoadStatus::Pending,
@@ -344,6 +406,10 @@ pub enum Setpoint {
     Sweep { current_a: f32, duration_s: f32 },
     /// Closed-loop speed on the (uncorrected or corrected) estimate.
     Speed { omega_rad_s: f32 },
+    /// The q current held at zero and the d current at `id_a` in the estimate's frame:
+    /// the rotor coasts while the control period integrates the back-EMF
+    /// ([`crate::spin`]).
+    Coast { id_a: f32 },
     /// The application's own motion control.
     Application,
 }
@@ -417,6 +483,23 @@ pub struct Commissioning {
     steady: bool,
     steady_s: f32,
     settled: bool,
+    /// The motion's identification: the spin-up's fit (J/kt, B/kt) on the uncorrected
+    /// sensor, then in [`State::Motion`] the coast's ψ and the fit over the dip and the
+    /// recovery on the corrected one ([`crate::spin`]).
+    fit: InertiaFit,
+    spin_up_fit: Option<MotionFit>,
+    motion_fit: Option<MotionFit>,
+    flux: FluxMeter,
+    flux_half: u8,
+    flux_wb: Option<f32>,
+    /// ω̂ where Motion's fit starts (the coast's end).
+    fit_from_rad_s: f32,
+    pub tmp_raw: Option<MotionFit>,
+    pub tmp_raw2: Option<MotionFit>,
+    pub tmp_w0: f32,
+    /// Verify's residuals: their sum and count.
+    residual_sum: f32,
+    residual_n: u32,
 }
 
 impl Commissioning {
@@ -434,7 +517,45 @@ impl Commissioning {
             steady: false,
             steady_s: 0.0,
             settled: false,
+            fit: InertiaFit::default(),
+            spin_up_fit: None,
+            motion_fit: None,
+            flux: FluxMeter::default(),
+            flux_half: 0,
+            flux_wb: None,
+            fit_from_rad_s: 0.0,
+            residual_sum: 0.0,
+            residual_n: 0,
+            tmp_raw: None,
+            tmp_raw2: None,
+            tmp_w0: 0.0,
         }
+    }
+
+    /// The spin-up's fit, once SpinUp ended with one that starts from rest
+    /// ([`MotionFit::starts_at`]): a rough J/kt for the loops of the states that follow
+    /// (on the uncorrected sensor the loop's frame wobbles against the rotor's, and on a
+    /// light rotor the torque with it).
+    pub fn spin_up_fit(&self) -> Option<MotionFit> {
+        self.spin_up_fit
+    }
+
+    /// The fit over [`State::Motion`]'s dip and recovery after the coast, on the
+    /// corrected sensor, once Motion ended.
+    pub fn motion_fit(&self) -> Option<MotionFit> {
+        self.motion_fit
+    }
+
+    /// The flux linkage the coast measured (Wb), once the coast ended.
+    pub fn flux_wb(&self) -> Option<f32> {
+        self.flux_wb
+    }
+
+    /// In [`State::Motion`]'s coast: its first half (0, +id) or its second (1, −id).
+    fn coast_half(&self) -> Option<u8> {
+        let p = &self.params;
+        (self.state == State::Motion && self.in_state_s < p.coast_s)
+            .then_some((self.in_state_s >= 0.5 * p.coast_s) as u8)
     }
 
     /// While in [`State::Refine`]: 0 at the commissioning speed, 1 at the second.
@@ -484,6 +605,10 @@ impl Commissioning {
     }
 
     fn go(&mut self, s: State) {
+        if matches!(s, State::SpinUp | State::Motion) {
+            self.fit = InertiaFit::default();
+        }
+        (self.residual_sum, self.residual_n) = (0.0, 0);
         self.state = s;
         self.in_state_s = 0.0;
         self.held_s = 0.0;
@@ -525,14 +650,19 @@ impl Commissioning {
                     self.force_safe(Cause::Timeout(State::CheckSensor));
                 }
             }
-            State::LoadCalibration => match i.load {
-                LoadStatus::Pending => {}
-                LoadStatus::Loaded => {
+            State::LoadCalibration => match (i.load, p.identify_motor) {
+                (LoadStatus::Pending, _) => {}
+                (LoadStatus::Loaded, identify) => {
                     self.loaded = true;
-                    self.go(State::Identify);
+                    self.go(if identify {
+                        State::Identify
+                    } else {
+                        State::Run
+                    });
                 }
-                LoadStatus::Unavailable => self.go(State::Identify),
-                LoadStatus::Refused => self.force_safe(Cause::LoadRefused),
+                (LoadStatus::Unavailable, true) => self.go(State::Identify),
+                (LoadStatus::Unavailable, false) => self.go(State::Align),
+                (LoadStatus::Refused, _) => self.force_safe(Cause::LoadRefused),
             },
             State::Identify => match i.ident {
                 IdentStatus::Done(_) if self.loaded => self.go(State::Run),
@@ -562,8 +692,16 @@ impl Commissioning {
                 None => {}
             },
             State::SpinUp => {
+                self.fit.add(i.dt_s, i.theta_rad, i.iq_integral_a_s);
                 self.hold_speed(i.dt_s);
                 if self.held_s >= p.speed_settle_s {
+                    // A rough J/kt if the fit is consistent (the loops stay on theirs
+                    // otherwise).
+                    let w = self.commissioning_speed_rad_s();
+                    self.spin_up_fit = self
+                        .fit
+                        .solve()
+                        .filter(|f| p.identify_motor && f.starts_at(0.0, w));
                     self.go(State::Adapt);
                 } else if self.in_state_s >= p.spin_up_timeout_s {
                     self.force_safe(Cause::Timeout(State::SpinUp));
@@ -606,13 +744,26 @@ impl Commissioning {
                 }
             }
             State::Verify => {
-                // Verified with the coefficients frozen and the drive still at speed.
-                if i.residual_max_rad.is_nan() || i.residual_max_rad >= p.verify_residual_rad {
+                // Verified with the coefficients frozen and the drive still at speed, on
+                // the residual's mean over verify_s: a residual over two sensor periods is
+                // noisy (a high R near the bus voltage peaks near the limit with its mean
+                // at half of it); a gross one, or NaN, fails at once.
+                let r = i.residual_max_rad;
+                self.residual_sum += r;
+                self.residual_n += 1;
+                if r.is_nan() || r >= VERIFY_GROSS * p.verify_residual_rad {
                     self.force_safe(Cause::VerifyFailed);
                 } else if self.in_state_s >= p.verify_s {
-                    self.go(State::Store);
+                    if self.residual_sum / self.residual_n as f32 >= p.verify_residual_rad {
+                        self.force_safe(Cause::VerifyFailed);
+                    } else if p.identify_motor {
+                        self.go(State::Motion);
+                    } else {
+                        self.go(State::Store);
+                    }
                 }
             }
+            State::Motion => self.measure_motion(i),
             State::Store => match i.store {
                 StoreStatus::Pending => {}
                 StoreStatus::Done => self.go(State::Run),
@@ -643,9 +794,56 @@ impl Commissioning {
         }
     }
 
+    /// [`State::Motion`]: the coast (ψ), then the dip and the speed recovered, over which
+    /// J/kt and B/kt are fitted.
+    fn measure_motion(&mut self, i: &Inputs) {
+        let p = self.params;
+        if let Some(half) = self.coast_half() {
+            if half != self.flux_half {
+                self.flux.close();
+                self.flux_half = half;
+            }
+            let since = self.in_state_s - half as f32 * 0.5 * p.coast_s;
+            if since >= COAST_SETTLE_S {
+                self.flux.add(i.theta_rad, i.flux_angle_wb_rad);
+            }
+            return;
+        }
+        if self.flux_wb.is_none() {
+            match self.flux.flux_wb() {
+                Some(psi) => self.flux_wb = Some(psi),
+                None => return self.force_safe(Cause::Identify(IdentError::FluxOutOfRange)),
+            }
+            // The fit starts here, at the speed the coast left (its friction can slow a
+            // light rotor by most of it, faster than the observer's feed-forward knows).
+            self.fit_from_rad_s = i.omega_rad_s;
+        }
+        self.fit.add(i.dt_s, i.theta_rad, i.iq_integral_a_s);
+        self.hold_speed(i.dt_s);
+        let dipped = self.in_state_s >= p.coast_s + p.spin_up_ramp_s;
+        if dipped && self.held_s >= p.speed_settle_s {
+            let (w0, w) = (self.fit_from_rad_s, p.speed_rad_s);
+            self.tmp_raw2 = self.fit.solve();
+            self.tmp_w0 = w0;
+            match self.fit.solve().filter(|f| f.starts_at(w0, w)) {
+                Some(f) => {
+                    self.motion_fit = Some(f);
+                    self.go(State::Store);
+                }
+                None => self.force_safe(Cause::Identify(IdentError::InertiaOutOfRange)),
+            }
+        } else if self.in_state_s >= p.coast_s + p.spin_up_timeout_s {
+            self.force_safe(Cause::Timeout(State::Motion));
+        }
+    }
+
     /// Count the time the low-passed ω̂ has been within tolerance of the setpoint.
     fn hold_speed(&mut self, dt_s: f32) {
-        let target = self.commissioning_speed_rad_s();
+        let target = if self.state == State::Motion {
+            self.params.speed_rad_s
+        } else {
+            self.commissioning_speed_rad_s()
+        };
         let err = libm::fabsf(self.speed_lp_rad_s - target);
         if err <= self.params.speed_tolerance * libm::fabsf(target) {
             self.held_s += dt_s;
@@ -668,6 +866,14 @@ impl Commissioning {
         let p = &self.params;
         let speed = Setpoint::Speed {
             omega_rad_s: self.commissioning_speed_rad_s(),
+        };
+        let ramp = if self.in_state_s < p.spin_up_ramp_s {
+            self.in_state_s / p.spin_up_ramp_s
+        } else {
+            1.0
+        };
+        let ramped = Setpoint::Speed {
+            omega_rad_s: ramp * self.commissioning_speed_rad_s(),
         };
         let mut learn_ripple = false;
         let (setpoint, adaptation, request) = match self.state {
@@ -696,7 +902,7 @@ impl Commissioning {
                 Adaptation::Frozen,
                 Request::None,
             ),
-            State::SpinUp => (speed, Adaptation::Frozen, Request::None),
+            State::SpinUp => (ramped, Adaptation::Frozen, Request::None),
             State::Adapt | State::Refine | State::SecondSpeed => {
                 (speed, Adaptation::Commissioning, Request::None)
             }
@@ -704,9 +910,41 @@ impl Commissioning {
                 (speed, Adaptation::Frozen, Request::InstallRefined)
             }
             State::Verify => (speed, Adaptation::Frozen, Request::None),
+            State::Motion => match self.coast_half() {
+                Some(half) => {
+                    let sign = if half == 0 { 1.0 } else { -1.0 };
+                    let coast = Setpoint::Coast {
+                        id_a: sign * p.coast_current_a,
+                    };
+                    (coast, Adaptation::Frozen, Request::None)
+                }
+                None => {
+                    // Down over the first half ramp, back up over the second.
+                    let t = (self.in_state_s - p.coast_s) / (0.5 * p.spin_up_ramp_s);
+                    let dip = if t < 1.0 {
+                        t
+                    } else if t < 2.0 {
+                        2.0 - t
+                    } else {
+                        0.0
+                    };
+                    // At the first commissioning speed, whatever speed Verify was at: the
+                    // second may leave the loop too little voltage to follow the dip.
+                    let w = (1.0 - MOTION_DIP * dip) * p.speed_rad_s;
+                    let dipping = Setpoint::Speed { omega_rad_s: w };
+                    (dipping, Adaptation::Frozen, Request::None)
+                }
+            },
             // The calibration pages are in the flash bank the code does not run from
             // (read-while-write): the control period keeps running through the erase.
-            State::Store => (speed, Adaptation::Frozen, Request::StoreCalibration),
+            // At the speed Motion ended at.
+            State::Store => (
+                Setpoint::Speed {
+                    omega_rad_s: p.speed_rad_s,
+                },
+                Adaptation::Frozen,
+                Request::StoreCalibration,
+            ),
             State::Run => {
                 let fast = libm::fabsf(self.speed_lp_rad_s)
                     >= p.tracking_min_speed_ratio * libm::fabsf(p.speed_rad_s);

@@ -24,7 +24,7 @@ use crate::foc::{clarke, inverse_park, park, svpwm, CurrentLoop, CurrentLoopPara
 use crate::ident::{IdentConfig, IdentStatus, Identifier};
 use crate::motion::{Angle, LoopMode, MotionLoop, MotionRef};
 use crate::ripple::{LearnSample, RippleLearner, RIPPLE_GAIN, RIPPLE_HARMONICS};
-use crate::telemetry::{Command, CycleStats, Fault, Snapshot};
+use crate::telemetry::{Command, CycleStats, Fault, MotionConstants, Snapshot};
 use mras::{AdaptSample, ConfigError, Cplx, Estimate, Front, InjectionUpdate, Trig};
 
 /// The motor as the controller knows it.
@@ -143,8 +143,19 @@ pub struct ControlPeriod<T: Trig> {
     /// The offset the shift is measured against.
     shift_base: Option<calib_record::Alignment>,
     /// Torque commanded for the period under way (motor frame): next period's
-    /// feed-forward to the observer.
+    /// feed-forward to the observer, scaled by `observer_torque_scale`.
     torque_cmd_nm: f32,
+    /// The motion's constants in force ([`Command::motion`]), and what they make of the
+    /// observer's feed-forward: its Ĵ over the identified J, so that the torque it is
+    /// fed gives it the rotor's acceleration.
+    motion: MotionConstants,
+    observer_torque_scale: f32,
+    /// The running integrals of the motion's identification ([`crate::spin`]), and the
+    /// control period over the pole pairs (the back-EMF's `∫(v − R·i − jωe·L·i)/p dt`
+    /// per period).
+    iq_integral_a_s: f32,
+    flux_angle_wb_rad: [f32; 2],
+    period_per_pole_pair_s: f32,
     /// The sensor's direction of the command in force (+1 / -1).
     direction: f32,
     /// The torque ripple fixed to the shaft angle, learned in Run, and its torque at θ̂s
@@ -310,6 +321,11 @@ impl<T: Trig> ControlPeriod<T> {
             shift: ShiftMeter::default(),
             shift_base: None,
             torque_cmd_nm: 0.0,
+            motion: MotionConstants::NOMINAL,
+            observer_torque_scale: 1.0,
+            iq_integral_a_s: 0.0,
+            flux_angle_wb_rad: [0.0; 2],
+            period_per_pole_pair_s: cfg.control_period_s / m.pole_pairs as f32,
             direction: 1.0,
             ripple: RippleLearner::new(
                 RIPPLE_HARMONICS as u8,
@@ -394,7 +410,7 @@ impl<T: Trig> ControlPeriod<T> {
             Ok((x, y)) => {
                 self.last_xy = (x, y);
                 self.tracker
-                    .step(x, y, self.direction * self.torque_cmd_nm + self.ripple_nm)
+                    .step(x, y, self.observer_torque_nm())
                     .map_err(Fault::Sensor)
             }
             // The core holds its estimate through the period, as for a sample it refuses.
@@ -503,7 +519,7 @@ impl<T: Trig> ControlPeriod<T> {
                 );
                 (angle, self.limit_current(current_a), 0.0, 0.0)
             }
-            Setpoint::Speed { .. } | Setpoint::Application => {
+            Setpoint::Speed { .. } | Setpoint::Application | Setpoint::Coast { .. } => {
                 let omega = self.direction * est.omega_rad_s;
                 let theta = if cmd.alignment.reversed {
                     mech_angle(&est).negated()
@@ -518,6 +534,11 @@ impl<T: Trig> ControlPeriod<T> {
                             ..MotionRef::default()
                         };
                         self.speed.torque(&r, theta, omega, t, self.torque_limit_nm)
+                    }
+                    Setpoint::Coast { .. } => {
+                        self.speed.reset();
+                        self.application.reset();
+                        0.0
                     }
                     _ => {
                         self.speed.reset();
@@ -535,24 +556,47 @@ impl<T: Trig> ControlPeriod<T> {
                     self.electrical_per_sensor,
                     est.theta_e_rad,
                 ));
+                let id_ref = match cmd.setpoint {
+                    Setpoint::Coast { id_a } => id_a,
+                    _ => 0.0,
+                };
                 (
                     theta_e,
-                    0.0,
+                    id_ref,
                     torque / self.torque_constant_nm_a,
                     self.pole_pairs * omega,
                 )
             }
             Setpoint::Off | Setpoint::Identify { .. } => (0.0, 0.0, 0.0, 0.0),
         };
-        if !matches!(cmd.setpoint, Setpoint::Speed { .. } | Setpoint::Application) {
+        if !matches!(
+            cmd.setpoint,
+            Setpoint::Speed { .. } | Setpoint::Application | Setpoint::Coast { .. }
+        ) {
             self.speed.reset();
             self.application.reset();
+        }
+        if cmd.motion != self.motion {
+            self.install_motion(cmd.motion, we);
         }
 
         let trig = self.tracker.trig();
         let (i_alpha, i_beta) = clarke(ia, ib);
         let (id, iq) = park(i_alpha, i_beta, trig.sin_cos(theta_e));
         let (vd, vq, _) = self.current.step((id_ref, iq_ref), (id, iq), we, t);
+        match cmd.setpoint {
+            Setpoint::Speed { .. } => self.iq_integral_a_s += iq * t,
+            Setpoint::Coast { .. } => {
+                // The back-EMF: what the loop applies less R·i and jωe·L·i (the loop
+                // holds some q current where the back-EMF falls faster than its
+                // integrator follows: a light rotor, a low R).
+                let m = &self.cfg.motor;
+                let k = self.period_per_pole_pair_s;
+                self.flux_angle_wb_rad[0] += (vd - m.r_ohm * id + we * m.l_h * iq) * k;
+                self.flux_angle_wb_rad[1] += (vq - m.r_ohm * iq - we * m.l_h * id) * k;
+            }
+            _ => {}
+        }
         // The voltage acts through the next period: rotate it to the angle the rotor
         // reaches in the middle of that period.
         let lead = 1.5 * we * t;
@@ -566,6 +610,13 @@ impl<T: Trig> ControlPeriod<T> {
             enable: true,
             supervisor_due,
         }
+    }
+
+    /// The torque fed forward to the observer (its Ĵ's units, the sensor's frame): the
+    /// command in force scaled to the identified J, and the learned ripple's.
+    #[inline(always)]
+    fn observer_torque_nm(&self) -> f32 {
+        self.direction * self.torque_cmd_nm * self.observer_torque_scale + self.ripple_nm
     }
 
     /// The inverter's voltage error as identified, put back (αβ, V): each phase's share
@@ -590,6 +641,31 @@ impl<T: Trig> ControlPeriod<T> {
         ((2.0 * a - b - c) * (1.0 / 3.0), (b - c) * 0.577_350_26)
     }
 
+    /// Put identified (or loaded) motion constants in force at electrical speed
+    /// `we_rad_s`: ψ in the torque constant, its limit and the current loop's back-EMF
+    /// feed-forward (its integrator gives back what the feed-forward adds, so the voltage
+    /// does not step), and J/kt in the motion loops (their inertia, which keeps their
+    /// torque) and in the observer's feed-forward.
+    #[inline(never)]
+    fn install_motion(&mut self, m: MotionConstants, we_rad_s: f32) {
+        let motor = &mut self.cfg.motor;
+        if m.flux_wb > 0.0 {
+            self.current.set_flux(m.flux_wb, we_rad_s);
+            motor.flux_wb = m.flux_wb;
+            self.torque_constant_nm_a = 1.5 * self.pole_pairs * m.flux_wb;
+            self.torque_limit_nm = self.torque_constant_nm_a * motor.i_max_a;
+        }
+        if m.amps_per_accel_a_s2 > 0.0 {
+            let kt = self.torque_constant_nm_a;
+            motor.inertia_kg_m2 = m.amps_per_accel_a_s2 * kt;
+            self.speed.set_inertia(motor.inertia_kg_m2);
+            self.application.set_inertia(motor.inertia_kg_m2);
+            self.observer_torque_scale =
+                self.tracker.config().observer.inertia_kg_m2 / motor.inertia_kg_m2;
+        }
+        self.motion = m;
+    }
+
     fn ident_config(cfg: &DriveConfig, current_a: f32) -> IdentConfig {
         let m = &cfg.motor;
         IdentConfig {
@@ -604,7 +680,9 @@ impl<T: Trig> ControlPeriod<T> {
     /// current loop is designed on what it found (the bridge stays off if it failed).
     fn identify(&mut self, i_ab: (f32, f32), supervisor_due: bool) -> Output {
         let (i_alpha, i_beta) = clarke(i_ab.0, i_ab.1);
-        let (vd, vq) = self.ident.step(park(i_alpha, i_beta, self.ident_frame));
+        let (vd, vq) = self
+            .ident
+            .step(park(i_alpha, i_beta, self.ident_frame), self.last_xy);
         let (v_alpha, v_beta) = inverse_park(vd, vq, self.ident_frame);
         match self.ident.status() {
             IdentStatus::Failed(_) => return self.disarm(supervisor_due),
@@ -758,11 +836,17 @@ impl<T: Trig> ControlPeriod<T> {
             core_faults: self.tracker.faults().bits(),
             unlocked: self.unlocked,
             theta_rad: motor_frame_angle(est.theta_rad, self.direction),
+            sensor_theta_rad: motor_frame_angle(
+                wrap_2pi(est.theta_rad + est.epsilon_rad / self.sensor_periods),
+                self.direction,
+            ),
             omega_rad_s: self.direction * est.omega_rad_s,
             amplitude: est.amplitude,
             sweep: self.sweep.result(),
             ident: self.ident.status(),
             corrected_offset_e_rad: self.corrected_offset(),
+            iq_integral_a_s: self.iq_integral_a_s,
+            flux_angle_wb_rad: self.flux_angle_wb_rad,
             currents_ready: self.currents_ready,
             currents_implausible: self.currents_implausible,
             cycles: self.cycles,
@@ -871,6 +955,19 @@ fn motor_frame_angle(theta_rad: f32, direction: f32) -> f32 {
         0.0
     } else {
         t
+    }
+}
+
+/// An angle within one turn of [0, 2π), into it.
+#[inline]
+fn wrap_2pi(theta_rad: f32) -> f32 {
+    use core::f32::consts::TAU;
+    if theta_rad < 0.0 {
+        theta_rad + TAU
+    } else if theta_rad >= TAU {
+        theta_rad - TAU
+    } else {
+        theta_rad
     }
 }
 

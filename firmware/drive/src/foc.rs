@@ -127,6 +127,13 @@ impl CurrentLoop {
         self.q.reset();
     }
 
+    /// Another ψ for the back-EMF feed-forward at electrical speed `we_rad_s`: the q
+    /// integrator gives back what the feed-forward adds, so the voltage does not step.
+    pub fn set_flux(&mut self, flux_wb: f32, we_rad_s: f32) {
+        self.q.integral -= we_rad_s * (flux_wb - self.p.flux_wb);
+        self.p.flux_wb = flux_wb;
+    }
+
     /// `(vd, vq, limited)` for the references and measured currents (A) at electrical
     /// speed `we_rad_s`.
     pub fn step(

@@ -16,22 +16,28 @@
 //!    measured current must point along the applied voltage: a reversed or crossed
 //!    current sense is refused here ([`IdentError::CurrentSign`]), before any loop
 //!    could run it as positive feedback.
-//! 2. **Levels**: that PI holds the α current at half the level, then at the level, until
-//!    the mean voltage settles at each. The levels rise above the identification
-//!    current where the probe's rise says the PWM ripple takes a phase current through
-//!    zero (small L): there the inverter's error is not yet its full value. The inverter's error (dead time, device drops)
-//!    has the same sign and size at both, so `R = ΔV/ΔI` leaves it out and the
-//!    intercept measures it.
-//! 3. **Ripple d**, open loop at the second level's settled voltage: ±ΔV added on α,
-//!    alternating every period. The current zig-zags by `D` peak to peak around the
+//! 2. **Levels**: that PI holds the α current at half the level, then at the level, and a
+//!    second one holds β at zero. The levels rise above the identification current where
+//!    the probe's rise says the PWM ripple takes a phase current through zero (small L):
+//!    there the inverter's error is not yet its full value. The inverter's error (dead
+//!    time, device drops) has the same sign and size at both, so `R = ΔV/ΔI` leaves it
+//!    out and the intercept measures it. A rotor resting off α swings onto it, lightly
+//!    damped, for seconds: its back-EMF along α, `d(ψ·cos θe)/dt`, integrates to zero
+//!    between two instants at the same rotor angle, so each level's means are taken
+//!    between two instants the sensor reads alike ([`Window`]), and the β loop keeps the
+//!    swing's β back-EMF from driving a current that would change the phases' inverter
+//!    error between the levels.
+//! 3. **Ripple d**: ±ΔV added on α, alternating every period, while the loops hold the
+//!    level on the mean of the last two samples (in which the zig-zag cancels). The current zig-zags by `D` peak to peak around the
 //!    level without changing sign, so the inverter's error stays constant and drops
 //!    out. For a first-order R-L with the voltage constant over each period (exact, for
 //!    any L/R against the period): `x = R·D/(2ΔV) = (1-a)/(1+a)`, `a = exp(-R·T/L)`.
 //!    A short trial burst sizes ΔV for a ripple of [`RIPPLE_TARGET`] of the level.
 //! 4. **Ripple q**: the same on β, α still at the level: the rotor is held by the d
 //!    current and sees a torque alternating every period, with no mean.
-//! 5. **Release**: zero voltage until the current has decayed, so that the loop that
-//!    follows starts from rest.
+//! 5. **Release**: both currents held at zero until they have decayed, so that the loop
+//!    that follows starts from rest (shorted windings would let a swinging rotor drive
+//!    amperes).
 //!
 //! Everything is bounded: the current (an over-current is refused at once), the voltage
 //! (the loop's limit) and each stage's time.
@@ -42,10 +48,26 @@ use crate::foc::Pi;
 /// enough that a pulse stays below the current limit on the smallest (each pulse is at
 /// most twice one that stayed below half the level).
 pub const PROBE_ON_PERIODS: u32 = 40;
-/// Periods the mean voltage and current are taken over while a level settles.
+/// Periods the mean current and voltage are taken over while a level settles, and the
+/// consecutive settled windows a level on a still rotor needs.
 const WINDOW_PERIODS: u32 = 100;
-/// Consecutive settled windows a level needs.
 const SETTLED_WINDOWS: u32 = 3;
+/// A level's window may start at any of these marks, this many periods apart.
+const MARKS: usize = 8;
+const MARK_PERIODS: u32 = 100;
+/// The shortest window from a mark (s), and from a mark the sensor never left (a rotor
+/// at rest: only noise to average, and the level settled before the window started).
+const MIN_WINDOW_S: f32 = 0.05;
+const STILL_WINDOW_S: f32 = 0.015;
+/// The sensor reads alike: its vector within this of the mark's (scaled units, about a
+/// count and a half of the 12-bit front end), or within 0.6 of this period's step (a
+/// fast swing passes the mark between two samples).
+const SAME_READING: f32 = 1e-3;
+/// A mark the vector never left by more than this saw a still rotor.
+const STILL_READING: f32 = 5e-3;
+/// A window that has not closed this long after the first mark starts again (a rotor
+/// still creeping toward α).
+const RESTART_S: f32 = 0.3;
 /// Each stage's time limit (s): the probe's decay and a level's settling scale with L/R,
 /// up to 40 ms on the slowest motor in the ratings; this leaves about 7x.
 const STAGE_TIMEOUT_S: f32 = 1.0;
@@ -105,6 +127,12 @@ pub enum IdentError {
     Unsettled,
     /// A result outside what any motor in the drive's ratings could give.
     OutOfRange,
+    /// The spin-up's acceleration per amp could not be fitted, or is implausible
+    /// ([`crate::spin::InertiaFit`]).
+    InertiaOutOfRange,
+    /// The coast's flux linkage is implausible, or the rotor did not travel
+    /// ([`crate::spin::FluxMeter`]).
+    FluxOutOfRange,
 }
 
 impl IdentError {
@@ -115,6 +143,8 @@ impl IdentError {
             IdentError::OverCurrent => "IdentOverCurrent",
             IdentError::Unsettled => "IdentUnsettled",
             IdentError::OutOfRange => "IdentOutOfRange",
+            IdentError::InertiaOutOfRange => "InertiaOutOfRange",
+            IdentError::FluxOutOfRange => "FluxOutOfRange",
         }
     }
 }
@@ -125,6 +155,83 @@ pub enum IdentStatus {
     Pending,
     Done(Identified),
     Failed(IdentError),
+}
+
+/// Where a level's window may start: the sensor's vector and the sums so far.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Mark {
+    xy: (f32, f32),
+    n: u32,
+    sum_i: f32,
+    sum_v: f32,
+    /// The vector never left it by more than [`STILL_READING`].
+    still: bool,
+}
+
+/// A level's means between two instants the sensor reads alike: from one of the first
+/// [`MARKS`] marks, [`MARK_PERIODS`] apart, to the first period at least
+/// [`MIN_WINDOW_S`] (or [`STILL_WINDOW_S`] for a still rotor) later whose vector is the
+/// mark's again ([`SAME_READING`]); the earliest mark that closes wins. A swing's later
+/// marks lie inside it, so a rotor released at a swing's extreme still closes.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Window {
+    n: u32,
+    sum_i: f32,
+    sum_v: f32,
+    last_xy: (f32, f32),
+    marks: [Mark; MARKS],
+    count: usize,
+}
+
+/// |a − b| summed over X and Y.
+fn apart(a: (f32, f32), b: (f32, f32)) -> f32 {
+    libm::fabsf(a.0 - b.0) + libm::fabsf(a.1 - b.1)
+}
+
+impl Window {
+    fn new(xy: (f32, f32)) -> Self {
+        Self {
+            last_xy: xy,
+            ..Self::default()
+        }
+    }
+
+    /// One period's α current and voltage at sensor vector `xy`; the window's means
+    /// (current, voltage) once it closes.
+    fn add(&mut self, i: f32, v: f32, xy: (f32, f32), period_s: f32) -> Option<(f32, f32)> {
+        if self.n % MARK_PERIODS == 0 {
+            if let Some(m) = self.marks.get_mut(self.count) {
+                *m = Mark {
+                    xy,
+                    n: self.n,
+                    sum_i: self.sum_i,
+                    sum_v: self.sum_v,
+                    still: true,
+                };
+                self.count += 1;
+            }
+        }
+        self.n += 1;
+        self.sum_i += i;
+        self.sum_v += v;
+        let same = mras::max_f32(SAME_READING, 0.6 * apart(xy, self.last_xy));
+        self.last_xy = xy;
+        for m in self.marks.iter_mut().take(self.count) {
+            let d = apart(xy, m.xy);
+            m.still &= d <= STILL_READING;
+            let periods = self.n - m.n;
+            let least = if m.still {
+                STILL_WINDOW_S
+            } else {
+                MIN_WINDOW_S
+            };
+            if periods as f32 * period_s >= least && d <= same {
+                let k = 1.0 / periods as f32;
+                return Some(((self.sum_i - m.sum_i) * k, (self.sum_v - m.sum_v) * k));
+            }
+        }
+        None
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -142,8 +249,8 @@ enum Stage {
         q: bool,
         trial: bool,
     },
-    /// Zero voltage until the current has decayed: the next state's loop starts from
-    /// rest (its step response is then its design's).
+    /// Both currents held at zero until they have decayed: the next state's loop starts
+    /// from rest (its step response is then its design's).
     Release,
     Finished,
 }
@@ -164,17 +271,22 @@ pub struct Identifier {
     r_bound_ohm: f32,
     /// The second level (A); the first is half of it.
     level_target_a: f32,
-    // Levels.
-    pi: Pi,
-    v_alpha: f32,
+    // Levels: the α and β loops, the voltage they commanded last, the settling check's
+    // sum and, once settled, the window.
+    pi: [Pi; 2],
+    v_ab: (f32, f32),
     sum_i: f32,
     sum_v: f32,
     last_mean_v: f32,
+    last_xy: (f32, f32),
     settled: u32,
+    window: Option<Window>,
+    window_s: f32,
     level_v: [f32; 2],
     level_a: [f32; 2],
     r_ohm: f32,
     // Ripple.
+    last_ab: (f32, f32),
     dv_v: f32,
     ripple_sum: f32,
     ld_h: f32,
@@ -200,15 +312,19 @@ impl Identifier {
             l_bound_h: 0.0,
             r_bound_ohm: 0.0,
             level_target_a: 0.0,
-            pi: Pi::default(),
-            v_alpha: 0.0,
+            pi: [Pi::default(); 2],
+            v_ab: (0.0, 0.0),
             sum_i: 0.0,
             sum_v: 0.0,
             last_mean_v: f32::NAN,
+            last_xy: (0.0, 0.0),
             settled: 0,
+            window: None,
+            window_s: 0.0,
             level_v: [0.0; 2],
             level_a: [0.0; 2],
             r_ohm: 0.0,
+            last_ab: (0.0, 0.0),
             dv_v: 0.0,
             ripple_sum: 0.0,
             ld_h: 0.0,
@@ -237,9 +353,10 @@ impl Identifier {
         self.stage_s = 0.0;
     }
 
-    /// One period: the measured αβ current of this period's sample (A) → the αβ voltage
-    /// for the next period (V). After the end, (0, 0).
-    pub fn step(&mut self, (i_alpha, i_beta): (f32, f32)) -> (f32, f32) {
+    /// One period: the measured αβ current of this period's sample (A) and the sensor's
+    /// vector (scaled units, as the core takes it) → the αβ voltage for the next period
+    /// (V). After the end, (0, 0).
+    pub fn step(&mut self, (i_alpha, i_beta): (f32, f32), xy: (f32, f32)) -> (f32, f32) {
         let c = self.cfg;
         if self.stage == Stage::Finished {
             return (0.0, 0.0);
@@ -257,15 +374,16 @@ impl Identifier {
         self.k += 1;
         match self.stage {
             Stage::Probe { volts, on } => self.probe(volts, on, i_alpha, i_beta),
-            Stage::Level { index } => self.level(index, i_alpha),
-            Stage::Ripple { q, trial } => self.ripple(q, trial, if q { i_beta } else { i_alpha }),
+            Stage::Level { index } => self.level(index, (i_alpha, i_beta), xy),
+            Stage::Ripple { q, trial } => self.ripple(q, trial, (i_alpha, i_beta)),
             Stage::Release => {
                 let rest = 0.02 * self.level_target_a;
                 if self.k >= 3 && libm::fabsf(i_alpha) < rest && libm::fabsf(i_beta) < rest {
                     self.status = IdentStatus::Done(self.found);
                     self.stage = Stage::Finished;
+                    return (0.0, 0.0);
                 }
-                (0.0, 0.0)
+                self.hold((0.0, 0.0), (i_alpha, i_beta))
             }
             Stage::Finished => (0.0, 0.0),
         }
@@ -284,7 +402,7 @@ impl Identifier {
             if k >= 3 && libm::fabsf(i_alpha) < 0.02 * c.current_a {
                 if self.l_bound_h > 0.0 {
                     self.start_levels();
-                    return (self.v_alpha, 0.0);
+                    return (0.0, 0.0);
                 }
                 let volts = 2.0 * volts;
                 if volts > c.v_max_v {
@@ -332,99 +450,152 @@ impl Identifier {
 
     fn start_levels(&mut self) {
         let wc = core::f32::consts::TAU * LEVEL_BANDWIDTH_HZ;
-        self.pi = Pi {
+        let pi = Pi {
             kp: self.l_bound_h * wc,
             ki: self.r_bound_ohm * wc,
             integral: 0.0,
         };
-        self.v_alpha = 0.0;
-        self.reset_window();
-        self.enter(Stage::Level { index: 0 });
+        self.pi = [pi; 2];
+        self.v_ab = (0.0, 0.0);
+        self.start_level(0);
     }
 
-    fn reset_window(&mut self) {
-        self.sum_i = 0.0;
-        self.sum_v = 0.0;
-        self.last_mean_v = f32::NAN;
+    fn start_level(&mut self, index: u8) {
+        (self.sum_i, self.sum_v, self.last_mean_v) = (0.0, 0.0, f32::NAN);
         self.settled = 0;
+        self.window = None;
+        self.enter(Stage::Level { index });
     }
 
-    fn level(&mut self, index: u8, i_alpha: f32) -> (f32, f32) {
-        let c = self.cfg;
-        let target = if index == 0 { 0.5 } else { 1.0 } * self.level_target_a;
-        // The mean of what was commanded against what was measured: in steady state
-        // both are the period's.
-        self.sum_i += i_alpha;
-        self.sum_v += self.v_alpha;
-        if self.k % WINDOW_PERIODS == 0 {
-            let n = WINDOW_PERIODS as f32;
-            let (mean_i, mean_v) = (self.sum_i / n, self.sum_v / n);
-            self.sum_i = 0.0;
-            self.sum_v = 0.0;
-            let steady = libm::fabsf(mean_i - target) <= 0.01 * target
-                && libm::fabsf(mean_v - self.last_mean_v) <= 2e-3 * libm::fabsf(mean_v) + 1e-3;
-            self.settled = if steady { self.settled + 1 } else { 0 };
-            self.last_mean_v = mean_v;
-            if self.settled >= SETTLED_WINDOWS {
-                // Constant indices: no bounds check in the control interrupt.
-                if index == 0 {
-                    self.level_v[0] = mean_v;
-                    self.level_a[0] = mean_i;
-                    self.reset_window();
-                    self.enter(Stage::Level { index: 1 });
-                } else {
-                    self.level_v[1] = mean_v;
-                    self.level_a[1] = mean_i;
-                    return self.finish_levels();
-                }
+    /// Both loops toward `target` (αβ, A) on the measured current `i`, each within the
+    /// voltage limit (anti-windup: an integrator holds what the limit allows); the voltage
+    /// for the next period.
+    fn hold(&mut self, target: (f32, f32), i: (f32, f32)) -> (f32, f32) {
+        let (lim, t) = (self.cfg.v_max_v, self.cfg.period_s);
+        let mut v = [0.0; 2];
+        for ((pi, out), e) in self
+            .pi
+            .iter_mut()
+            .zip(v.iter_mut())
+            .zip([target.0 - i.0, target.1 - i.1])
+        {
+            let unlimited = pi.step(e, t, false);
+            *out = mras::min_f32(mras::max_f32(unlimited, -lim), lim);
+            if *out != unlimited {
+                pi.integral = *out - pi.kp * e;
             }
         }
-        let unlimited = self.pi.step(target - i_alpha, c.period_s, false);
-        let v = mras::min_f32(mras::max_f32(unlimited, -c.v_max_v), c.v_max_v);
-        if v != unlimited {
-            // Anti-windup: the integrator holds what the limit allows.
-            self.pi.integral = v - self.pi.kp * (target - i_alpha);
-        }
-        self.v_alpha = v;
-        (v, 0.0)
+        self.v_ab = (v[0], v[1]);
+        self.v_ab
     }
 
-    fn finish_levels(&mut self) -> (f32, f32) {
+    fn level(&mut self, index: u8, i: (f32, f32), xy: (f32, f32)) -> (f32, f32) {
+        let c = self.cfg;
+        let target = if index == 0 { 0.5 } else { 1.0 } * self.level_target_a;
+        // The voltage of the period this sample closed.
+        let v_alpha = self.v_ab.0;
+        match &mut self.window {
+            None => {
+                // Settled: the α current's mean within 1 % of the level and the voltage's
+                // steady over SETTLED_WINDOWS windows, or the current within 5 % and the
+                // rotor moving (its back-EMF keeps the voltage from settling; the window's
+                // ends at one reading take it out).
+                self.sum_i += i.0;
+                self.sum_v += v_alpha;
+                if self.k % WINDOW_PERIODS == 0 {
+                    let n = WINDOW_PERIODS as f32;
+                    let (mean_i, mean_v) = (self.sum_i / n, self.sum_v / n);
+                    (self.sum_i, self.sum_v) = (0.0, 0.0);
+                    let off = libm::fabsf(mean_i - target);
+                    let steady =
+                        libm::fabsf(mean_v - self.last_mean_v) <= 2e-3 * libm::fabsf(mean_v) + 1e-3;
+                    // (Not on the level's first window: nothing to compare with.)
+                    let moving =
+                        self.last_mean_v.is_finite() && apart(xy, self.last_xy) > STILL_READING;
+                    self.last_mean_v = mean_v;
+                    self.last_xy = xy;
+                    self.settled = if off <= 0.01 * target && steady {
+                        self.settled + 1
+                    } else {
+                        0
+                    };
+                    if self.settled >= SETTLED_WINDOWS || off <= 0.05 * target && moving {
+                        self.window = Some(Window::new(xy));
+                        self.window_s = 0.0;
+                    }
+                }
+            }
+            Some(w) => match w.add(i.0, v_alpha, xy, c.period_s) {
+                Some((mean_i, mean_v)) => {
+                    // Constant indices: no bounds check in the control interrupt.
+                    if index == 0 {
+                        self.level_v[0] = mean_v;
+                        self.level_a[0] = mean_i;
+                        self.start_level(1);
+                    } else {
+                        self.level_v[1] = mean_v;
+                        self.level_a[1] = mean_i;
+                        return self.finish_levels(i);
+                    }
+                }
+                None => {
+                    self.window_s += c.period_s;
+                    if self.window_s > RESTART_S {
+                        *w = Window::new(xy);
+                        self.window_s = 0.0;
+                    }
+                }
+            },
+        }
+        self.hold((target, 0.0), i)
+    }
+
+    fn finish_levels(&mut self, i: (f32, f32)) -> (f32, f32) {
         let di = self.level_a[1] - self.level_a[0];
         let r = (self.level_v[1] - self.level_v[0]) / di;
         if !(r.is_finite() && r > R_RANGE_OHM.0 && r < R_RANGE_OHM.1) {
             return self.fail(IdentError::OutOfRange);
         }
         self.r_ohm = r;
-        self.v_alpha = self.level_v[1];
         // A trial ΔV from the L bound: at most the aimed ripple (the bound is high).
         self.dv_v = RIPPLE_TARGET * self.level_target_a * self.l_bound_h / self.cfg.period_s;
         self.dv_v = mras::min_f32(self.dv_v, self.ripple_room()) / 4.0;
         self.ripple_sum = 0.0;
+        self.last_ab = i;
         self.enter(Stage::Ripple {
             q: false,
             trial: true,
         });
-        (self.v_alpha, 0.0)
+        self.hold((self.level_target_a, 0.0), i)
     }
 
     /// The largest ΔV that keeps the voltage within the limit on either axis.
     fn ripple_room(&self) -> f32 {
-        mras::max_f32(self.cfg.v_max_v - libm::fabsf(self.v_alpha), 0.0)
+        let base = mras::max_f32(libm::fabsf(self.v_ab.0), libm::fabsf(self.v_ab.1));
+        mras::max_f32(self.cfg.v_max_v - base, 0.0)
     }
 
-    fn ripple(&mut self, q: bool, trial: bool, i_axis: f32) -> (f32, f32) {
+    fn ripple(&mut self, q: bool, trial: bool, i: (f32, f32)) -> (f32, f32) {
         let n = if trial {
             RIPPLE_TRIAL_PERIODS
         } else {
             RIPPLE_PERIODS
         };
+        let (i_axis, last) = if q {
+            (i.1, self.last_ab.1)
+        } else {
+            (i.0, self.last_ab.0)
+        };
         // Alternating differences: the zig-zag adds up, a slow drift cancels.
         if self.k > RIPPLE_SKIP + 1 {
             let sign = if self.k & 1 == 0 { 1.0 } else { -1.0 };
-            self.ripple_sum += sign * (i_axis - self.last_i);
+            self.ripple_sum += sign * (i_axis - last);
         }
-        self.last_i = i_axis;
+        // The loops hold the level on the mean of the last two samples, where the
+        // zig-zag cancels.
+        let mean = (0.5 * (i.0 + self.last_ab.0), 0.5 * (i.1 + self.last_ab.1));
+        self.last_ab = i;
+        let base = self.hold((self.level_target_a, 0.0), mean);
         if self.k > RIPPLE_SKIP + 1 + n {
             let d = libm::fabsf(self.ripple_sum) / n as f32;
             self.ripple_sum = 0.0;
@@ -447,7 +618,7 @@ impl Identifier {
                         v_inverter_v: self.level_v[1] - self.r_ohm * self.level_a[1],
                     };
                     self.enter(Stage::Release);
-                    return (0.0, 0.0);
+                    return self.hold((0.0, 0.0), i);
                 }
                 self.ld_h = l;
                 self.dv_v /= 4.0;
@@ -456,7 +627,7 @@ impl Identifier {
                     trial: true,
                 });
             }
-            return (self.v_alpha, 0.0);
+            return base;
         }
         let dv = if self.k & 1 == 0 {
             self.dv_v
@@ -464,9 +635,9 @@ impl Identifier {
             -self.dv_v
         };
         if q {
-            (self.v_alpha, dv)
+            (base.0, base.1 + dv)
         } else {
-            (self.v_alpha + dv, 0.0)
+            (base.0 + dv, base.1)
         }
     }
 

@@ -24,5 +24,6 @@ pub mod motion;
 mod mutant;
 pub mod refine;
 pub mod ripple;
+pub mod spin;
 pub mod supervisor;
 pub mod telemetry;

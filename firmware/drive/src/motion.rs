@@ -106,6 +106,13 @@ impl MotionLoop {
         self.home
     }
 
+    /// Place the poles on another Ĵ, keeping the torque the integrator holds (its state
+    /// is an acceleration): a bumpless change at speed.
+    pub fn set_inertia(&mut self, inertia_kg_m2: f32) {
+        self.integral *= self.inertia_kg_m2 / inertia_kg_m2;
+        self.inertia_kg_m2 = inertia_kg_m2;
+    }
+
     /// Forget the integrator and the homing (the loop is not in use).
     pub fn reset(&mut self) {
         self.integral = 0.0;

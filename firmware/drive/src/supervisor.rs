@@ -17,18 +17,25 @@
 use crate::commissioning::{
     Cause, Commissioning, Inputs, LoadStatus, Params, RefineStatus, Request, State, StoreStatus,
 };
+use crate::control::MotorConfig;
 use crate::ident::IdentStatus;
 use crate::refine::{separate, CoefficientMean, RefineError, Refined};
-use crate::telemetry::{Command, Event, Install, Line, Record, Telemetry, INIT_SEQ};
-use calib_record::{Alignment, Calibration, FlashSlots, StoreError};
+use crate::telemetry::{
+    Command, Event, Install, Line, MotionConstants, Record, Telemetry, INIT_SEQ,
+};
+use calib_record::{Alignment, Calibration, FlashSlots, MotorConstants, StoreError};
 use heapless::Vec;
 use mras::{Bank, Coefficients};
 
 /// What an [`Install`] in flight is for.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 enum Awaiting {
-    /// A record loaded from flash (its sequence number, for the event).
-    Load { generation: u8, sequence: u32 },
+    /// A record loaded from flash (its sequence number, for the event, and its motor).
+    Load {
+        generation: u8,
+        sequence: u32,
+        motor: MotorConstants,
+    },
     /// The refined coefficients.
     Refined { generation: u8 },
 }
@@ -158,7 +165,13 @@ pub struct Supervisor<const E: usize = MAX_EVENTS> {
     dt_s: f32,
     control_rate_hz: u32,
     cfg_hash: u32,
+    /// The motor's pole pairs: the torque constant `1.5·p·ψ` of the identified J and B.
+    pole_pairs: f32,
     alignment: Alignment,
+    /// The motor's constants as identified or loaded (the configured ones until then),
+    /// and what the control period is told of them.
+    motor: MotorConstants,
+    motion: MotionConstants,
     load: LoadStatus,
     store: StoreStatus,
     refine: RefineStatus,
@@ -188,9 +201,17 @@ pub struct Supervisor<const E: usize = MAX_EVENTS> {
 impl Supervisor {
     /// `cfg_hash`: the control period's `calibration_hash` (the core's configuration,
     /// the motor and the sensor's scaling); `control_rate_hz` and `divider`: the control
-    /// rate and the control periods per supervisor step.
-    pub fn new(params: Params, cfg_hash: u32, control_rate_hz: u32, divider: u32) -> Self {
-        Self::with_event_room(params, cfg_hash, control_rate_hz, divider)
+    /// rate and the control periods per supervisor step; `motor`: the control period's
+    /// configured motor (its pole pairs, and the constants a calibration stores where the
+    /// motor is not identified).
+    pub fn new(
+        params: Params,
+        cfg_hash: u32,
+        control_rate_hz: u32,
+        divider: u32,
+        motor: &MotorConfig,
+    ) -> Self {
+        Self::with_event_room(params, cfg_hash, control_rate_hz, divider, motor)
     }
 }
 
@@ -201,6 +222,7 @@ impl<const E: usize> Supervisor<E> {
         cfg_hash: u32,
         control_rate_hz: u32,
         divider: u32,
+        motor: &MotorConfig,
     ) -> Self {
         const { assert!(E >= 1, "a step's fault needs an event to take the place of") };
         let divider = divider.max(1);
@@ -209,7 +231,19 @@ impl<const E: usize> Supervisor<E> {
             dt_s: divider as f32 / control_rate_hz.max(1) as f32,
             control_rate_hz: control_rate_hz.max(1),
             cfg_hash,
+            pole_pairs: motor.pole_pairs as f32,
             alignment: Alignment::IDENTITY,
+            motor: MotorConstants {
+                r_ohm: motor.r_ohm,
+                ld_h: motor.l_h,
+                lq_h: motor.l_h,
+                v_inverter_v: 0.0,
+                flux_wb: motor.flux_wb,
+                inertia_kg_m2: motor.inertia_kg_m2,
+                viscous_nm_s_rad: 0.0,
+                coulomb_nm: 0.0,
+            },
+            motion: MotionConstants::NOMINAL,
             load: LoadStatus::Pending,
             store: StoreStatus::Pending,
             refine: RefineStatus::Pending,
@@ -256,6 +290,22 @@ impl<const E: usize> Supervisor<E> {
     /// The alignment in force.
     pub fn alignment(&self) -> Alignment {
         self.alignment
+    }
+
+    pub fn tmp_fits(
+        &self,
+    ) -> (
+        Option<crate::spin::MotionFit>,
+        Option<crate::spin::MotionFit>,
+        f32,
+    ) {
+        (self.sm.tmp_raw, self.sm.tmp_raw2, self.sm.tmp_w0)
+    }
+
+    /// The motor's constants as identified or loaded (the configured ones until then; 0
+    /// for what the configuration does not hold).
+    pub fn motor(&self) -> MotorConstants {
+        self.motor
     }
 
     /// The reason the previous run ended (watchdog, HardFault, panic), found at boot:
@@ -325,12 +375,19 @@ impl<const E: usize> Supervisor<E> {
                 Some(Awaiting::Load {
                     generation,
                     sequence,
+                    motor,
                 }),
                 Some(ack),
             ) if ack.generation == generation => {
                 self.awaiting = None;
                 self.load = if ack.accepted {
                     events.push(Event::Loaded { t_ms, sequence });
+                    self.motor = motor;
+                    self.motion = MotionConstants {
+                        amps_per_accel_a_s2: motor.inertia_kg_m2 / self.torque_constant(),
+                        flux_wb: motor.flux_wb,
+                    };
+                    events.push(self.motion_event(t_ms));
                     LoadStatus::Loaded
                 } else {
                     LoadStatus::Refused
@@ -363,6 +420,7 @@ impl<const E: usize> Supervisor<E> {
                         self.awaiting = Some(Awaiting::Load {
                             generation: self.generation,
                             sequence: l.record.sequence,
+                            motor: l.record.calibration.motor,
                         });
                         install = Some(Install {
                             generation: self.generation,
@@ -426,7 +484,10 @@ impl<const E: usize> Supervisor<E> {
                 .filter(|_| tm.snapshot.release == self.release),
             currents_ready: tm.snapshot.currents_ready,
             currents_implausible: tm.snapshot.currents_implausible,
+            theta_rad: tm.snapshot.sensor_theta_rad,
             omega_rad_s: tm.snapshot.omega_rad_s,
+            iq_integral_a_s: tm.snapshot.iq_integral_a_s,
+            flux_angle_wb_rad: tm.snapshot.flux_angle_wb_rad,
             converged: tm.converged,
             residual_max_rad: tm.residual_max_rad,
             load: self.load,
@@ -437,7 +498,7 @@ impl<const E: usize> Supervisor<E> {
             locked: !tm.snapshot.unlocked,
         });
         let state = self.sm.state();
-        if before == State::Verify && state == State::Store {
+        if before == State::Verify && matches!(state, State::Motion | State::Store) {
             if let Some(offset_e_rad) = tm.snapshot.corrected_offset_e_rad {
                 self.alignment.offset_e_rad = offset_e_rad;
                 events.push(Event::OffsetCorrected { t_ms, offset_e_rad });
@@ -446,6 +507,11 @@ impl<const E: usize> Supervisor<E> {
         if let (State::Identify, State::Align | State::Run, IdentStatus::Done(x)) =
             (before, state, tm.snapshot.ident)
         {
+            let m = &mut self.motor;
+            (m.r_ohm, m.ld_h, m.lq_h) = (x.r_ohm, x.ld_h, x.lq_h);
+            // As the control period puts it back: a negative one (noise on an ideal
+            // inverter) is none.
+            m.v_inverter_v = mras::max_f32(x.v_inverter_v, 0.0);
             events.push(Event::Identified {
                 t_ms,
                 r_ohm: x.r_ohm,
@@ -453,6 +519,24 @@ impl<const E: usize> Supervisor<E> {
                 lq_h: x.lq_h,
                 v_inverter_v: x.v_inverter_v,
             });
+        }
+        if let (State::SpinUp, State::Adapt, Some(f)) = (before, state, self.sm.spin_up_fit()) {
+            // A rough J/kt now: the motion loops and the observer in acceleration per amp.
+            self.motion.amps_per_accel_a_s2 = f.amps_per_accel_a_s2;
+        }
+        if let (State::Motion, State::Store, Some(psi), Some(f)) =
+            (before, state, self.sm.flux_wb(), self.sm.motion_fit())
+        {
+            self.motion.amps_per_accel_a_s2 = f.amps_per_accel_a_s2;
+            self.motion.flux_wb = psi;
+            self.motor.flux_wb = psi;
+            let kt = self.torque_constant();
+            self.motor.inertia_kg_m2 = f.amps_per_accel_a_s2 * kt;
+            // As fitted: at one speed region viscous and constant friction are separated
+            // only weakly, either may come out negative while their sum is right.
+            self.motor.viscous_nm_s_rad = f.amps_per_speed_a_s * kt;
+            self.motor.coulomb_nm = f.amps_constant_a * kt;
+            events.push(self.motion_event(t_ms));
         }
         if before == State::Sweep && state == State::SpinUp {
             if let Some(r) = tm.snapshot.sweep {
@@ -487,6 +571,7 @@ impl<const E: usize> Supervisor<E> {
             release: self.release,
             learn_ripple: o.learn_ripple,
             reacquire: o.reacquire,
+            motion: self.motion,
         };
         self.events_dropped = self.events_dropped.saturating_add(events.dropped());
         let record = (self.steps % RECORD_DIVIDER == 0).then(|| Record {
@@ -519,6 +604,22 @@ impl<const E: usize> Supervisor<E> {
         };
         self.next_seq = self.next_seq.wrapping_add(out.line_count());
         out
+    }
+
+    /// The torque constant `1.5·p·ψ` of the flux linkage in force (N·m/A).
+    fn torque_constant(&self) -> f32 {
+        1.5 * self.pole_pairs * self.motor.flux_wb
+    }
+
+    /// The motion constants in force, for the stream.
+    fn motion_event(&self, t_ms: u32) -> Event {
+        Event::Motion {
+            t_ms,
+            flux_wb: self.motor.flux_wb,
+            inertia_kg_m2: self.motor.inertia_kg_m2,
+            viscous_nm_s_rad: self.motor.viscous_nm_s_rad,
+            coulomb_nm: self.motor.coulomb_nm,
+        }
     }
 
     /// The mean of the one refinement, or the two speeds' separation.
@@ -573,6 +674,7 @@ impl<const E: usize> Supervisor<E> {
         let cal = Calibration {
             coefficients: tm.coefficients,
             alignment: self.alignment,
+            motor: self.motor,
         };
         let event = match calib_record::store(flash, &cal, self.cfg_hash) {
             Ok(_) => Event::Stored { t_ms },

@@ -51,6 +51,27 @@ pub struct Command {
     /// Ride through sensor faults: the bridge is off only for periods without a locked
     /// estimate (`commissioning::Outputs::reacquire`).
     pub reacquire: bool,
+    /// The motor's mechanical constants as identified or loaded; the control period puts
+    /// a change in force (the motion loops, the torque constant and the observer's
+    /// feed-forward).
+    pub motion: MotionConstants,
+}
+
+/// The motor's mechanical constants in force ([`crate::spin`]); 0 in a field: not known,
+/// the configuration's nominal one stays.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct MotionConstants {
+    /// J/kt: the q current one rad/s² of acceleration takes (A·s²/rad).
+    pub amps_per_accel_a_s2: f32,
+    /// The permanent magnet's flux linkage ψ (Wb).
+    pub flux_wb: f32,
+}
+
+impl MotionConstants {
+    pub const NOMINAL: Self = Self {
+        amps_per_accel_a_s2: 0.0,
+        flux_wb: 0.0,
+    };
 }
 
 impl Command {
@@ -64,6 +85,7 @@ impl Command {
         release: 0,
         learn_ripple: false,
         reacquire: false,
+        motion: MotionConstants::NOMINAL,
     };
 }
 
@@ -163,6 +185,10 @@ pub struct Snapshot {
     /// θ̂ at this period's sample, mechanical, in the motor's frame (the sensor's
     /// direction of the alignment in force applied), in [0, 2π).
     pub theta_rad: f32,
+    /// The sensor vector's own angle at this sample (θ̂ + ε/N: the decoupled vector's,
+    /// so the raw sensor's while the coefficients are zero), as `theta_rad`: with the
+    /// sensor's error but none of the observer's lag.
+    pub sensor_theta_rad: f32,
     /// ω̂ in the motor's frame (the sensor's direction applied), mechanical.
     pub omega_rad_s: f32,
     pub amplitude: f32,
@@ -174,6 +200,11 @@ pub struct Snapshot {
     /// against the raw one: the alignment for the corrected angle (once measured over
     /// enough samples).
     pub corrected_offset_e_rad: Option<f32>,
+    /// The running integrals the motion's identification takes differences of
+    /// ([`crate::spin`]): `∫iq dt` over the periods at the speed setpoint (A·s), and the back-EMF's d and q parts, `∫(vd − R·id + ωe·L·iq)/p dt` and
+    /// `∫(vq − R·iq − ωe·L·id)/p dt`, over the periods coasting (Wb·rad).
+    pub iq_integral_a_s: f32,
+    pub flux_angle_wb_rad: [f32; 2],
     /// The current sensors' zero has been measured (or was never asked for).
     pub currents_ready: bool,
     /// Measured current zero is implausible (counts far from nominal).
@@ -365,6 +396,17 @@ pub enum Event {
         lq_h: f32,
         v_inverter_v: f32,
     },
+    /// The motor's mechanical constants in force from now on: identified in this
+    /// commissioning (at Verify's end, [`crate::spin`]) or loaded with the calibration.
+    Motion {
+        t_ms: u32,
+        flux_wb: f32,
+        inertia_kg_m2: f32,
+        /// Friction: its viscous and its constant part, as fitted (their sum at the
+        /// commissioning speed is what one speed region determines well).
+        viscous_nm_s_rad: f32,
+        coulomb_nm: f32,
+    },
 }
 
 /// A value of a streamed field, as its defmt parameter carries it.
@@ -431,6 +473,7 @@ impl Event {
             Event::OffsetCorrected { .. } => "mras-offset-corrected",
             Event::Refined { .. } => "mras-refined",
             Event::Identified { .. } => "mras-identified",
+            Event::Motion { .. } => "mras-motion",
         }
     }
 
@@ -486,6 +529,19 @@ impl Event {
                 ("ld_h", F32(ld_h)),
                 ("lq_h", F32(lq_h)),
                 ("v_inverter_v", F32(v_inverter_v)),
+                ("t_ms", U32(t_ms)),
+            ],
+            Event::Motion {
+                t_ms,
+                flux_wb,
+                inertia_kg_m2,
+                viscous_nm_s_rad,
+                coulomb_nm,
+            } => &[
+                ("flux_wb", F32(flux_wb)),
+                ("inertia_kg_m2", F32(inertia_kg_m2)),
+                ("viscous_nm_s_rad", F32(viscous_nm_s_rad)),
+                ("coulomb_nm", F32(coulomb_nm)),
                 ("t_ms", U32(t_ms)),
             ],
         };
@@ -652,6 +708,21 @@ fn log_event(seq: u32, e: &Event) {
             ld_h,
             lq_h,
             v_inverter_v,
+            t_ms
+        ),
+        Event::Motion {
+            t_ms,
+            flux_wb,
+            inertia_kg_m2,
+            viscous_nm_s_rad,
+            coulomb_nm,
+        } => defmt::info!(
+            "mras-motion seq={=u32} flux_wb={=f32} inertia_kg_m2={=f32} viscous_nm_s_rad={=f32} coulomb_nm={=f32} t_ms={=u32}",
+            seq,
+            flux_wb,
+            inertia_kg_m2,
+            viscous_nm_s_rad,
+            coulomb_nm,
             t_ms
         ),
     }

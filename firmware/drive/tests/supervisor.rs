@@ -11,6 +11,9 @@ use drive::telemetry::{
 };
 use mras::{Coefficients, Config, Cplx, PathKind};
 
+mod common;
+use common::{Drive, Rotor, AMPS_PER_ACCEL, AMPS_PER_SPEED, FLUX_WB};
+
 /// RAM flash whose programming can be made to fail.
 #[derive(Default)]
 struct Flash {
@@ -52,12 +55,23 @@ fn ram(e: RamFlashError) -> FlashError {
 
 const POLE_PAIRS: u16 = 4;
 
+/// The control period's configured motor.
+const MOTOR: drive::control::MotorConfig = drive::control::MotorConfig {
+    pole_pairs: POLE_PAIRS,
+    r_ohm: 0.3,
+    l_h: 0.5e-3,
+    flux_wb: 0.02,
+    inertia_kg_m2: 2e-4,
+    vdc_v: 24.0,
+    i_max_a: 10.0,
+};
+
 fn hash() -> u32 {
     config_hash(&Config::default(), POLE_PAIRS, &InputScaling::IDENTITY)
 }
 
 fn supervisor() -> Supervisor {
-    Supervisor::new(Params::default(), hash(), 20_000, 20)
+    Supervisor::new(Params::default(), hash(), 20_000, 20, &MOTOR)
 }
 
 fn coefficients() -> Coefficients {
@@ -84,12 +98,15 @@ fn telemetry(ticks: u32) -> Telemetry {
             core_faults: 0,
             unlocked: false,
             theta_rad: 1.0,
+            sensor_theta_rad: 1.0,
             omega_rad_s: Params::default().speed_rad_s,
             amplitude: 1.0,
             sweep: None,
             // Done at once: the identification's own tests are `ident.rs`.
             ident: drive::ident::IdentStatus::Done(IDENTIFIED),
             corrected_offset_e_rad: None,
+            iq_integral_a_s: 0.0,
+            flux_angle_wb_rad: [0.0; 2],
             currents_ready: true,
             currents_implausible: false,
             cycles: CycleStats::EMPTY,
@@ -105,8 +122,25 @@ fn telemetry(ticks: u32) -> Telemetry {
     }
 }
 
-/// Step with `f` shaping each snapshot from the last command, collecting events, until
-/// `until` holds or `max` steps.
+/// The rotor ([`common::Rotor`]) a step on under `cmd` in `state`, into the snapshot.
+fn turn(rotor: &mut Rotor, state: State, cmd: &Command, tm: &mut Telemetry) {
+    let _ = state;
+    let drive = match cmd.setpoint {
+        Setpoint::Speed { omega_rad_s } => Drive::Speed(omega_rad_s),
+        Setpoint::Coast { .. } => Drive::Coast,
+        _ => Drive::Hold,
+    };
+    rotor.step(1e-3, drive);
+    let sn = &mut tm.snapshot;
+    sn.theta_rad = rotor.theta_rad;
+    sn.sensor_theta_rad = rotor.theta_rad;
+    sn.omega_rad_s = rotor.omega_rad_s;
+    sn.iq_integral_a_s = rotor.iq_integral_a_s;
+    sn.flux_angle_wb_rad = rotor.flux_angle_wb_rad;
+}
+
+/// Step with `f` shaping each snapshot of the rotor under the last command ([`turn`]),
+/// collecting events, until `until` holds or `max` steps.
 fn run<const E: usize>(
     s: &mut Supervisor<E>,
     flash: &mut Flash,
@@ -117,9 +151,11 @@ fn run<const E: usize>(
 ) -> (Vec<Event>, Command) {
     let mut events = Vec::new();
     let mut cmd = Command::OFF;
+    let mut rotor = Rotor::default();
     for _ in 0..max {
         *ticks += 20;
         let mut tm = telemetry(*ticks);
+        turn(&mut rotor, s.state(), &cmd, &mut tm);
         f(s, &mut tm);
         let out = s.step(&tm, flash);
         events.extend(out.events.iter().copied());
@@ -198,6 +234,7 @@ fn first_power_up_commissions_and_stores_the_alignment() {
             SpinUp,
             Adapt,
             Verify,
+            Motion,
             Store,
             Run
         ]
@@ -213,15 +250,53 @@ fn first_power_up_commissions_and_stores_the_alignment() {
     assert_eq!(cmd.alignment, sweep_result().alignment);
     assert_eq!(cmd.setpoint, Setpoint::Application);
 
-    let loaded = calib_record::load(&flash, hash()).unwrap();
+    let loaded = calib_record::load(&flash, hash())
+        .unwrap()
+        .record
+        .calibration;
+    assert_eq!(loaded.coefficients, coefficients());
+    assert_eq!(loaded.alignment, sweep_result().alignment);
+    // The motor as identified: R and L as streamed, ψ from the coast, J and B from the
+    // spin-up's fit at the torque constant 1.5·p·ψ; the same in force and streamed.
+    let m = loaded.motor;
+    let kt = 1.5 * POLE_PAIRS as f32 * FLUX_WB;
     assert_eq!(
-        loaded.record.calibration,
-        Calibration {
-            coefficients: coefficients(),
-            alignment: sweep_result().alignment,
-        }
+        (m.r_ohm, m.ld_h, m.lq_h, m.v_inverter_v),
+        (
+            IDENTIFIED.r_ohm,
+            IDENTIFIED.ld_h,
+            IDENTIFIED.lq_h,
+            IDENTIFIED.v_inverter_v
+        )
     );
+    let rel = |found: f32, truth: f32| (found / truth - 1.0).abs();
+    assert!(rel(m.flux_wb, FLUX_WB) < 1e-3, "{m:?}");
+    assert!(rel(m.inertia_kg_m2, AMPS_PER_ACCEL * kt) < 0.02, "{m:?}");
+    // Friction as the torque at the commissioning speed (viscous and constant parts).
+    let w = Params::default().speed_rad_s;
+    let friction = m.viscous_nm_s_rad * w + m.coulomb_nm;
+    assert!(rel(friction, AMPS_PER_SPEED * kt * w) < 0.05, "{m:?}");
+    assert_eq!(s.motor(), m);
+    assert!(rel(cmd.motion.amps_per_accel_a_s2, AMPS_PER_ACCEL) < 0.02);
+    assert_eq!(cmd.motion.flux_wb, m.flux_wb);
+    assert!(events.iter().any(|e| matches!(
+        e,
+        Event::Motion { flux_wb, inertia_kg_m2, .. }
+            if *flux_wb == m.flux_wb && *inertia_kg_m2 == m.inertia_kg_m2
+    )));
 }
+
+/// The motor a record carries: what a load puts in force.
+const STORED_MOTOR: calib_record::MotorConstants = calib_record::MotorConstants {
+    r_ohm: 0.25,
+    ld_h: 4e-4,
+    lq_h: 5e-4,
+    v_inverter_v: 0.3,
+    flux_wb: 0.015,
+    inertia_kg_m2: 3e-4,
+    viscous_nm_s_rad: 1e-4,
+    coulomb_nm: 2e-3,
+};
 
 /// Second power-up: the coefficients go to the control period, and Loaded (and Run)
 /// come only with its acceptance; a refusal is the safe state.
@@ -232,6 +307,7 @@ fn a_load_is_reported_only_once_the_control_period_accepted_it() {
         let cal = Calibration {
             coefficients: coefficients(),
             alignment: sweep_result().alignment,
+            motor: STORED_MOTOR,
         };
         calib_record::store(&mut flash, &cal, hash()).unwrap();
         let mut s = supervisor();
@@ -271,6 +347,17 @@ fn a_load_is_reported_only_once_the_control_period_accepted_it() {
                 .events
                 .iter()
                 .any(|e| matches!(e, Event::Loaded { sequence: 1, .. })));
+            // The stored motor in force: ψ, and J/kt at kt = 1.5·p·ψ.
+            let m = STORED_MOTOR;
+            assert!(out.events.iter().any(|e| matches!(
+                *e,
+                Event::Motion { flux_wb, inertia_kg_m2, viscous_nm_s_rad, coulomb_nm, .. }
+                    if (flux_wb, inertia_kg_m2, viscous_nm_s_rad, coulomb_nm)
+                        == (m.flux_wb, m.inertia_kg_m2, m.viscous_nm_s_rad, m.coulomb_nm)
+            )));
+            let kt = 1.5 * POLE_PAIRS as f32 * m.flux_wb;
+            assert_eq!(out.command.motion.flux_wb, m.flux_wb);
+            assert_eq!(out.command.motion.amps_per_accel_a_s2, m.inertia_kg_m2 / kt);
             ticks += 20;
             let out = s.step(&telemetry(ticks), &mut flash);
             assert_eq!(s.state(), State::Run);
@@ -280,6 +367,7 @@ fn a_load_is_reported_only_once_the_control_period_accepted_it() {
                 .any(|e| matches!(e, Event::Identified { .. })));
         } else {
             assert_eq!(s.cause(), Some(Cause::LoadRefused));
+            assert_eq!(out.command.motion, Default::default(), "nothing loaded");
             assert!(out.events.iter().any(|e| matches!(
                 e,
                 Event::Fault {
@@ -448,17 +536,19 @@ fn a_two_speed_commissioning_installs_and_stores_the_sensor_error_alone() {
         c
     };
     for accepted in [true, false] {
-        let mut s = Supervisor::new(params, hash(), 20_000, 20);
+        let mut s = Supervisor::new(params, hash(), 20_000, 20, &MOTOR);
         let mut flash = Flash::default();
         let mut ticks = 0;
-        let mut omega_rad_s = 0.0;
+        let mut omega_rad_s: f32 = 0.0;
+        let mut rotor = Rotor::default();
+        let mut cmd = Command::OFF;
         let mut installed: Option<(u8, Coefficients)> = None;
         let mut acked = false;
         let mut states = vec![];
         for _ in 0..20_000 {
             ticks += 20;
             let mut tm = telemetry(ticks);
-            tm.snapshot.omega_rad_s = omega_rad_s;
+            turn(&mut rotor, s.state(), &cmd, &mut tm);
             tm.snapshot.sweep = (s.state() == State::Sweep).then(sweep_result);
             tm.converged = matches!(s.state(), State::Adapt | State::SecondSpeed);
             tm.coefficients = match installed {
@@ -475,6 +565,7 @@ fn a_two_speed_commissioning_installs_and_stores_the_sensor_error_alone() {
                 None => learnt(omega_rad_s.max(1.0)),
             };
             let out = s.step(&tm, &mut flash);
+            cmd = out.command;
             if let Setpoint::Speed { omega_rad_s: w } = out.command.setpoint {
                 omega_rad_s = w;
             }
@@ -511,6 +602,7 @@ fn a_two_speed_commissioning_installs_and_stores_the_sensor_error_alone() {
                     SecondSpeed,
                     Refine,
                     Verify,
+                    Motion,
                     Store,
                     Run
                 ]
@@ -539,7 +631,7 @@ fn a_two_speed_commissioning_installs_and_stores_the_sensor_error_alone() {
 #[test]
 fn a_fault_is_never_dropped_and_events_that_do_not_fit_are_counted() {
     fn drive<const E: usize>() -> (Vec<Event>, Supervisor<E>, u32) {
-        let mut s = Supervisor::<E>::with_event_room(Params::default(), hash(), 20_000, 20);
+        let mut s = Supervisor::<E>::with_event_room(Params::default(), hash(), 20_000, 20, &MOTOR);
         let mut flash = Flash::default();
         let mut ticks = 0;
         let (mut events, _) = commission(&mut s, &mut flash, &mut ticks, State::Run);

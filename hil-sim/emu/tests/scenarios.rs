@@ -92,7 +92,7 @@ fn states(o: &Outcome, boot: usize) -> Vec<&str> {
     o.states[boot].iter().map(|(s, _)| s.as_str()).collect()
 }
 
-const COMMISSIONING: [&str; 9] = [
+const COMMISSIONING: [&str; 10] = [
     "LoadCalibration",
     "Identify",
     "Align",
@@ -100,6 +100,7 @@ const COMMISSIONING: [&str; 9] = [
     "SpinUp",
     "Adapt",
     "Verify",
+    "Motion",
     "Store",
     "Run",
 ];
@@ -490,47 +491,71 @@ fn attaching_in_run_halts_with_the_bridge_off_and_the_drive_runs_on() {
 }
 
 /// The release ELF identifies motors its constants do not describe (they stay the
-/// nominal R 0.3 ohm, L 0.5 mH): the smallest inductance, the highest resistance and the
-/// lowest resistance of the ratings, behind the board's 820 ns of dead time. Each
-/// commissions to Run within budget, with R within 5 % and Ld, Lq within 10 % of the
-/// plant's, as the stream's `mras-identified` says.
+/// nominal R 0.3 ohm, L 0.5 mH, ψ 20 mWb, J 2e-4): the smallest inductance, the highest
+/// resistance and the lowest resistance of the ratings, each with its own magnet and
+/// inertia, behind the board's 820 ns of dead time (the scenario's fan load scaled with
+/// the torque constant, as in hil-sim's population). Each commissions to Run within
+/// budget, with R within 5 %, Ld, Lq within 10 %, ψ within 3 % and J within 10 % of the
+/// plant's, as the stream's `mras-identified` and `mras-motion` say.
 #[test]
 fn the_release_elf_identifies_three_motors_it_was_not_built_for() {
     let elf = elf();
-    for (r_ohm, l_h) in [(0.2, 30e-6), (1.8, 1.5e-3), (0.06, 0.15e-3)] {
+    for (r_ohm, l_h, flux_wb, j_kg_m2) in [
+        (0.2, 30e-6, 8e-3, 1e-4),
+        (1.8, 1.5e-3, 12e-3, 5e-4),
+        (0.06, 0.15e-3, 4e-3, 2e-5),
+    ] {
         let (o, m) = scenarios::motor_run(&elf, |m| {
+            m.viscous_nm_s_rad *= flux_wb / m.flux_wb;
             m.r_ohm = r_ohm;
             m.l_h = l_h;
+            m.flux_wb = flux_wb;
+            m.j_kg_m2 = j_kg_m2;
         })
         .unwrap_or_else(|e| panic!("R {r_ohm} L {l_h}: {e:#}"));
-        let what = format!("R {r_ohm} ohm, L {:.0} uH", 1e6 * l_h);
+        let what = format!(
+            "R {r_ohm} ohm, L {:.0} uH, flux {:.0} mWb, J {j_kg_m2:.0e}",
+            1e6 * l_h,
+            1e3 * flux_wb
+        );
         healthy(&o);
         assert_eq!(states(&o, 0), COMMISSIONING, "{what}");
-        let text = &o
-            .events
-            .iter()
-            .find(|e| e.kind == "mras-identified")
-            .unwrap_or_else(|| panic!("{what}: no mras-identified"))
-            .text;
-        let field = |k: &str| -> f64 {
+        let field = |kind: &str, k: &str| -> f64 {
+            let text = &o
+                .events
+                .iter()
+                .find(|e| e.kind == kind)
+                .unwrap_or_else(|| panic!("{what}: no {kind}"))
+                .text;
             text.split_whitespace()
                 .find_map(|kv| kv.strip_prefix(&format!("{k}=")))
                 .and_then(|v| v.parse().ok())
                 .unwrap_or_else(|| panic!("{what}: no {k} in `{text}`"))
         };
-        let (r, ld, lq) = (field("r_ohm"), field("ld_h"), field("lq_h"));
+        let identified = |k: &str| field("mras-identified", k);
+        let (r, ld, lq) = (identified("r_ohm"), identified("ld_h"), identified("lq_h"));
+        let (psi, j) = (
+            field("mras-motion", "flux_wb"),
+            field("mras-motion", "inertia_kg_m2"),
+        );
         eprintln!(
-            "{what}: identified R {r:.4} ohm ({:+.2} %), Ld {:.1} uH ({:+.2} %), Lq {:.1} uH ({:+.2} %), inverter {} V; Identify {} ms",
+            "{what}: identified R {r:.4} ohm ({:+.2} %), Ld {:.1} uH ({:+.2} %), Lq {:.1} uH ({:+.2} %), inverter {} V, flux {:.3} mWb ({:+.2} %), J {j:.3e} ({:+.2} %); Identify {} ms, Run at {} ms",
             100.0 * (r / m.r_ohm - 1.0),
             1e6 * ld,
             100.0 * (ld / m.l_h - 1.0),
             1e6 * lq,
             100.0 * (lq / m.l_h - 1.0),
-            field("v_inverter_v"),
-            o.entered(0, "Align").unwrap() - o.entered(0, "Identify").unwrap()
+            identified("v_inverter_v"),
+            1e3 * psi,
+            100.0 * (psi / m.flux_wb - 1.0),
+            100.0 * (j / m.j_kg_m2 - 1.0),
+            o.entered(0, "Align").unwrap() - o.entered(0, "Identify").unwrap(),
+            o.entered(0, "Run").unwrap()
         );
         assert!((r / m.r_ohm - 1.0).abs() < 0.05, "{what}: R {r}");
         assert!((ld / m.l_h - 1.0).abs() < 0.10, "{what}: Ld {ld}");
         assert!((lq / m.l_h - 1.0).abs() < 0.10, "{what}: Lq {lq}");
+        assert!((psi / m.flux_wb - 1.0).abs() < 0.03, "{what}: flux {psi}");
+        assert!((j / m.j_kg_m2 - 1.0).abs() < 0.10, "{what}: J {j}");
     }
 }

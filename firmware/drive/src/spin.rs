@@ -1,0 +1,318 @@
+//! The motor's mechanical constants, identified at speed: the inertia J of rotor and load
+//! with their viscous friction B over the commissioning's spin-up ([`InertiaFit`]), and
+//! the permanent-magnet flux linkage ψ over a short coast at the end of Verify
+//! ([`FluxMeter`]).
+//!
+//! **Inertia.** From the spin-up's first step (t = 0), the motion `J·dω/dt = kt·iq − B·ω`
+//! integrated twice reads
+//!
+//! `J·(Δθ(t) − ω0·t) + B·∫Δθ dt + Tc·t²/2 = kt·∫∫iq dt`
+//!
+//! with Δθ the angle travelled, ω0 the speed at t = 0 (a rotor still swinging after the
+//! sweep) and Tc a constant friction torque (Coulomb's, the speed keeping its sign). It
+//! holds at every instant whatever the speed loop did, so least squares over the spin-up
+//! give J/kt, B/kt, Tc/kt and ω0. A friction model without Tc would take a bearing's
+//! Coulomb friction for inertia wherever the speed changes. The angle is the sensor's own (the observer
+//! lags a light rotor's acceleration by tens of mrad under a feed-forward made for
+//! another J), and a regressor, not the speed: on the uncorrected sensor the angle is off
+//! by tens of mrad against a travel of tens of radians, while ω̂ ripples by tens of per
+//! cent and would bias a fit on it toward zero (errors in variables). Each signal passes
+//! the same two first-order low-passes ([`FIT_FILTER_S`]) before the fit: the relation is
+//! linear and time-invariant, so it holds between the filtered signals too, and the
+//! sensor's error, periodic in the angle at N or more times the rotation frequency, is
+//! left out. J/kt is all the motion loops and the observer's torque feed-forward need
+//! (they act in acceleration per amp), so it is put in force at once; J itself follows
+//! from ψ (`kt = 1.5·p·ψ`). The loop's frame is off the rotor's by the uncorrected
+//! sensor's error, which scales the torque by its mean cosine: 1 − 4e-3 at 90 mrad
+//! electrical.
+//!
+//! **Flux linkage.** With the q current held at zero and the d current at +I, then at
+//! −I, the rotor coasts (next to no torque) and the current loop applies, in its frame,
+//! `v = R·i + jωe·L·i + e + v_inv`: the back-EMF e, of magnitude ωe·ψ (split between d and
+//! q by however far the frame is off the rotor's), the inverter's error v_inv along the
+//! current (on d), and no L·di/dt once the currents have settled. The control period
+//! integrates `(v − R·i − jωe·L·i)/p` over the coast (`Snapshot::flux_angle_wb_rad`);
+//! summed over both halves, what is odd in id cancels (the inverter's error, R's and L's
+//! errors), and `ψ = |Σ|/Δθ` over the angle travelled. Motion's inertia fit starts after
+//! the coast: the coast's friction can slow a light rotor by most of its speed, faster
+//! than the observer's torque feed-forward knows, and the loop's frame lags the rotor's
+//! meanwhile. At zero current the inverter's
+//! error would not vanish: in a winding whose PWM ripple is small it turns over within a
+//! few mA of zero, where the current sensing's own errors put the current. In Verify the
+//! sensor is corrected: Δθ is exact to 1e-4 over a few radians.
+
+use crate::align::wrap_pi;
+
+/// The least-squares fit, as it stands.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MotionFit {
+    /// J/kt: the q current one rad/s² of acceleration takes (A·s²/rad).
+    pub amps_per_accel_a_s2: f32,
+    /// B/kt: the q current one rad/s of speed takes against viscous friction (A·s/rad).
+    pub amps_per_speed_a_s: f32,
+    /// Tc/kt: the q current a constant friction torque takes (A; Coulomb friction at one
+    /// sign of speed, a constant load).
+    pub amps_constant_a: f32,
+    /// The speed at the start (rad/s).
+    pub omega0_rad_s: f32,
+}
+
+impl MotionFit {
+    /// Whether the fit's starting speed is within [`START_SPEED_TOLERANCE`] of the speed
+    /// the rotor had (rad/s, a share of `scale_rad_s`): a fit that moved the start is
+    /// explaining the data with what is not in the model (a light rotor whose torque
+    /// wobbles with the uncorrected sensor's frame).
+    pub fn starts_at(&self, omega_rad_s: f32, scale_rad_s: f32) -> bool {
+        libm::fabsf(self.omega0_rad_s - omega_rad_s)
+            <= START_SPEED_TOLERANCE * libm::fabsf(scale_rad_s)
+    }
+}
+
+/// Plausible accelerations per amp (rad/s²/A): beyond these the fit is broken (the rotor
+/// did not spin up, or the speed loop never moved it), not the motor. The drive's
+/// ratings span about 80-10 000.
+pub const ACCEL_PER_AMP_RANGE: (f32, f32) = (1.0, 1.0e6);
+/// Plausible flux linkages (Wb).
+pub const FLUX_RANGE_WB: (f32, f32) = (1.0e-4, 1.0);
+/// The least travel a fit or a flux measurement needs (rad, mechanical).
+const MIN_TRAVEL_RAD: f32 = 1.0;
+/// The equilibrated normal matrix's least pivot: below it the regressors are too near
+/// collinear (a rotor turning at one speed all along, from which no inertia follows).
+const MIN_PIVOT: f32 = 1e-6;
+/// The fit's unknowns: J/kt, J·ω0/kt, B/kt, Tc/kt.
+const UNKNOWNS: usize = 4;
+/// How far a fit's starting speed may be from the rotor's ([`MotionFit::starts_at`]).
+pub const START_SPEED_TOLERANCE: f32 = 0.1;
+/// Time constant of each of the fit's two low-passes (s): the sensor's error at 20 rev/s
+/// and N = 2 (40 Hz and above) is 40x smaller behind them.
+pub const FIT_FILTER_S: f32 = 0.02;
+
+/// A continuous angle from wrapped samples (each step turns less than π).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Travel {
+    last_rad: f32,
+    travel_rad: f32,
+}
+
+impl Travel {
+    pub fn new(theta_rad: f32) -> Self {
+        Self {
+            last_rad: theta_rad,
+            travel_rad: 0.0,
+        }
+    }
+
+    /// The angle travelled since [`Travel::new`], with this sample.
+    pub fn add(&mut self, theta_rad: f32) -> f32 {
+        self.travel_rad += wrap_pi(theta_rad - self.last_rad);
+        self.last_rad = theta_rad;
+        self.travel_rad
+    }
+}
+
+/// Least squares of `x·[J/kt, J·ω0/kt, B/kt, Tc/kt] = ∫∫iq` with
+/// `x = [Δθ, −t, ∫Δθ dt, t²/2]`, each signal low-passed ([`FIT_FILTER_S`]), over samples
+/// at the supervisor's rate.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct InertiaFit {
+    started: bool,
+    t_s: f32,
+    travel: Travel,
+    last_travel_rad: f32,
+    /// ∫Δθ dt (trapezoid).
+    travel_integral: f32,
+    /// ∫iq dt at t = 0 (the control period's running integral), and since then.
+    iq_integral_0: f32,
+    last_iq_integral: f32,
+    /// ∫∫iq (trapezoid on the control period's exact ∫iq).
+    iq_double: f32,
+    /// The low-passes' states: x then y, first stage then second.
+    filter: [[f32; 2]; UNKNOWNS + 1],
+    /// Σx·xᵀ and Σx·y.
+    xx: [[f32; UNKNOWNS]; UNKNOWNS],
+    xy: [f32; UNKNOWNS],
+}
+
+impl InertiaFit {
+    /// One sample: `dt_s` since the previous one, the mechanical angle (wrapped, motor
+    /// frame) and the control period's running ∫iq dt (A·s).
+    pub fn add(&mut self, dt_s: f32, theta_rad: f32, iq_integral_a_s: f32) {
+        if !self.started {
+            *self = Self {
+                started: true,
+                travel: Travel::new(theta_rad),
+                iq_integral_0: iq_integral_a_s,
+                ..Self::default()
+            };
+        } else {
+            self.t_s += dt_s;
+            let travel = self.travel.add(theta_rad);
+            let iq = iq_integral_a_s - self.iq_integral_0;
+            self.travel_integral += 0.5 * (travel + self.last_travel_rad) * dt_s;
+            self.iq_double += 0.5 * (iq + self.last_iq_integral) * dt_s;
+            self.last_travel_rad = travel;
+            self.last_iq_integral = iq;
+        }
+        let k = mras::min_f32(dt_s / FIT_FILTER_S, 1.0);
+        let raw = [
+            self.last_travel_rad,
+            -self.t_s,
+            self.travel_integral,
+            0.5 * self.t_s * self.t_s,
+            self.iq_double,
+        ];
+        for (f, v) in self.filter.iter_mut().zip(raw) {
+            f[0] += k * (v - f[0]);
+            f[1] += k * (f[0] - f[1]);
+        }
+        let [.., [_, y]] = self.filter;
+        let mut x = [0.0; UNKNOWNS];
+        for (xi, f) in x.iter_mut().zip(self.filter.iter()) {
+            *xi = f[1];
+        }
+        for (row, &xi) in self.xx.iter_mut().zip(x.iter()) {
+            for (m, &xj) in row.iter_mut().zip(x.iter()) {
+                *m += xi * xj;
+            }
+        }
+        for (s, xi) in self.xy.iter_mut().zip(x) {
+            *s += xi * y;
+        }
+    }
+
+    /// The angle travelled so far (rad).
+    pub fn travel_rad(&self) -> f32 {
+        self.last_travel_rad
+    }
+
+    /// The fit, if the data determine it and it is plausible.
+    pub fn solve(&self) -> Option<MotionFit> {
+        if self.last_travel_rad < MIN_TRAVEL_RAD {
+            return None;
+        }
+        // Equilibrated (unit diagonal): the columns differ in scale by orders of
+        // magnitude, not in direction. Then Gaussian elimination; the matrix is symmetric
+        // positive definite, so no pivoting, and a small pivot means collinear columns.
+        let mut scale = [0.0; UNKNOWNS];
+        for (i, s) in scale.iter_mut().enumerate() {
+            let d = self
+                .xx
+                .get(i)
+                .and_then(|r| r.get(i))
+                .copied()
+                .unwrap_or(0.0);
+            if d.is_nan() || d <= 0.0 {
+                return None;
+            }
+            *s = 1.0 / libm::sqrtf(d);
+        }
+        let mut a = self.xx;
+        let mut b = self.xy;
+        for (i, (row, bi)) in a.iter_mut().zip(b.iter_mut()).enumerate() {
+            let si = scale.get(i).copied().unwrap_or(0.0);
+            for (m, sj) in row.iter_mut().zip(scale.iter()) {
+                *m *= si * sj;
+            }
+            *bi *= si;
+        }
+        let mut k = eliminate(a, b)?;
+        for (ki, s) in k.iter_mut().zip(scale) {
+            *ki *= s;
+        }
+        let [per_accel, accel_omega0, per_speed, constant] = k;
+        let accel_per_amp = 1.0 / per_accel;
+        if !(accel_per_amp >= ACCEL_PER_AMP_RANGE.0 && accel_per_amp <= ACCEL_PER_AMP_RANGE.1) {
+            return None;
+        }
+        Some(MotionFit {
+            amps_per_accel_a_s2: per_accel,
+            amps_per_speed_a_s: per_speed,
+            amps_constant_a: constant,
+            omega0_rad_s: accel_omega0 / per_accel,
+        })
+    }
+}
+
+/// Solve `a·k = b` for a symmetric positive definite `a` with a unit diagonal, by Gaussian
+/// elimination without pivoting; None if a pivot falls below [`MIN_PIVOT`].
+// The textbook's indices read clearer here than iterators over rows and columns.
+#[allow(clippy::needless_range_loop)]
+fn eliminate(
+    mut a: [[f32; UNKNOWNS]; UNKNOWNS],
+    mut b: [f32; UNKNOWNS],
+) -> Option<[f32; UNKNOWNS]> {
+    for p in 0..UNKNOWNS {
+        let pivot = a[p][p];
+        if pivot.is_nan() || pivot <= MIN_PIVOT {
+            return None;
+        }
+        for r in p + 1..UNKNOWNS {
+            let f = a[r][p] / pivot;
+            for c in p..UNKNOWNS {
+                a[r][c] -= f * a[p][c];
+            }
+            b[r] -= f * b[p];
+        }
+    }
+    let mut k = [0.0; UNKNOWNS];
+    for p in (0..UNKNOWNS).rev() {
+        let mut v = b[p];
+        for c in p + 1..UNKNOWNS {
+            v -= a[p][c] * k[c];
+        }
+        k[p] = v / a[p][p];
+    }
+    Some(k)
+}
+
+/// The back-EMF's integral over a window: its d and q parts (Wb·rad) and the angle
+/// travelled (rad).
+type Window = ([f32; 2], f32);
+
+/// ψ from the coast: the control period's running back-EMF integrals
+/// (`Snapshot::flux_angle_wb_rad`) and the angle, over windows (one per sign of id), each
+/// from its first sample to its last.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FluxMeter {
+    mark: Option<(Travel, [f32; 2])>,
+    /// The closed windows' sums, and the open one's so far.
+    closed: Window,
+    open: Window,
+}
+
+impl FluxMeter {
+    /// One sample of a window (the first is its mark).
+    pub fn add(&mut self, theta_rad: f32, flux_angle_wb_rad: [f32; 2]) {
+        match &mut self.mark {
+            None => self.mark = Some((Travel::new(theta_rad), flux_angle_wb_rad)),
+            Some((travel, at)) => {
+                let [d, q] = flux_angle_wb_rad;
+                self.open = ([d - at[0], q - at[1]], travel.add(theta_rad));
+            }
+        }
+    }
+
+    /// End the open window: the next sample starts another.
+    pub fn close(&mut self) {
+        let ([d, q], t) = self.open;
+        self.closed = (
+            [self.closed.0[0] + d, self.closed.0[1] + q],
+            self.closed.1 + t,
+        );
+        self.open = ([0.0; 2], 0.0);
+        self.mark = None;
+    }
+
+    /// ψ (Wb) over the windows so far, if the rotor travelled enough and the result is
+    /// plausible.
+    pub fn flux_wb(&self) -> Option<f32> {
+        let d = self.closed.0[0] + self.open.0[0];
+        let q = self.closed.0[1] + self.open.0[1];
+        let travel = self.closed.1 + self.open.1;
+        if travel.is_nan() || travel < MIN_TRAVEL_RAD {
+            return None;
+        }
+        let psi = libm::sqrtf(d * d + q * q) / travel;
+        (psi >= FLUX_RANGE_WB.0 && psi <= FLUX_RANGE_WB.1).then_some(psi)
+    }
+}
