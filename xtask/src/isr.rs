@@ -34,6 +34,9 @@ use std::path::Path;
 /// to USART3's vector): neither may reach f64 soft-float, a panic or an unprovable jump.
 const ROOTS: [&str; 2] = ["ADC1_2", "USART3"];
 
+/// The Thumb `nop` encoding (a jump table's padding to a word).
+const THUMB_NOP: u16 = 0xbf00;
+
 /// An f64 soft-float routine, by its (demangled) name's last segment.
 fn is_f64_routine(name: &str) -> bool {
     let last = name.rsplit("::").next().unwrap_or(name);
@@ -167,7 +170,8 @@ impl<'a> Scan<'a> {
     /// The targets of the jump table of `tbb [pc, rN]` / `tbh [pc, rN, lsl #1]` at
     /// `site`: entries (bytes or halfwords) right after the instruction, each a forward
     /// offset in halfwords from there; the table ends where its data (`$d`) ends or the
-    /// first target begins, whichever is first.
+    /// first target begins, whichever is first, or at its padding (an entry into the table
+    /// itself, or a `nop` halfword in the last slot before the first target).
     fn table_targets(&self, site: u32, halfwords: bool) -> Result<Vec<u32>, String> {
         let table = site + 4;
         let size = if halfwords { 2 } else { 1 };
@@ -191,6 +195,11 @@ impl<'a> Scan<'a> {
             if t < table + k * size {
                 // Into the table itself: no entry can (its targets follow it), so this
                 // is the alignment padding after the last one.
+                break;
+            }
+            if halfwords && entry == u32::from(THUMB_NOP) && at + size == end {
+                // A `tbh` table of an odd count of entries, padded to a word with a
+                // Thumb `nop` right before the first target: padding, not a far entry.
                 break;
             }
             end = end.min(t);
@@ -471,7 +480,7 @@ mod tests {
     const PUSH: I = H(0xb580); // push {r7, lr}
     const POP: I = H(0xbd80); // pop {r7, pc}
     const BX_LR: I = H(0x4770);
-    const NOP: I = H(0xbf00);
+    const NOP: I = H(THUMB_NOP);
     const CMP: I = H(0x2800); // cmp r0, #0
     const EQ: u8 = 0;
     const NE: u8 = 1;
@@ -695,6 +704,20 @@ mod tests {
                 "f64 soft-float: ADC1_2 -> two_ways+0x6 -> __aeabi_ddiv",
             ]
         );
+    }
+
+    /// A `tbh` table of an odd count of entries, padded to a word with a `nop` right
+    /// before its first target (as rustc lays one out): the `nop` is padding, not an
+    /// entry far beyond the function.
+    #[test]
+    fn a_tbh_tables_nop_padding_is_not_an_entry() {
+        // tbh [pc, r0, lsl #1]; one entry (to +8) and the nop; the target calls `a`.
+        let body = vec![W(0xe8df, 0xf010), H(2), H(THUMB_NOP), Bl(at(1)), BX_LR];
+        let table = [(at(0) + 4, at(0) + 8)];
+        let p = image(&[("ADC1_2", 0, body), ("a", 1, vec![BX_LR])], &table);
+        let f = scan(&p, "ADC1_2").unwrap();
+        assert!(f.problems.is_empty(), "{:?}", f.problems);
+        assert_eq!(f.reachable_instructions, 3 + 1);
     }
 
     /// A `tbb` table: its entries are followed, the table bytes are data; an entry out

@@ -7,12 +7,14 @@
 //! run, with slow tracking if enabled), otherwise at electrical angle 0 → align the
 //! rotor → sweep the field open loop over one sensor period and back (the sensor's
 //! electrical offset and direction against the phase sequence, and a check of the
-//! pole-pair count) → spin up on the uncorrected sensor to the commissioning speed →
-//! adapt until converged or timeout → optionally refine: adapt on and average the
-//! coefficients, and do the same at a second, higher speed, from which the rotor's motion
-//! ripple is separated from the sensor error ([`crate::refine`]) → verify with the
-//! coefficients frozen → store → run. Any fault at any step ends in [`State::Safe`] (PWM outputs off) with its
-//! [`Cause`], until an explicit [`Commissioning::restart`].
+//! pole-pair count) → spin up on the uncorrected sensor to the commissioning speed over a
+//! ramp (a rough fit of the inertia, [`crate::spin`]) → adapt until converged or timeout
+//! → optionally refine: adapt on and average the coefficients, and do the same at a
+//! second, higher speed, from which the rotor's motion ripple is separated from the
+//! sensor error ([`crate::refine`]) → verify with the coefficients frozen → measure the
+//! motor's flux linkage over a coast and its inertia and friction over a dip of the speed
+//! ([`State::Motion`]) → store → run. Any fault at any step ends in [`State::Safe`] (PWM
+//! outputs off) with its [`Cause`], until an explicit [`Commissioning::restart`].
 //!
 //! [`crate::supervisor::Supervisor`] steps it with the control period's telemetry; the
 //! firmware and hil-sim both run that supervisor.
@@ -344,8 +346,8 @@ pub struct Inputs {
     /// The current sensors' zero is measured, and whether it is implausible.
     pub currents_ready: bool,
     pub currents_implausible: bool,
-    /// The sensor vector's angle (`Snapshot::sensor_theta_rad`) and ω̂, in the motor's
-    /// frame (mechanical).
+    /// The sensor vector's angle (`Snapshot::sensor_theta_rad`, within a turn of
+    /// [0, 2π)) and ω̂, in the motor's frame (mechanical).
     pub theta_rad: f32,
     pub omega_rad_s: f32,
     /// The control period's running integrals for the motion's identification

@@ -123,6 +123,8 @@ pub struct ControlPeriod<T: Trig> {
     electrical_per_sensor: f32,
     pole_pairs: f32,
     sensor_periods: f32,
+    /// 1/N: a sensor-electrical angle's mechanical share.
+    mech_per_sensor_rad: f32,
     torque_constant_nm_a: f32,
     torque_limit_nm: f32,
     current: CurrentLoop,
@@ -294,6 +296,7 @@ impl<T: Trig> ControlPeriod<T> {
             electrical_per_sensor: (m.pole_pairs / n) as f32,
             pole_pairs: m.pole_pairs as f32,
             sensor_periods: n as f32,
+            mech_per_sensor_rad: 1.0 / n as f32,
             torque_constant_nm_a: kt,
             torque_limit_nm: kt * m.i_max_a,
             current: CurrentLoop::new(CurrentLoopParams {
@@ -576,7 +579,7 @@ impl<T: Trig> ControlPeriod<T> {
             self.speed.reset();
             self.application.reset();
         }
-        if cmd.motion != self.motion {
+        if cmd.motion.generation != self.motion.generation {
             self.install_motion(cmd.motion, we);
         }
 
@@ -836,10 +839,7 @@ impl<T: Trig> ControlPeriod<T> {
             core_faults: self.tracker.faults().bits(),
             unlocked: self.unlocked,
             theta_rad: motor_frame_angle(est.theta_rad, self.direction),
-            sensor_theta_rad: motor_frame_angle(
-                wrap_2pi(est.theta_rad + est.epsilon_rad / self.sensor_periods),
-                self.direction,
-            ),
+            epsilon_rad: self.direction * est.epsilon_rad * self.mech_per_sensor_rad,
             omega_rad_s: self.direction * est.omega_rad_s,
             amplitude: est.amplitude,
             sweep: self.sweep.result(),
@@ -955,19 +955,6 @@ fn motor_frame_angle(theta_rad: f32, direction: f32) -> f32 {
         0.0
     } else {
         t
-    }
-}
-
-/// An angle within one turn of [0, 2π), into it.
-#[inline]
-fn wrap_2pi(theta_rad: f32) -> f32 {
-    use core::f32::consts::TAU;
-    if theta_rad < 0.0 {
-        theta_rad + TAU
-    } else if theta_rad >= TAU {
-        theta_rad - TAU
-    } else {
-        theta_rad
     }
 }
 

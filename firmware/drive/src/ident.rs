@@ -24,13 +24,13 @@
 //!    out and the intercept measures it. A rotor resting off α swings onto it, lightly
 //!    damped, for seconds: its back-EMF along α, `d(ψ·cos θe)/dt`, integrates to zero
 //!    between two instants at the same rotor angle, so each level's means are taken
-//!    between two instants the sensor reads alike ([`Window`]), and the β loop keeps the
-//!    swing's β back-EMF from driving a current that would change the phases' inverter
-//!    error between the levels.
+//!    between two instants the sensor reads alike, and the β loop keeps the swing's β
+//!    back-EMF from driving a current that would change the phases' inverter error
+//!    between the levels.
 //! 3. **Ripple d**: ±ΔV added on α, alternating every period, while the loops hold the
-//!    level on the mean of the last two samples (in which the zig-zag cancels). The current zig-zags by `D` peak to peak around the
-//!    level without changing sign, so the inverter's error stays constant and drops
-//!    out. For a first-order R-L with the voltage constant over each period (exact, for
+//!    level on the mean of the last two samples (in which the zig-zag cancels). The
+//!    current zig-zags by `D` peak to peak around the level without changing sign, so
+//!    the inverter's error stays constant and drops out. For a first-order R-L with the voltage constant over each period (exact, for
 //!    any L/R against the period): `x = R·D/(2ΔV) = (1-a)/(1+a)`, `a = exp(-R·T/L)`.
 //!    A short trial burst sizes ΔV for a ripple of [`RIPPLE_TARGET`] of the level.
 //! 4. **Ripple q**: the same on β, α still at the level: the rotor is held by the d
@@ -55,16 +55,18 @@ const SETTLED_WINDOWS: u32 = 3;
 /// A level's window may start at any of these marks, this many periods apart.
 const MARKS: usize = 8;
 const MARK_PERIODS: u32 = 100;
-/// The shortest window from a mark (s), and from a mark the sensor never left (a rotor
-/// at rest: only noise to average, and the level settled before the window started).
+/// The shortest window from a mark (s), and from a mark the sensor never left (a swing
+/// that died out: only noise to average).
 const MIN_WINDOW_S: f32 = 0.05;
 const STILL_WINDOW_S: f32 = 0.015;
-/// The sensor reads alike: its vector within this of the mark's (scaled units, about a
-/// count and a half of the 12-bit front end), or within 0.6 of this period's step (a
-/// fast swing passes the mark between two samples).
-const SAME_READING: f32 = 1e-3;
-/// A mark the vector never left by more than this saw a still rotor.
-const STILL_READING: f32 = 5e-3;
+/// The sensor reads alike: its vector within this of the mark's (scaled units, summed
+/// over X and Y: four counts of the 12-bit front end, twice the noise of a board's
+/// inputs), or within 0.6 of this period's step (a fast swing passes the mark between
+/// two samples).
+const SAME_READING: f32 = 3e-3;
+/// A mark the vector never left by more than this saw a still rotor (a swing travels
+/// tens of times as far).
+const STILL_READING: f32 = 1.5e-2;
 /// A window that has not closed this long after the first mark starts again (a rotor
 /// still creeping toward α).
 const RESTART_S: f32 = 0.3;
@@ -278,6 +280,8 @@ pub struct Identifier {
     sum_i: f32,
     sum_v: f32,
     last_mean_v: f32,
+    /// The settling window's sum of sensor vectors, and the last window's mean.
+    sum_xy: (f32, f32),
     last_xy: (f32, f32),
     settled: u32,
     window: Option<Window>,
@@ -317,6 +321,7 @@ impl Identifier {
             sum_i: 0.0,
             sum_v: 0.0,
             last_mean_v: f32::NAN,
+            sum_xy: (0.0, 0.0),
             last_xy: (0.0, 0.0),
             settled: 0,
             window: None,
@@ -462,6 +467,7 @@ impl Identifier {
 
     fn start_level(&mut self, index: u8) {
         (self.sum_i, self.sum_v, self.last_mean_v) = (0.0, 0.0, f32::NAN);
+        self.sum_xy = (0.0, 0.0);
         self.settled = 0;
         self.window = None;
         self.enter(Stage::Level { index });
@@ -494,58 +500,67 @@ impl Identifier {
         let target = if index == 0 { 0.5 } else { 1.0 } * self.level_target_a;
         // The voltage of the period this sample closed.
         let v_alpha = self.v_ab.0;
-        match &mut self.window {
+        let measured = match &mut self.window {
             None => {
-                // Settled: the α current's mean within 1 % of the level and the voltage's
-                // steady over SETTLED_WINDOWS windows, or the current within 5 % and the
-                // rotor moving (its back-EMF keeps the voltage from settling; the window's
-                // ends at one reading take it out).
+                // A still rotor: the α current's mean within 1 % of the level, the
+                // voltage's steady and the sensor's reading the same over SETTLED_WINDOWS
+                // windows, the last window's means.
+                // A moving one: the current within 5 %, then a window between two
+                // instants the sensor reads alike (its back-EMF keeps the voltage from
+                // settling; the window's ends at one reading take it out).
                 self.sum_i += i.0;
                 self.sum_v += v_alpha;
+                self.sum_xy = (self.sum_xy.0 + xy.0, self.sum_xy.1 + xy.1);
+                let mut measured = None;
                 if self.k % WINDOW_PERIODS == 0 {
                     let n = WINDOW_PERIODS as f32;
                     let (mean_i, mean_v) = (self.sum_i / n, self.sum_v / n);
-                    (self.sum_i, self.sum_v) = (0.0, 0.0);
+                    // The window's mean reading: the sensor's noise a tenth of a sample's.
+                    let mean_xy = (self.sum_xy.0 / n, self.sum_xy.1 / n);
+                    (self.sum_i, self.sum_v, self.sum_xy) = (0.0, 0.0, (0.0, 0.0));
                     let off = libm::fabsf(mean_i - target);
                     let steady =
                         libm::fabsf(mean_v - self.last_mean_v) <= 2e-3 * libm::fabsf(mean_v) + 1e-3;
                     // (Not on the level's first window: nothing to compare with.)
-                    let moving =
-                        self.last_mean_v.is_finite() && apart(xy, self.last_xy) > STILL_READING;
+                    let moved = apart(mean_xy, self.last_xy);
+                    let moving = self.last_mean_v.is_finite() && moved > STILL_READING;
                     self.last_mean_v = mean_v;
-                    self.last_xy = xy;
-                    self.settled = if off <= 0.01 * target && steady {
+                    self.last_xy = mean_xy;
+                    self.settled = if off <= 0.01 * target && steady && moved <= SAME_READING {
                         self.settled + 1
                     } else {
                         0
                     };
-                    if self.settled >= SETTLED_WINDOWS || off <= 0.05 * target && moving {
+                    if self.settled >= SETTLED_WINDOWS {
+                        measured = Some((mean_i, mean_v));
+                    } else if off <= 0.05 * target && moving {
                         self.window = Some(Window::new(xy));
                         self.window_s = 0.0;
                     }
                 }
+                measured
             }
-            Some(w) => match w.add(i.0, v_alpha, xy, c.period_s) {
-                Some((mean_i, mean_v)) => {
-                    // Constant indices: no bounds check in the control interrupt.
-                    if index == 0 {
-                        self.level_v[0] = mean_v;
-                        self.level_a[0] = mean_i;
-                        self.start_level(1);
-                    } else {
-                        self.level_v[1] = mean_v;
-                        self.level_a[1] = mean_i;
-                        return self.finish_levels(i);
-                    }
+            Some(w) => {
+                let m = w.add(i.0, v_alpha, xy, c.period_s);
+                self.window_s += c.period_s;
+                if m.is_none() && self.window_s > RESTART_S {
+                    *w = Window::new(xy);
+                    self.window_s = 0.0;
                 }
-                None => {
-                    self.window_s += c.period_s;
-                    if self.window_s > RESTART_S {
-                        *w = Window::new(xy);
-                        self.window_s = 0.0;
-                    }
-                }
-            },
+                m
+            }
+        };
+        if let Some((mean_i, mean_v)) = measured {
+            // Constant indices: no bounds check in the control interrupt.
+            if index == 0 {
+                self.level_v[0] = mean_v;
+                self.level_a[0] = mean_i;
+                self.start_level(1);
+            } else {
+                self.level_v[1] = mean_v;
+                self.level_a[1] = mean_i;
+                return self.finish_levels(i);
+            }
         }
         self.hold((target, 0.0), i)
     }

@@ -1,45 +1,46 @@
 //! The motor's mechanical constants, identified at speed: the inertia J of rotor and load
-//! with their viscous friction B over the commissioning's spin-up ([`InertiaFit`]), and
-//! the permanent-magnet flux linkage ψ over a short coast at the end of Verify
-//! ([`FluxMeter`]).
+//! and its friction ([`InertiaFit`]), and the permanent-magnet flux linkage ψ
+//! ([`FluxMeter`]). The commissioning ([`crate::commissioning`]) fits J roughly over
+//! SpinUp's ramp on the uncorrected sensor, for the loops of the states that follow, and
+//! again in its `Motion` state on the corrected sensor, after a coast that measures ψ.
 //!
-//! **Inertia.** From the spin-up's first step (t = 0), the motion `J·dω/dt = kt·iq − B·ω`
-//! integrated twice reads
+//! **Inertia.** From the fit's first sample (t = 0), the motion
+//! `J·dω/dt = kt·iq − B·ω − Tc` integrated twice reads
 //!
 //! `J·(Δθ(t) − ω0·t) + B·∫Δθ dt + Tc·t²/2 = kt·∫∫iq dt`
 //!
-//! with Δθ the angle travelled, ω0 the speed at t = 0 (a rotor still swinging after the
-//! sweep) and Tc a constant friction torque (Coulomb's, the speed keeping its sign). It
-//! holds at every instant whatever the speed loop did, so least squares over the spin-up
-//! give J/kt, B/kt, Tc/kt and ω0. A friction model without Tc would take a bearing's
-//! Coulomb friction for inertia wherever the speed changes. The angle is the sensor's own (the observer
-//! lags a light rotor's acceleration by tens of mrad under a feed-forward made for
-//! another J), and a regressor, not the speed: on the uncorrected sensor the angle is off
-//! by tens of mrad against a travel of tens of radians, while ω̂ ripples by tens of per
-//! cent and would bias a fit on it toward zero (errors in variables). Each signal passes
-//! the same two first-order low-passes ([`FIT_FILTER_S`]) before the fit: the relation is
-//! linear and time-invariant, so it holds between the filtered signals too, and the
-//! sensor's error, periodic in the angle at N or more times the rotation frequency, is
-//! left out. J/kt is all the motion loops and the observer's torque feed-forward need
-//! (they act in acceleration per amp), so it is put in force at once; J itself follows
-//! from ψ (`kt = 1.5·p·ψ`). The loop's frame is off the rotor's by the uncorrected
-//! sensor's error, which scales the torque by its mean cosine: 1 − 4e-3 at 90 mrad
-//! electrical.
+//! with Δθ the angle travelled, ω0 the speed at t = 0 and Tc a constant friction torque
+//! (Coulomb's, the speed keeping its sign, or a constant load). It holds at every instant
+//! whatever the speed loop did, so least squares give J/kt, B/kt, Tc/kt and ω0; without
+//! Tc a bearing's Coulomb friction would be taken for inertia wherever the speed
+//! changes. One speed region separates B from Tc only weakly: their sum at the speed is
+//! what the fit determines well. The angle is the sensor vector's own (θ̂ + ε/N: the
+//! observer lags an acceleration its feed-forward, made for another J, does not know),
+//! and it is a regressor, not the speed: the uncorrected sensor's angle is off by tens of
+//! mrad against a travel of tens of radians, while ω̂ ripples by tens of per cent and
+//! would bias a fit on it toward zero (errors in variables). Each signal passes the same
+//! two first-order low-passes ([`FIT_FILTER_S`]): the relation is linear and
+//! time-invariant, so it holds between the filtered signals too, and the sensor's error,
+//! periodic in the angle at N or more times the rotation frequency, is left out. J/kt is
+//! all the motion loops and the observer's torque feed-forward need (they act in
+//! acceleration per amp); J itself follows from ψ (`kt = 1.5·p·ψ`). A fit is taken only
+//! if its ω0 is the speed the rotor had ([`MotionFit::starts_at`]): on the uncorrected
+//! sensor a light rotor's torque wobbles with the loop's frame, and the fit then explains
+//! its data with a start that did not happen.
 //!
 //! **Flux linkage.** With the q current held at zero and the d current at +I, then at
 //! −I, the rotor coasts (next to no torque) and the current loop applies, in its frame,
-//! `v = R·i + jωe·L·i + e + v_inv`: the back-EMF e, of magnitude ωe·ψ (split between d and
-//! q by however far the frame is off the rotor's), the inverter's error v_inv along the
-//! current (on d), and no L·di/dt once the currents have settled. The control period
+//! `v = R·i + jωe·L·i + e + v_inv`: the back-EMF e, of magnitude ωe·ψ (split between d
+//! and q by however far the frame is off the rotor's), the inverter's error v_inv along
+//! the current (on d), and no L·di/dt once the currents have settled. The control period
 //! integrates `(v − R·i − jωe·L·i)/p` over the coast (`Snapshot::flux_angle_wb_rad`);
 //! summed over both halves, what is odd in id cancels (the inverter's error, R's and L's
-//! errors), and `ψ = |Σ|/Δθ` over the angle travelled. Motion's inertia fit starts after
-//! the coast: the coast's friction can slow a light rotor by most of its speed, faster
-//! than the observer's torque feed-forward knows, and the loop's frame lags the rotor's
-//! meanwhile. At zero current the inverter's
-//! error would not vanish: in a winding whose PWM ripple is small it turns over within a
-//! few mA of zero, where the current sensing's own errors put the current. In Verify the
-//! sensor is corrected: Δθ is exact to 1e-4 over a few radians.
+//! errors), and `ψ = |Σ|/Δθ` over the angle travelled, exact to 1e-4 on the corrected
+//! sensor. At zero current the inverter's error would not vanish: in a winding whose PWM
+//! ripple is small it turns over within a few mA of zero, where the current sensing's own
+//! errors put the current. Motion's inertia fit starts after the coast: its friction can
+//! slow a light rotor by most of its speed, faster than the observer's feed-forward
+//! knows, and the loop's frame lags the rotor's meanwhile.
 
 use crate::align::wrap_pi;
 

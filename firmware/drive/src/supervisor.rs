@@ -383,10 +383,10 @@ impl<const E: usize> Supervisor<E> {
                 self.load = if ack.accepted {
                     events.push(Event::Loaded { t_ms, sequence });
                     self.motor = motor;
-                    self.motion = MotionConstants {
-                        amps_per_accel_a_s2: motor.inertia_kg_m2 / self.torque_constant(),
-                        flux_wb: motor.flux_wb,
-                    };
+                    let per_accel = motor.inertia_kg_m2 / self.torque_constant();
+                    self.motion = self.motion.changed(|m| {
+                        (m.amps_per_accel_a_s2, m.flux_wb) = (per_accel, motor.flux_wb)
+                    });
                     events.push(self.motion_event(t_ms));
                     LoadStatus::Loaded
                 } else {
@@ -484,7 +484,7 @@ impl<const E: usize> Supervisor<E> {
                 .filter(|_| tm.snapshot.release == self.release),
             currents_ready: tm.snapshot.currents_ready,
             currents_implausible: tm.snapshot.currents_implausible,
-            theta_rad: tm.snapshot.sensor_theta_rad,
+            theta_rad: tm.snapshot.sensor_theta_rad(),
             omega_rad_s: tm.snapshot.omega_rad_s,
             iq_integral_a_s: tm.snapshot.iq_integral_a_s,
             flux_angle_wb_rad: tm.snapshot.flux_angle_wb_rad,
@@ -522,13 +522,16 @@ impl<const E: usize> Supervisor<E> {
         }
         if let (State::SpinUp, State::Adapt, Some(f)) = (before, state, self.sm.spin_up_fit()) {
             // A rough J/kt now: the motion loops and the observer in acceleration per amp.
-            self.motion.amps_per_accel_a_s2 = f.amps_per_accel_a_s2;
+            self.motion = self
+                .motion
+                .changed(|m| m.amps_per_accel_a_s2 = f.amps_per_accel_a_s2);
         }
         if let (State::Motion, State::Store, Some(psi), Some(f)) =
             (before, state, self.sm.flux_wb(), self.sm.motion_fit())
         {
-            self.motion.amps_per_accel_a_s2 = f.amps_per_accel_a_s2;
-            self.motion.flux_wb = psi;
+            self.motion = self
+                .motion
+                .changed(|m| (m.amps_per_accel_a_s2, m.flux_wb) = (f.amps_per_accel_a_s2, psi));
             self.motor.flux_wb = psi;
             let kt = self.torque_constant();
             self.motor.inertia_kg_m2 = f.amps_per_accel_a_s2 * kt;

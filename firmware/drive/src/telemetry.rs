@@ -61,6 +61,9 @@ pub struct Command {
 /// the configuration's nominal one stays.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct MotionConstants {
+    /// Another value than the control period's last is a change to put in force (one
+    /// byte to compare every period, not the constants).
+    pub generation: u8,
     /// J/kt: the q current one rad/s² of acceleration takes (A·s²/rad).
     pub amps_per_accel_a_s2: f32,
     /// The permanent magnet's flux linkage ψ (Wb).
@@ -69,9 +72,19 @@ pub struct MotionConstants {
 
 impl MotionConstants {
     pub const NOMINAL: Self = Self {
+        generation: 0,
         amps_per_accel_a_s2: 0.0,
         flux_wb: 0.0,
     };
+
+    /// `self` with `change` applied and a new generation.
+    #[must_use]
+    pub fn changed(self, change: impl FnOnce(&mut Self)) -> Self {
+        let mut m = self;
+        change(&mut m);
+        m.generation = self.generation.wrapping_add(1);
+        m
+    }
 }
 
 impl Command {
@@ -185,10 +198,11 @@ pub struct Snapshot {
     /// θ̂ at this period's sample, mechanical, in the motor's frame (the sensor's
     /// direction of the alignment in force applied), in [0, 2π).
     pub theta_rad: f32,
-    /// The sensor vector's own angle at this sample (θ̂ + ε/N: the decoupled vector's,
-    /// so the raw sensor's while the coefficients are zero), as `theta_rad`: with the
-    /// sensor's error but none of the observer's lag.
-    pub sensor_theta_rad: f32,
+    /// The observer's angle error ε at this sample, mechanical, in the motor's frame:
+    /// `theta_rad + epsilon_rad` is the sensor vector's own angle (the decoupled
+    /// vector's, so the raw sensor's while the coefficients are zero), with the sensor's
+    /// error but none of the observer's lag ([`Snapshot::sensor_theta_rad`]).
+    pub epsilon_rad: f32,
     /// ω̂ in the motor's frame (the sensor's direction applied), mechanical.
     pub omega_rad_s: f32,
     pub amplitude: f32,
@@ -218,6 +232,14 @@ pub struct Snapshot {
     /// (the task missed its deadline, [`mras::UPDATE_LATENCY_PERIODS`]). Zero on a
     /// healthy drive.
     pub updates_late: u32,
+}
+
+impl Snapshot {
+    /// The sensor vector's own angle (mechanical, motor frame, not wrapped: within ε of
+    /// `theta_rad`).
+    pub fn sensor_theta_rad(&self) -> f32 {
+        self.theta_rad + self.epsilon_rad
+    }
 }
 
 /// The supervisor's view at a divider tick: the control period's [`Snapshot`] with the

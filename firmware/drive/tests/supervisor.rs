@@ -98,7 +98,7 @@ fn telemetry(ticks: u32) -> Telemetry {
             core_faults: 0,
             unlocked: false,
             theta_rad: 1.0,
-            sensor_theta_rad: 1.0,
+            epsilon_rad: 0.0,
             omega_rad_s: Params::default().speed_rad_s,
             amplitude: 1.0,
             sweep: None,
@@ -133,7 +133,6 @@ fn turn(rotor: &mut Rotor, state: State, cmd: &Command, tm: &mut Telemetry) {
     rotor.step(1e-3, drive);
     let sn = &mut tm.snapshot;
     sn.theta_rad = rotor.theta_rad;
-    sn.sensor_theta_rad = rotor.theta_rad;
     sn.omega_rad_s = rotor.omega_rad_s;
     sn.iq_integral_a_s = rotor.iq_integral_a_s;
     sn.flux_angle_wb_rad = rotor.flux_angle_wb_rad;

@@ -76,6 +76,15 @@ pub struct KnownFailure {
 pub const KNOWN_FAILURES: &[KnownFailure] = &[
     KnownFailure {
         build: Build {
+            pwm_hz: 20_000,
+            sensor: SensorBoard::Kmz41,
+        },
+        check: Check::RunIsrCycles,
+        recorded: 2_065.0,
+        why: "the motor's mechanical identification: the snapshot's running integrals and angle error, the install check and the observer's feed-forward scaled to the identified J (about 100 cycles on the supervisor's periods)",
+    },
+    KnownFailure {
+        build: Build {
             pwm_hz: 40_000,
             sensor: SensorBoard::Kmz41,
         },
@@ -98,8 +107,8 @@ pub const KNOWN_FAILURES: &[KnownFailure] = &[
             sensor: SensorBoard::N1,
         },
         check: Check::RunIsrCycles,
-        recorded: 2_135.0,
-        why: "the dead-time compensation the motor's identification feeds forward (about 50 cycles) on the build with the largest core; the code it moved costs the unchanged PWM write and SVPWM about 50 more",
+        recorded: 2_210.0,
+        why: "the dead-time compensation the motor's identification feeds forward (about 50 cycles) on the build with the largest core, the code it moved (the unchanged PWM write and SVPWM about 50 more), and the mechanical identification's share (about 75)",
     },
 ];
 
