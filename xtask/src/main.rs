@@ -363,24 +363,31 @@ fn emu_setup() -> Result<()> {
     qemu::ensure_package("libclang-dev")
 }
 
-/// The emulator (drive-emu, release) on the release firmware.
+/// The emulator (drive-emu) on the release firmware.
 fn emu(args: &[&str], extra: &[String]) -> Result<()> {
     setup()?;
     emu_setup()?;
     run(cross_build(FIRMWARE))?;
+    let mut c = emulator("run");
+    c.arg("--");
+    c.args(args);
+    c.args(extra);
+    run(c)
+}
+
+/// `cargo <subcommand> --profile host --locked -p drive-emu`: the emulator as CI builds
+/// it.
+pub(crate) fn emulator(subcommand: &str) -> Command {
     let mut c = cargo();
     c.args([
-        "run",
+        subcommand,
         "--profile",
         HOST_PROFILE,
         "--locked",
         "-p",
         EMULATOR,
-        "--",
     ]);
-    c.args(args);
-    c.args(extra);
-    run(c)
+    c
 }
 
 /// The `fast-run` build (Run near the voltage limit) at `target/fast-run/`, where the
@@ -449,17 +456,8 @@ fn perf(report: Option<&Path>) -> Result<()> {
         builds.push((*board, format!("{label}={}", out.display())));
     }
     builds.reverse();
-    let mut c = cargo();
-    c.args([
-        "run",
-        "--profile",
-        HOST_PROFILE,
-        "--locked",
-        "-p",
-        EMULATOR,
-        "--",
-        "perf",
-    ]);
+    let mut c = emulator("run");
+    c.args(["--", "perf"]);
     for (board, b) in &builds {
         c.arg(board).arg(b);
     }
@@ -510,16 +508,7 @@ fn ci() -> Result<()> {
     // configuration over a commissioned drive (the second's boot refuses the record:
     // ConfigMismatch).
     other_configs_aside()?;
-    let mut c = cargo();
-    c.args([
-        "test",
-        "--profile",
-        HOST_PROFILE,
-        "--locked",
-        "-p",
-        EMULATOR,
-    ]);
-    run(c)?;
+    run(emulator("test"))?;
     // The same tests fail on firmware broken on purpose: the checks can fail.
     mutants::check()?;
     // Every generated figure of the docs: the pages against the committed figure
