@@ -496,9 +496,6 @@ pub struct Commissioning {
     flux_wb: Option<f32>,
     /// ω̂ where Motion's fit starts (the coast's end).
     fit_from_rad_s: f32,
-    pub tmp_raw: Option<MotionFit>,
-    pub tmp_raw2: Option<MotionFit>,
-    pub tmp_w0: f32,
     /// Verify's residuals: their sum and count.
     residual_sum: f32,
     residual_n: u32,
@@ -528,9 +525,6 @@ impl Commissioning {
             fit_from_rad_s: 0.0,
             residual_sum: 0.0,
             residual_n: 0,
-            tmp_raw: None,
-            tmp_raw2: None,
-            tmp_w0: 0.0,
         }
     }
 
@@ -825,8 +819,6 @@ impl Commissioning {
         let dipped = self.in_state_s >= p.coast_s + p.spin_up_ramp_s;
         if dipped && self.held_s >= p.speed_settle_s {
             let (w0, w) = (self.fit_from_rad_s, p.speed_rad_s);
-            self.tmp_raw2 = self.fit.solve();
-            self.tmp_w0 = w0;
             match self.fit.solve().filter(|f| f.starts_at(w0, w)) {
                 Some(f) => {
                     self.motion_fit = Some(f);

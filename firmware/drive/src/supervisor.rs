@@ -292,16 +292,6 @@ impl<const E: usize> Supervisor<E> {
         self.alignment
     }
 
-    pub fn tmp_fits(
-        &self,
-    ) -> (
-        Option<crate::spin::MotionFit>,
-        Option<crate::spin::MotionFit>,
-        f32,
-    ) {
-        (self.sm.tmp_raw, self.sm.tmp_raw2, self.sm.tmp_w0)
-    }
-
     /// The motor's constants as identified or loaded (the configured ones until then; 0
     /// for what the configuration does not hold).
     pub fn motor(&self) -> MotorConstants {

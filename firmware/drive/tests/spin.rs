@@ -99,7 +99,6 @@ fn the_fit_finds_inertia_and_friction_through_the_sensors_error() {
             let s = spin(0.5, w0, j_over_kt, b_over_kt, iq, err);
             let f = fit(&s).unwrap_or_else(|| panic!("J/kt {j_over_kt}, {what}: no fit"));
             let rel = |a: f32, b: f32| (a / b - 1.0).abs();
-            eprintln!("J/kt {j_over_kt}, {what}: {f:?}");
             assert!(
                 rel(f.amps_per_accel_a_s2, j_over_kt) < tol_j,
                 "{what}: {f:?}"
