@@ -321,8 +321,10 @@ mod tests {
         }
     }
 
+    /// The budgets alone (the known failures are their own test).
     #[test]
     fn a_build_within_every_budget_passes_and_each_overrun_fails() {
+        let evaluate = |m: &Measured| evaluate_with(m, &[]);
         assert!(evaluate(&measured())
             .iter()
             .all(|v| v.status == Status::Pass));
