@@ -505,13 +505,13 @@ fn commissioning() -> Result<Sections> {
 /// the time Identify took, when Run came and the spatial error in Run.
 fn identification() -> Result<Sections> {
     use crate::identification::{
-        commission, commission_as, nominal, population, Errors, MOTORS, SEED,
+        commission, commission_as, nominal, population_of, Errors, MOTORS, SEED,
     };
     use drive::commissioning::State;
     use rayon::prelude::*;
     let sc = Scenario::load("commissioning")?;
     let design_hz = sc.file.control.current_bandwidth_hz;
-    let mut runs: Vec<_> = population(MOTORS, SEED, sc.sample_period_s(), sc.file.motor.pole_pairs)
+    let mut runs: Vec<_> = population_of(&sc, MOTORS, SEED)?
         .into_par_iter()
         .map(|d| commission(&sc, d))
         .collect::<Result<_>>()?;
@@ -519,14 +519,16 @@ fn identification() -> Result<Sections> {
     let nominal_run = commission(&sc, nominal())?;
     let pct = |e: Option<f64>| e.map_or("—".to_string(), |e| format!("{:+.2} %", 100.0 * e));
     let mut s = String::from(
-        "| R (Ω) | L (µH) | ψ (mWb) | J (kg·m²) | dead time (ns) | device drop (V) | end state | R found | Ld found | Lq found | ψ found | J found | current loop (Hz) | Identify (s) | Run at (s) | Run: θ̂ spatial error (mrad pk-pk) |\n|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| p | R (Ω) | L (µH) | ψ (mWb) | J (kg·m²) | dead time (ns) | device drop (V) | end state | p found | R found | Ld found | Lq found | ψ found | J found | current loop (Hz) | Identify (s) | Run at (s) | Run: θ̂ spatial error (mrad pk-pk) |\n|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     let mut worst = Errors::default();
     let (mut bw_lo, mut bw_hi) = (f64::INFINITY, 0f64);
-    let mut in_run = 0;
+    let (mut in_run, mut counts_found) = (0, 0);
     for o in &runs {
         let (d, b) = (o.draw, &o.boot);
         in_run += (b.final_state == State::Run) as usize;
+        let found = o.pole_pairs_found();
+        counts_found += (found == Some(d.pole_pairs as u16)) as usize;
         let e = o.errors();
         if let Some(e) = e {
             worst = worst.worst(e);
@@ -544,7 +546,8 @@ fn identification() -> Result<Sections> {
             .map_or("—".to_string(), |t| format!("{t:.2}"));
         let _ = writeln!(
             s,
-            "| {:.3} | {:.1} | {:.1} | {:.2e} | {:.0} | {:.2} | {} | {} | {} | {} | {} | {} | {} | {identify_s} | {run_s} | {} |",
+            "| {} | {:.3} | {:.1} | {:.1} | {:.2e} | {:.0} | {:.2} | {} | {} | {} | {} | {} | {} | {} | {} | {identify_s} | {run_s} | {} |",
+            d.pole_pairs,
             d.r_ohm,
             1e6 * d.l_h,
             1e3 * d.flux_wb,
@@ -552,6 +555,7 @@ fn identification() -> Result<Sections> {
             1e9 * d.dead_time_s,
             d.device_drop_v,
             b.final_state.name(),
+            found.map_or("—".to_string(), |p| p.to_string()),
             pct(e.map(|e| e.r)),
             pct(e.map(|e| e.ld)),
             pct(e.map(|e| e.lq)),
@@ -566,8 +570,9 @@ fn identification() -> Result<Sections> {
     }
     let _ = writeln!(
         s,
-        "\n{in_run} of {} motors to Run. Worst error: R {:.2} %, Ld {:.2} %, Lq {:.2} %, ψ {}, J {}. The current loop, designed for {design_hz:.0} Hz, steps at {bw_lo:.0}-{bw_hi:.0} Hz (the firmware's nominal motor: {}).",
+        "\n{in_run} of {} motors to Run, the pole pairs found on {counts_found} (the firmware's nominal motor has {}). Worst error: R {:.2} %, Ld {:.2} %, Lq {:.2} %, ψ {}, J {}. The current loop, designed for {design_hz:.0} Hz, steps at {bw_lo:.0}-{bw_hi:.0} Hz (the firmware's nominal motor: {}).",
         runs.len(),
+        nominal().pole_pairs,
         100.0 * worst.r,
         100.0 * worst.ld,
         100.0 * worst.lq,
@@ -585,7 +590,7 @@ fn identification() -> Result<Sections> {
         .map(|o| o.draw)
         .max_by(|a, b| a.j_kg_m2.total_cmp(&b.j_kg_m2));
     let mut without = String::from(
-        "| motor | R (Ω) | L (µH) | ψ (mWb) | J (kg·m²) | 1.5·p·ψ/J (rad/s²/A) | with identification | without (the nominal constants) |\n|---|---:|---:|---:|---:|---:|---|---|\n",
+        "| motor | p | R (Ω) | L (µH) | ψ (mWb) | J (kg·m²) | 1.5·p·ψ/J (rad/s²/A) | with identification | without (the nominal constants) |\n|---|---:|---:|---:|---:|---:|---:|---|---|\n",
     );
     // Outside the population's acceleration per amp, on the nominal R and L: a heavy load
     // on a weak magnet, and a light one on a strong magnet.
@@ -640,12 +645,13 @@ fn identification() -> Result<Sections> {
         let old = commission_as(&sc, d, false)?;
         let _ = writeln!(
             without,
-            "| {what} | {:.3} | {:.1} | {:.1} | {:.2e} | {:.0} | {with} | {} |",
+            "| {what} | {} | {:.3} | {:.1} | {:.1} | {:.2e} | {:.0} | {with} | {} |",
+            d.pole_pairs,
             d.r_ohm,
             1e6 * d.l_h,
             1e3 * d.flux_wb,
             d.j_kg_m2,
-            1.5 * sc.file.motor.pole_pairs as f64 * d.flux_wb / d.j_kg_m2,
+            1.5 * d.pole_pairs as f64 * d.flux_wb / d.j_kg_m2,
             ended(&old)
         );
     }

@@ -15,6 +15,7 @@ use rand_chacha::ChaCha8Rng;
 /// A motor of the population.
 #[derive(Clone, Copy, Debug)]
 pub struct Draw {
+    pub pole_pairs: u32,
     pub r_ohm: f64,
     pub l_h: f64,
     pub dead_time_s: f64,
@@ -29,6 +30,7 @@ pub struct Draw {
 pub fn nominal() -> Draw {
     use board_map::motor;
     Draw {
+        pole_pairs: motor::POLE_PAIRS as u32,
         r_ohm: motor::R_OHM as f64,
         l_h: motor::L_H as f64,
         dead_time_s: 0.5e-6,
@@ -45,6 +47,11 @@ pub fn nominal() -> Draw {
 /// the spin-up has measured it).
 pub const ACCEL_PER_AMP_RAD_S2_A: (f64, f64) = (80.0, 10_000.0);
 
+/// The largest share of the bus's phase voltage (`Vdc/√3`) the back-EMF may take at
+/// the commissioning speed: the rest drives the current (the population's ψ up to 50 mWb
+/// at 8 pole pairs would ask for twice the bus at 20 rev/s).
+pub const BACK_EMF_SHARE: f64 = 0.7;
+
 /// The population's seed and size.
 pub const SEED: u64 = 30;
 pub const MOTORS: usize = 20;
@@ -52,15 +59,25 @@ pub const MOTORS: usize = 20;
 /// `n` motors: R 0.05-2 Ω and L 20 µH-2 mH log-uniform, with L/R at least two control
 /// periods (below that the current follows each period's voltage within the period: the
 /// samples hardly see L, and the loop needs only R); dead time 0.1-1 µs and device drop
-/// 0-0.3 V uniform; ψ 2-50 mWb and J 1e-5-1e-2 kg·m² log-uniform, within
-/// [`ACCEL_PER_AMP_RAD_S2_A`] at `pole_pairs`. The mechanical constants come from a
-/// stream of their own, so the electrical ones are those of the same seed without them.
-pub fn population(n: usize, seed: u64, period_s: f64, pole_pairs: u32) -> Vec<Draw> {
+/// 0-0.3 V uniform; pole pairs 2-8 among the multiples of `sensor_periods` (uniform), ψ
+/// 2-50 mWb and J 1e-5-1e-2 kg·m² log-uniform, within [`ACCEL_PER_AMP_RAD_S2_A`] and
+/// with a back-EMF within [`BACK_EMF_SHARE`] of the bus `vdc_v` at `speed_rad_s`. The
+/// mechanical constants come from a stream of their own, so the electrical ones are
+/// those of the same seed without them.
+pub fn population(
+    n: usize,
+    seed: u64,
+    period_s: f64,
+    sensor_periods: u32,
+    vdc_v: f64,
+    speed_rad_s: f64,
+) -> Vec<Draw> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut mech = ChaCha8Rng::seed_from_u64(seed);
     mech.set_stream(1);
     let log_uniform =
         |rng: &mut ChaCha8Rng, lo: f64, hi: f64| rng.random_range(f64::ln(lo)..f64::ln(hi)).exp();
+    let counts: Vec<u32> = (2..=8).filter(|p| p % sensor_periods.max(1) == 0).collect();
     let mut v = Vec::new();
     while v.len() < n {
         let r_ohm = log_uniform(&mut rng, 0.05, 2.0);
@@ -70,15 +87,20 @@ pub fn population(n: usize, seed: u64, period_s: f64, pole_pairs: u32) -> Vec<Dr
         if l_h / r_ohm < 2.0 * period_s {
             continue;
         }
-        let (flux_wb, j_kg_m2) = loop {
+        let (pole_pairs, flux_wb, j_kg_m2) = loop {
+            let p = counts[mech.random_range(0..counts.len())];
             let flux_wb = log_uniform(&mut mech, 2e-3, 50e-3);
             let j_kg_m2 = log_uniform(&mut mech, 1e-5, 1e-2);
-            let a = 1.5 * pole_pairs as f64 * flux_wb / j_kg_m2;
-            if (ACCEL_PER_AMP_RAD_S2_A.0..=ACCEL_PER_AMP_RAD_S2_A.1).contains(&a) {
-                break (flux_wb, j_kg_m2);
+            let a = 1.5 * p as f64 * flux_wb / j_kg_m2;
+            let back_emf_v = p as f64 * flux_wb * speed_rad_s;
+            if (ACCEL_PER_AMP_RAD_S2_A.0..=ACCEL_PER_AMP_RAD_S2_A.1).contains(&a)
+                && back_emf_v <= BACK_EMF_SHARE * vdc_v / 3f64.sqrt()
+            {
+                break (p, flux_wb, j_kg_m2);
             }
         };
         v.push(Draw {
+            pole_pairs,
             r_ohm,
             l_h,
             dead_time_s,
@@ -88,6 +110,26 @@ pub fn population(n: usize, seed: u64, period_s: f64, pole_pairs: u32) -> Vec<Dr
         });
     }
     v
+}
+
+/// [`population`] for the `commissioning` scenario `sc`: its sensor's periods, its bus
+/// and its commissioning speed.
+pub fn population_of(sc: &Scenario, n: usize, seed: u64) -> Result<Vec<Draw>> {
+    let params = sc
+        .file
+        .commissioning
+        .as_ref()
+        .ok_or_else(|| anyhow::anyhow!("{}: no [commissioning] table", sc.origin))?
+        .params()?;
+    let sensor = sc.file.sensor.to_params()?;
+    Ok(population(
+        n,
+        seed,
+        sc.sample_period_s(),
+        sensor.model.sensor_periods as u32,
+        sc.file.motor.vdc_v,
+        params.speed_rad_s as f64,
+    ))
 }
 
 /// One motor's power-up.
@@ -133,6 +175,16 @@ impl Outcome {
         self.t63_s.map(|t| 1.0 / (std::f64::consts::TAU * t))
     }
 
+    /// The pole pairs the last alignment sweep put in force (None before one).
+    pub fn pole_pairs_found(&self) -> Option<u16> {
+        self.boot.streamed.iter().rev().find_map(|s| match s.line {
+            drive::telemetry::Line::Event(drive::telemetry::Event::Aligned {
+                pole_pairs, ..
+            }) => Some(pole_pairs),
+            _ => None,
+        })
+    }
+
     /// The identified constants against the plant's (None if R, L were not identified).
     pub fn errors(&self) -> Option<Errors> {
         let d = &self.draw;
@@ -154,7 +206,13 @@ impl Outcome {
 /// more than the voltage limit in its first period).
 pub const STEP_A: f64 = 2.0;
 
-/// `sc` (the `commissioning` scenario) on motor `d`, from an erased flash, 4.5 s. The
+/// How long each power-up of the population runs: a motor of another pole-pair count
+/// than the nominal one is aligned and swept twice and comes to Run at about 5 s, and
+/// the spatial error is taken over the last 20 %.
+pub const DURATION_S: f64 = 7.0;
+
+/// `sc` (the `commissioning` scenario) on motor `d`, from an erased flash, for
+/// [`DURATION_S`]. The
 /// scenario's fan-like load is scaled with the torque constant, so that every motor
 /// carries the same current at speed.
 pub fn commission(sc: &Scenario, d: Draw) -> Result<Outcome> {
@@ -170,7 +228,8 @@ pub fn commission_as(sc: &Scenario, d: Draw, identify: bool) -> Result<Outcome> 
         c.identify_motor = Some(identify);
     }
     let m = &mut sc.file.motor;
-    m.viscous_nm_s_rad *= d.flux_wb / m.flux_wb;
+    m.viscous_nm_s_rad *= (d.pole_pairs as f64 * d.flux_wb) / (m.pole_pairs as f64 * m.flux_wb);
+    m.pole_pairs = d.pole_pairs;
     m.r_ohm = d.r_ohm;
     m.l_h = d.l_h;
     m.dead_time_s = d.dead_time_s;
@@ -186,7 +245,7 @@ pub fn commission_as(sc: &Scenario, d: Draw, identify: bool) -> Result<Outcome> 
             trace.push((s.truth.t_s, rig.plant.currents_ab()[0]));
         }
     };
-    let boot = power_up::run_boot(&mut rig, &sc, 4.5, Some(&mut hook));
+    let boot = power_up::run_boot(&mut rig, &sc, DURATION_S, Some(&mut hook));
     let mut t63_s = None;
     if let (true, Some(&(t0, _))) = (trace.len() == TRACE, trace.first()) {
         let tail = &trace[TRACE - 10..];

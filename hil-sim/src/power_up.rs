@@ -148,14 +148,15 @@ pub fn rig_with(
         .ok_or_else(|| anyhow!("{}: no [commissioning] table", sc.origin))?;
     let mut cfg = sc.core_config(None)?;
     // The plant is not the controller: the drive starts from the firmware's nominal
-    // motor (R, L, ψ, and J for the motion loops and the observer, unless the scenario
-    // configures another J) and identifies the plant's at power-up.
+    // motor (pole pairs, R, L, ψ, and J for the motion loops and the observer, unless
+    // the scenario configures another J) and identifies the plant's at power-up.
     let j = c
         .inertia_kg_m2
         .map_or(board_map::motor::INERTIA_KG_M2, |j| j as f32);
     cfg.observer.inertia_kg_m2 = j;
     let rig = sc.rig_with(cfg, seed, |d| {
         let m = &mut d.motor;
+        m.pole_pairs = board_map::motor::POLE_PAIRS;
         m.r_ohm = board_map::motor::R_OHM;
         m.l_h = board_map::motor::L_H;
         m.flux_wb = board_map::motor::FLUX_WB;
@@ -165,7 +166,15 @@ pub fn rig_with(
     let d = rig.period.config();
     let hash = rig.period.calibration_hash();
     let rate_hz = (1.0 / sc.sample_period_s()).round() as u32;
-    let sup = Supervisor::new(c.params()?, hash, rate_hz, d.supervisor_divider, &d.motor);
+    let n = rig.period.tracker().config().sensor_periods;
+    let sup = Supervisor::new(
+        c.params()?,
+        hash,
+        rate_hz,
+        d.supervisor_divider,
+        &d.motor,
+        n,
+    );
     Ok(rig.with_supervisor(sup, flash))
 }
 
@@ -410,9 +419,10 @@ fn describe(e: &Event) -> String {
             offset_e_rad,
             reversed,
             ratio,
+            pole_pairs,
             ..
         } => format!(
-            "aligned: electrical offset {offset_e_rad:+.3} rad, {}, {ratio:.3} sensor periods per period",
+            "aligned: electrical offset {offset_e_rad:+.3} rad, {}, {ratio:.3} sensor periods per period, {pole_pairs} pole pairs",
             if reversed { "reversed" } else { "forward" }
         ),
         Event::OffsetCorrected { offset_e_rad, .. } => {

@@ -69,6 +69,7 @@ impl From<FieldValue> for Value {
     fn from(v: FieldValue) -> Self {
         match v {
             FieldValue::U32(x) => Value::Uint(x.into()),
+            FieldValue::U16(x) => Value::Uint(x.into()),
             FieldValue::U8(x) => Value::Uint(x.into()),
             FieldValue::F32(x) => Value::F32(x),
             FieldValue::Bool(x) => Value::Bool(x),

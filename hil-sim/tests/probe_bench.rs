@@ -334,6 +334,10 @@ fn recording_stops_when_the_caller_says_so() {
     let bytes = capture(first);
     let mut pos = 0;
     let mut read = |buf: &mut [u8]| -> Result<usize, String> {
+        // A capture that ends before the stop would otherwise be polled for ever.
+        if pos == bytes.len() {
+            return Err("capture exhausted before the stop".into());
+        }
         let n = 200.min(bytes.len() - pos).min(buf.len());
         buf[..n].copy_from_slice(&bytes[pos..pos + n]);
         pos += n;

@@ -148,7 +148,7 @@ fn streamed_theta_is_the_estimate_at_the_records_instant_in_the_motor_frame() {
             };
             steps.push((s.truth.t_s, s.truth.theta_rad, s.estimate.theta_rad, dir))
         };
-        let b = power_up::run_boot(&mut rig, &sc, 3.5, Some(&mut hook));
+        let b = power_up::run_boot(&mut rig, &sc, 4.0, Some(&mut hook));
         assert_eq!(b.final_state, State::Run, "{:?}", b.transitions);
         // The magnet at `offset ± θ`: in the motor's frame, `θ ± offset`.
         let mount = if reversed { -offset } else { offset };

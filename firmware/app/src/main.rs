@@ -137,6 +137,7 @@ mod app {
             board::PWM_HZ,
             board::SUPERVISOR_DIVIDER,
             &period.config().motor,
+            period.tracker().config().sensor_periods,
         );
 
         // Why did the last run end? (The fault record in RAM, then the reset flags.)

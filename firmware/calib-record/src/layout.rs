@@ -10,8 +10,9 @@
 //!
 //! # Record (little-endian, [`RECORD_BYTES`] = 256 bytes at the start of a slot)
 //!
-//! Format version 4. Version 3 (224 bytes: this layout without the motor block, the CRC
-//! over bytes 0..216 at offset 216), version 2 (128 bytes, room for 8 paths) and
+//! Format version 5. Version 4 (this layout with bytes 20..24 reserved: no pole-pair
+//! count), version 3 (224 bytes: without the motor block, the CRC over bytes 0..216 at
+//! offset 216), version 2 (128 bytes, room for 8 paths) and
 //! version 1 (120 bytes, no alignment, a configuration hash without the pole-pair
 //! count) are refused as [`crate::RecordError::UnsupportedVersion`], and the drive
 //! commissions again.
@@ -25,7 +26,8 @@
 //! | 8 | 4 | sequence number (serial-number arithmetic, wraps) |
 //! | 12 | 4 | configuration hash ([`crate::config_hash`]) |
 //! | 16 | 4 | alignment `offset_e_rad` (f32 bits, finite, within [-π, π]) |
-//! | 20 | 4 | reserved, written 0 |
+//! | 20 | 2 | alignment `pole_pairs` (u16, ≥ 1) |
+//! | 22 | 2 | reserved, written 0 |
 //! | 24 + 12·i | 12 | path i: kind tag (u8), h (i8), 2 reserved (0), re (f32 bits), im (f32 bits) |
 //! | 216 | 4 | motor `r_ohm` (f32 bits, finite, > 0) |
 //! | 220 | 4 | motor `ld_h` (f32 bits, finite, > 0) |
@@ -65,12 +67,13 @@ pub const DOUBLE_WORDS_PER_PAGE: usize = PAGE_BYTES / DOUBLE_WORD_BYTES;
 /// "MRAS" as a big-endian u32; stored little-endian.
 pub const MAGIC: u32 = 0x4D52_4153;
 /// Bumped whenever the layout or the meaning of a field (or of the config hash) changes.
-pub const FORMAT_VERSION: u16 = 4;
+pub const FORMAT_VERSION: u16 = 5;
 /// Second half of the last double word: any value other than all-ones proves that the
 /// last double word was programmed.
 pub const COMMIT_MARK: u32 = !MAGIC;
 
-/// Magic, version, count, direction flags, sequence, hash, alignment offset, reserved.
+/// Magic, version, count, direction flags, sequence, hash, alignment offset and pole
+/// pairs, reserved.
 pub const HEADER_BYTES: usize = 24;
 /// Tag, h, 2 reserved, re, im.
 pub const PATH_ENTRY_BYTES: usize = 12;

@@ -26,7 +26,7 @@
 //! coefficients.set(PathKind::Offset, Cplx::new(0.1, -0.08));
 //! let calibration = Calibration {
 //!     coefficients,
-//!     alignment: Alignment { offset_e_rad: -1.2, reversed: true },
+//!     alignment: Alignment { offset_e_rad: -1.2, reversed: true, pole_pairs: 4 },
 //!     motor: MotorConstants {
 //!         r_ohm: 0.3,
 //!         ld_h: 5.0e-4,

@@ -26,22 +26,28 @@ const CRC32: Crc<u32, NoTable> = Crc::<u32, NoTable>::new(&CRC_32_ISO_HDLC);
 /// Electrical zero of the rotor as the sensor sees it: θe = dir·(p/N)·θs + offset_e_rad,
 /// with dir = -1 when `reversed`.
 ///
-/// p is the motor's pole-pair count and N the sensor's periods per mechanical
-/// revolution; both are covered by [`config_hash`], so an alignment is never applied
-/// to another motor or sensor. A record holds only an offset that is finite and
-/// within [-π, π] (`core::f32::consts::PI`, both ends included).
+/// p is the motor's pole-pair count as the alignment sweep measured it (`pole_pairs`),
+/// N the sensor's periods per mechanical revolution. The configured N and pole-pair
+/// count are covered by [`config_hash`], so an alignment is never applied to another
+/// sensor or drive configuration. A record holds only an offset that is finite and
+/// within [-π, π] (`core::f32::consts::PI`, both ends included) and a pole-pair count
+/// of at least 1.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Alignment {
     pub offset_e_rad: f32,
     /// The sensor angle turns against the motor's phase sequence.
     pub reversed: bool,
+    /// The motor's pole pairs the offset belongs to; 0: the drive's configured count
+    /// (an alignment not measured yet, never stored).
+    pub pole_pairs: u16,
 }
 
 impl Alignment {
-    /// No offset, same direction.
+    /// No offset, same direction, the configured pole pairs.
     pub const IDENTITY: Self = Self {
         offset_e_rad: 0.0,
         reversed: false,
+        pole_pairs: 0,
     };
 }
 
@@ -166,8 +172,8 @@ pub enum RecordError {
     BadPathList,
     /// A coefficient is NaN or infinite.
     NonFiniteValue,
-    /// The alignment offset is not finite or outside [-π, π], or a direction flag
-    /// other than bit 0 is set.
+    /// The alignment offset is not finite or outside [-π, π], a direction flag other
+    /// than bit 0 is set, or the pole-pair count is 0.
     BadAlignment,
     /// A motor constant is not finite, the resistance, an inductance, the flux linkage
     /// or the inertia is not > 0, or the inverter's voltage error is < 0 (the friction
@@ -312,7 +318,8 @@ pub fn encode(
     w.put(seq.to_le_bytes());
     w.put(cfg_hash.to_le_bytes());
     w.put(alignment.offset_e_rad.to_bits().to_le_bytes());
-    w.put([0u8; 4]);
+    w.put(alignment.pole_pairs.to_le_bytes());
+    w.put([0u8; 2]);
     for (kind, v) in coefs.iter() {
         let [tag, h] = kind_bytes(kind);
         w.put([tag, h, 0, 0]);
@@ -385,7 +392,8 @@ pub(crate) fn decode_intact(bytes: &[u8]) -> Result<Record, RecordError> {
     let sequence = r.u32()?;
     let config_hash = r.u32()?;
     let offset_e_rad = f32::from_bits(r.u32()?);
-    let _reserved = r.take::<4>()?;
+    let pole_pairs = r.u16()?;
+    let _reserved = r.take::<2>()?;
     if count > MAX_PATHS {
         return Err(RecordError::BadPathList);
     }
@@ -428,7 +436,7 @@ pub(crate) fn decode_intact(bytes: &[u8]) -> Result<Record, RecordError> {
         _ => return Err(RecordError::BadAlignment),
     };
     // `contains` is false for NaN and for ±∞ (outside the range).
-    if !(-PI..=PI).contains(&offset_e_rad) {
+    if !(-PI..=PI).contains(&offset_e_rad) || pole_pairs == 0 {
         return Err(RecordError::BadAlignment);
     }
     let mut m = Reader {
@@ -450,6 +458,7 @@ pub(crate) fn decode_intact(bytes: &[u8]) -> Result<Record, RecordError> {
             alignment: Alignment {
                 offset_e_rad,
                 reversed,
+                pole_pairs,
             },
             motor,
         },

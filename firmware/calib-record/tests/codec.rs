@@ -14,7 +14,7 @@ use calib_record::{
 };
 use common::{
     calib, coefs, encoded, motor_fields, reseal, same_bits, same_motor_bits, v1_record, v2_record,
-    v3_record, with_identity, DEFAULT_PATHS, HASH, MOTOR, OTHER_HASH, V1_RECORD_BYTES,
+    v3_record, v4_record, with_identity, DEFAULT_PATHS, HASH, MOTOR, OTHER_HASH, V1_RECORD_BYTES,
     V2_RECORD_BYTES, V3_RECORD_BYTES,
 };
 use mras::{Coefficients, Config, Cplx, PathKind, MAX_PATHS};
@@ -89,6 +89,7 @@ fn round_trip_no_paths_and_max_paths() {
         alignment: Alignment {
             offset_e_rad: -PI,
             reversed: true,
+            pole_pairs: u16::MAX,
         },
         motor: MOTOR,
     };
@@ -118,6 +119,7 @@ fn alignment_round_trips_exactly() {
                 alignment: Alignment {
                     offset_e_rad,
                     reversed,
+                    pole_pairs: 4,
                 },
                 motor: MOTOR,
             };
@@ -127,7 +129,7 @@ fn alignment_round_trips_exactly() {
                 buf[OFFSET_AT..OFFSET_AT + 4],
                 offset_e_rad.to_bits().to_le_bytes()
             );
-            assert_eq!(buf[OFFSET_AT + 4..HEADER_BYTES], [0; 4]);
+            assert_eq!(buf[OFFSET_AT + 4..HEADER_BYTES], [4, 0, 0, 0]);
             let back = decode(&buf, HASH).unwrap().calibration;
             assert_eq!(back, c);
             assert!(
@@ -137,7 +139,10 @@ fn alignment_round_trips_exactly() {
         }
     }
     let id = decode(&encoded(&with_identity(coefs(0.0)), 1, HASH), HASH).unwrap();
-    assert_eq!(id.calibration.alignment, Alignment::IDENTITY);
+    assert_eq!(
+        id.calibration.alignment,
+        with_identity(coefs(0.0)).alignment
+    );
 }
 
 #[test]
@@ -163,6 +168,7 @@ fn bad_alignment_offsets_are_rejected() {
                 alignment: Alignment {
                     offset_e_rad,
                     reversed,
+                    pole_pairs: 4,
                 },
                 motor: MOTOR,
             };
@@ -300,7 +306,10 @@ fn motor_round_trips_exactly() {
             for coefficients in [coefs(0.2), Coefficients::zeros(&[])] {
                 let c = Calibration {
                     coefficients,
-                    alignment: Alignment::IDENTITY,
+                    alignment: Alignment {
+                        pole_pairs: 4,
+                        ..Alignment::IDENTITY
+                    },
                     motor: motor_with(n, v),
                 };
                 let buf = encoded(&c, 5, HASH);
@@ -469,9 +478,9 @@ fn golden_bytes() {
     let c = golden_calibration();
     #[rustfmt::skip]
     let expected: [u8; RECORD_BYTES] = [
-        0x53, 0x41, 0x52, 0x4D, 0x04, 0x00, 0x04, 0x01,
+        0x53, 0x41, 0x52, 0x4D, 0x05, 0x00, 0x04, 0x01,
         0x04, 0x03, 0x02, 0x01, 0xD4, 0xC3, 0xB2, 0xA1,
-        0x00, 0x00, 0xA0, 0xBF, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0xA0, 0xBF, 0x07, 0x00, 0x00, 0x00,
         0x00, 0x00, 0x00, 0x00, 0xCD, 0xCC, 0xCC, 0x3D,
         0x0A, 0xD7, 0xA3, 0xBD, 0x01, 0x00, 0x00, 0x00,
         0x00, 0x00, 0x80, 0x3E, 0x00, 0x00, 0x00, 0xBF,
@@ -500,7 +509,7 @@ fn golden_bytes() {
         0x52, 0x49, 0x1D, 0x3A, 0x00, 0x00, 0x00, 0x3F,
         0x0A, 0xD7, 0xA3, 0x3C, 0x17, 0xB7, 0x51, 0x39,
         0xAC, 0xC5, 0x27, 0x37, 0xA6, 0x9B, 0x44, 0x3B,
-        0xCE, 0x2C, 0x5F, 0x42, 0xAC, 0xBE, 0xAD, 0xB2,
+        0x7C, 0xB3, 0x37, 0x7F, 0xAC, 0xBE, 0xAD, 0xB2,
     ];
     assert_eq!(encoded(&c, 0x0102_0304, 0xA1B2_C3D4), expected);
     let back = decode(&expected, 0xA1B2_C3D4).unwrap().calibration;
@@ -514,9 +523,35 @@ fn golden_bytes() {
     }
     assert_eq!(MOTOR_OFFSET + 4 * fields.len(), CRC_OFFSET);
     assert_eq!(expected[244..248], 0.003f32.to_bits().to_le_bytes());
+    // The alignment's pole pairs after its offset, then two reserved bytes.
+    assert_eq!(expected[20..24], [7, 0, 0, 0]);
 }
 
-/// The motor constants of the version-4 golden record.
+/// A pole-pair count of 0, correctly sealed, is refused (an alignment is stored only
+/// once measured); any other count is read back as written.
+#[test]
+fn pole_pairs_zero_is_refused() {
+    for (count, ok) in [
+        (0u16, false),
+        (1, true),
+        (2, true),
+        (255, true),
+        (u16::MAX, true),
+    ] {
+        let mut buf = encoded(&calib(0.3), 1, HASH);
+        buf[20..22].copy_from_slice(&count.to_le_bytes());
+        reseal(&mut buf);
+        let r = decode(&buf, HASH).map(|rec| rec.calibration.alignment.pole_pairs);
+        let expected = if ok {
+            Ok(count)
+        } else {
+            Err(RecordError::BadAlignment)
+        };
+        assert_eq!(r, expected, "pole pairs {count}");
+    }
+}
+
+/// The motor constants of the version-4 and -5 golden records.
 fn golden_motor() -> MotorConstants {
     MotorConstants {
         r_ohm: 0.3,
@@ -538,10 +573,50 @@ fn golden_calibration() -> Calibration {
         alignment: Alignment {
             offset_e_rad: -1.25,
             reversed: true,
+            pole_pairs: 7,
         },
         motor: golden_motor(),
     }
 }
+
+/// The version-4 golden record (the pinned bytes of format version 4, with the
+/// golden calibration; computed with Python's `struct` and `zlib.crc32`): what a drive
+/// commissioned by the firmware before it identified its pole pairs holds in flash.
+#[rustfmt::skip]
+const V4_GOLDEN: [u8; RECORD_BYTES] = [
+    0x53, 0x41, 0x52, 0x4D, 0x04, 0x00, 0x04, 0x01,
+    0x04, 0x03, 0x02, 0x01, 0xD4, 0xC3, 0xB2, 0xA1,
+    0x00, 0x00, 0xA0, 0xBF, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0xCD, 0xCC, 0xCC, 0x3D,
+    0x0A, 0xD7, 0xA3, 0xBD, 0x01, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x80, 0x3E, 0x00, 0x00, 0x00, 0xBF,
+    0x02, 0x04, 0x00, 0x00, 0xA6, 0x9B, 0xC4, 0x3A,
+    0x00, 0x00, 0x00, 0xC0, 0x02, 0x05, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x80,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
+    0x9A, 0x99, 0x99, 0x3E, 0x6F, 0x12, 0x03, 0x3A,
+    0x52, 0x49, 0x1D, 0x3A, 0x00, 0x00, 0x00, 0x3F,
+    0x0A, 0xD7, 0xA3, 0x3C, 0x17, 0xB7, 0x51, 0x39,
+    0xAC, 0xC5, 0x27, 0x37, 0xA6, 0x9B, 0x44, 0x3B,
+    0xCE, 0x2C, 0x5F, 0x42, 0xAC, 0xBE, 0xAD, 0xB2,
+];
 
 /// The version-3 golden record (the pinned bytes of format version 3, with the
 /// golden calibration; computed with Python's `struct` and `zlib.crc32`): what a drive
@@ -645,9 +720,9 @@ fn version_1_record_is_refused_as_unsupported_version() {
 
     let refused = Err(RecordError::UnsupportedVersion {
         found: 1,
-        expected: 4,
+        expected: FORMAT_VERSION,
     });
-    assert_eq!(FORMAT_VERSION, 4);
+    assert_eq!(FORMAT_VERSION, 5);
     // As the flash holds it: the v1 record, then the erased rest of the page.
     let mut page = [0xFFu8; PAGE_BYTES];
     page[..V1_RECORD_BYTES].copy_from_slice(&v1);
@@ -674,7 +749,7 @@ fn version_1_record_is_refused_as_unsupported_version() {
 fn version_2_record_is_refused_as_unsupported_version() {
     let refused = Err(RecordError::UnsupportedVersion {
         found: 2,
-        expected: 4,
+        expected: FORMAT_VERSION,
     });
     let golden = golden_calibration();
     // The hand-built v2 record matches the pinned v2 bytes: it is a genuine v2 record.
@@ -698,7 +773,7 @@ fn version_2_record_is_refused_as_unsupported_version() {
 fn version_3_record_is_refused_as_unsupported_version() {
     let refused = Err(RecordError::UnsupportedVersion {
         found: 3,
-        expected: 4,
+        expected: FORMAT_VERSION,
     });
     let golden = golden_calibration();
     // The hand-built v3 record matches the pinned v3 bytes: it is a genuine v3 record.
@@ -706,10 +781,12 @@ fn version_3_record_is_refused_as_unsupported_version() {
     assert_eq!(v3, V3_GOLDEN);
     let v3_crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&v3[..216]);
     assert_eq!(v3[216..220], v3_crc.to_le_bytes());
-    // The v4 record of the same calibration starts with the same bytes but the version.
-    let v4 = encoded(&golden, 0x0102_0304, 0xA1B2_C3D4);
-    assert_eq!(v4[..4], V3_GOLDEN[..4]);
-    assert_eq!(v4[6..216], V3_GOLDEN[6..216]);
+    // The record of the same calibration now starts with the same bytes but the
+    // version and the pole pairs.
+    let now = encoded(&golden, 0x0102_0304, 0xA1B2_C3D4);
+    assert_eq!(now[..4], V3_GOLDEN[..4]);
+    assert_eq!(now[6..20], V3_GOLDEN[6..20]);
+    assert_eq!(now[22..216], V3_GOLDEN[22..216]);
 
     // As the flash holds it: the v3 record, then the rest of the page (erased or not).
     for tail in [0xFFu8, 0x00, 0x5A] {
@@ -732,6 +809,38 @@ fn version_3_record_is_refused_as_unsupported_version() {
     }
     // Too short for a v4 record is still Truncated (the length is checked first).
     assert_eq!(decode(&V3_GOLDEN, 0xA1B2_C3D4), Err(RecordError::Truncated));
+}
+
+/// A record of format version 4 (the motor block, no pole-pair count), as a drive
+/// commissioned before it identified its pole pairs holds it, is refused by its
+/// version, whatever hash is expected: the drive commissions again instead of reading
+/// a pole-pair count from reserved bytes.
+#[test]
+fn version_4_record_is_refused_as_unsupported_version() {
+    let refused = Err(RecordError::UnsupportedVersion {
+        found: 4,
+        expected: FORMAT_VERSION,
+    });
+    let golden = golden_calibration();
+    // The hand-built v4 record matches the pinned v4 bytes: it is a genuine v4 record.
+    let v4 = v4_record(&golden, 0x0102_0304, 0xA1B2_C3D4);
+    assert_eq!(v4, V4_GOLDEN);
+    let v4_crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&v4[..248]);
+    assert_eq!(v4[248..252], v4_crc.to_le_bytes());
+    let now = encoded(&golden, 0x0102_0304, 0xA1B2_C3D4);
+    assert_eq!(now[6..20], V4_GOLDEN[6..20]);
+    assert_eq!(now[22..248], V4_GOLDEN[22..248]);
+    for tail in [0xFFu8, 0x00] {
+        let mut page = [tail; PAGE_BYTES];
+        page[..RECORD_BYTES].copy_from_slice(&V4_GOLDEN);
+        for hash in [0xA1B2_C3D4, HASH, OTHER_HASH] {
+            assert_eq!(decode(&page, hash), refused);
+        }
+        for (n, c) in [calib(0.0), calib(1.0)].iter().enumerate() {
+            page[..RECORD_BYTES].copy_from_slice(&v4_record(c, n as u32, HASH));
+            assert_eq!(decode(&page, HASH), refused);
+        }
+    }
 }
 
 #[test]
@@ -957,7 +1066,9 @@ fn encode_returns_record_length_and_overwrites_buffer() {
         RECORD_BYTES
     );
     assert!(buf[DIRECTION_AT..DIRECTION_AT + 1].iter().all(|&b| b == 0));
-    assert!(buf[OFFSET_AT..MOTOR_OFFSET].iter().all(|&b| b == 0));
+    // Offset 0.0, 4 pole pairs, the reserved bytes and the unused path entries: zero.
+    assert_eq!(buf[OFFSET_AT..HEADER_BYTES], [0, 0, 0, 0, 4, 0, 0, 0]);
+    assert!(buf[HEADER_BYTES..MOTOR_OFFSET].iter().all(|&b| b == 0));
     // The motor block sits at its fixed offset whatever the path count (here none),
     // and fills the bytes up to the CRC.
     let fields = motor_fields(&MOTOR);

@@ -76,9 +76,12 @@ fn offset() -> impl Strategy<Value = f32> {
 }
 
 fn alignment() -> impl Strategy<Value = Alignment> {
-    (offset(), any::<bool>()).prop_map(|(offset_e_rad, reversed)| Alignment {
-        offset_e_rad,
-        reversed,
+    (offset(), any::<bool>(), 1..=u16::MAX).prop_map(|(offset_e_rad, reversed, pole_pairs)| {
+        Alignment {
+            offset_e_rad,
+            reversed,
+            pole_pairs,
+        }
     })
 }
 

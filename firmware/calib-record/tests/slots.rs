@@ -4,14 +4,15 @@ mod common;
 
 use core::f32::consts::PI;
 
-use calib_record::layout::DOUBLE_WORD_BYTES;
+use calib_record::layout::{DOUBLE_WORD_BYTES, FORMAT_VERSION};
 use calib_record::{
     is_newer, load, store, Calibration, FlashSlots, LoadError, Loaded, OtherSlot, RamFlash,
     RamFlashError, RecordError, Rejected, Slot, StoreError, FIRST_SEQUENCE, PAGE_BYTES,
     RECORD_BYTES,
 };
 use common::{
-    calib, encoded, same_bits, v1_record, v2_record, v3_record, with_identity, HASH, OTHER_HASH,
+    calib, encoded, same_bits, v1_record, v2_record, v3_record, v4_record, with_identity, HASH,
+    OTHER_HASH,
 };
 use mras::{Coefficients, Cplx, PathKind};
 
@@ -292,12 +293,12 @@ fn store_error_names() {
     );
 }
 
-/// A drive updated from version-1, version-2 (8-path) or version-3 (no motor block)
-/// firmware: records of the old formats, however intact, are refused by name, and the
+/// A drive updated from version-1, version-2 (8-path), version-3 (no motor block) or
+/// version-4 (no pole pairs) firmware: records of the old formats, however intact, are refused by name, and the
 /// first store (after commissioning, the motor identified) replaces one of them.
 #[test]
 fn older_format_records_are_refused_by_name() {
-    for version in [1, 2, 3] {
+    for version in [1, 2, 3, 4] {
         older_format_records_are_refused(version);
     }
 }
@@ -305,14 +306,15 @@ fn older_format_records_are_refused_by_name() {
 fn older_format_records_are_refused(version: u16) {
     let old_refused = rec(RecordError::UnsupportedVersion {
         found: version,
-        expected: 4,
+        expected: FORMAT_VERSION,
     });
     let plant_old = |flash: &mut RamFlash, slot: Slot, tag: f32, seq: u32| {
         flash.erase(slot).unwrap();
         let bytes = match version {
             1 => v1_record(&calib(tag).coefficients, seq, HASH).to_vec(),
             2 => v2_record(&calib(tag), seq, HASH).to_vec(),
-            _ => v3_record(&calib(tag), seq, HASH).to_vec(),
+            3 => v3_record(&calib(tag), seq, HASH).to_vec(),
+            _ => v4_record(&calib(tag), seq, HASH).to_vec(),
         };
         flash.program(slot, 0, &bytes).unwrap();
     };
@@ -368,7 +370,7 @@ fn load_error_reports_the_most_informative_rejection() {
     let erased = rec(RecordError::Erased);
     let v1 = rec(RecordError::UnsupportedVersion {
         found: 1,
-        expected: 4,
+        expected: FORMAT_VERSION,
     });
     let mismatch = rec(RecordError::ConfigMismatch {
         stored: OTHER_HASH,
@@ -417,7 +419,7 @@ fn load_error_reports_the_most_informative_rejection() {
     // A tie: slot A's rejection, payload included.
     let other_v = rec(RecordError::UnsupportedVersion {
         found: 7,
-        expected: 4,
+        expected: FORMAT_VERSION,
     });
     let tie = LoadError::NoValidRecord { a: other_v, b: v1 };
     assert_eq!(tie.reason(), &other_v);

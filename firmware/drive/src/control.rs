@@ -119,9 +119,14 @@ pub struct Output {
 pub struct ControlPeriod<T: Trig> {
     cfg: DriveConfig,
     tracker: Front<T>,
-    /// Electrical periods per sensor period, p/N.
+    /// Electrical periods per sensor period, p/N, with p the count in force: the
+    /// configured one until the alignment in force carries another (the sweep's).
     electrical_per_sensor: f32,
     pole_pairs: f32,
+    /// The alignment's count last seen ([`calib_record::Alignment::pole_pairs`], 0: the
+    /// configured one), and whether N divides it (the bridge stays off otherwise).
+    alignment_pole_pairs: u16,
+    pole_pairs_valid: bool,
     sensor_periods: f32,
     /// 1/N: a sensor-electrical angle's mechanical share.
     mech_per_sensor_rad: f32,
@@ -295,6 +300,8 @@ impl<T: Trig> ControlPeriod<T> {
         Ok(Self {
             electrical_per_sensor: (m.pole_pairs / n) as f32,
             pole_pairs: m.pole_pairs as f32,
+            alignment_pole_pairs: 0,
+            pole_pairs_valid: true,
             sensor_periods: n as f32,
             mech_per_sensor_rad: 1.0 / n as f32,
             torque_constant_nm_a: kt,
@@ -405,6 +412,9 @@ impl<T: Trig> ControlPeriod<T> {
             self.tracker.reset_observer();
         }
         self.direction = if cmd.alignment.reversed { -1.0 } else { 1.0 };
+        if cmd.alignment.pole_pairs != self.alignment_pole_pairs {
+            self.install_pole_pairs(cmd.alignment.pole_pairs);
+        }
         self.tracker
             .set_frozen(cmd.adaptation == Adaptation::Frozen);
 
@@ -494,7 +504,11 @@ impl<T: Trig> ControlPeriod<T> {
             self.ident_frame = self.tracker.trig().sin_cos(frame);
         }
         self.identifying = identifying;
-        if self.latched.is_some() || cmd.setpoint == Setpoint::Off || !locked && cmd.reacquire {
+        if self.latched.is_some()
+            || cmd.setpoint == Setpoint::Off
+            || !locked && cmd.reacquire
+            || !self.pole_pairs_valid
+        {
             return self.disarm(supervisor_due);
         }
 
@@ -505,7 +519,11 @@ impl<T: Trig> ControlPeriod<T> {
         let est = self.estimate_in_use();
         let t = self.cfg.control_period_s;
         let (theta_e, id_ref, iq_ref, we) = match cmd.setpoint {
-            Setpoint::Align { current_a } => (0.0, self.limit_current(current_a), 0.0, 0.0),
+            Setpoint::Align { current_a } => {
+                // A sweep follows every alignment: none of an earlier one is reported.
+                self.sweep = Sweep::default();
+                (0.0, self.limit_current(current_a), 0.0, 0.0)
+            }
             Setpoint::Sweep {
                 current_a,
                 duration_s,
@@ -642,6 +660,29 @@ impl<T: Trig> ControlPeriod<T> {
         let (a, b, c) = (share(ia), share(ib), share(-ia - ib));
         // Amplitude-invariant Clarke; the common mode drops out.
         ((2.0 * a - b - c) * (1.0 / 3.0), (b - c) * 0.577_350_26)
+    }
+
+    /// Put the pole pairs of the alignment in force (0: the configured count): the
+    /// electrical angle's scale, the electrical speed, the back-EMF's integral and the
+    /// torque constant. A count N does not divide keeps the bridge off.
+    #[inline(never)]
+    fn install_pole_pairs(&mut self, count: u16) {
+        self.alignment_pole_pairs = count;
+        let p = if count == 0 {
+            self.cfg.motor.pole_pairs
+        } else {
+            count
+        };
+        let n = self.tracker.config().sensor_periods;
+        let whole = p.checked_rem(n) == Some(0);
+        self.pole_pairs_valid = whole && p > 0;
+        if let (true, Some(k)) = (self.pole_pairs_valid, p.checked_div(n)) {
+            self.electrical_per_sensor = k as f32;
+            self.pole_pairs = p as f32;
+            self.period_per_pole_pair_s = self.cfg.control_period_s / p as f32;
+            self.torque_constant_nm_a = 1.5 * p as f32 * self.cfg.motor.flux_wb;
+            self.torque_limit_nm = self.torque_constant_nm_a * self.cfg.motor.i_max_a;
+        }
     }
 
     /// Put identified (or loaded) motion constants in force at electrical speed

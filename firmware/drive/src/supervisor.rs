@@ -165,8 +165,10 @@ pub struct Supervisor<const E: usize = MAX_EVENTS> {
     dt_s: f32,
     control_rate_hz: u32,
     cfg_hash: u32,
-    /// The motor's pole pairs: the torque constant `1.5·p·ψ` of the identified J and B.
-    pole_pairs: f32,
+    /// The configured pole pairs (in force until an alignment carries a count), and the
+    /// sensor's periods N, which must divide a count put in force.
+    configured_pole_pairs: u16,
+    sensor_periods: u16,
     alignment: Alignment,
     /// The motor's constants as identified or loaded (the configured ones until then),
     /// and what the control period is told of them.
@@ -203,15 +205,23 @@ impl Supervisor {
     /// the motor and the sensor's scaling); `control_rate_hz` and `divider`: the control
     /// rate and the control periods per supervisor step; `motor`: the control period's
     /// configured motor (its pole pairs, and the constants a calibration stores where the
-    /// motor is not identified).
+    /// motor is not identified); `sensor_periods`: the core's N.
     pub fn new(
         params: Params,
         cfg_hash: u32,
         control_rate_hz: u32,
         divider: u32,
         motor: &MotorConfig,
+        sensor_periods: u16,
     ) -> Self {
-        Self::with_event_room(params, cfg_hash, control_rate_hz, divider, motor)
+        Self::with_event_room(
+            params,
+            cfg_hash,
+            control_rate_hz,
+            divider,
+            motor,
+            sensor_periods,
+        )
     }
 }
 
@@ -223,6 +233,7 @@ impl<const E: usize> Supervisor<E> {
         control_rate_hz: u32,
         divider: u32,
         motor: &MotorConfig,
+        sensor_periods: u16,
     ) -> Self {
         const { assert!(E >= 1, "a step's fault needs an event to take the place of") };
         let divider = divider.max(1);
@@ -231,7 +242,8 @@ impl<const E: usize> Supervisor<E> {
             dt_s: divider as f32 / control_rate_hz.max(1) as f32,
             control_rate_hz: control_rate_hz.max(1),
             cfg_hash,
-            pole_pairs: motor.pole_pairs as f32,
+            configured_pole_pairs: motor.pole_pairs,
+            sensor_periods,
             alignment: Alignment::IDENTITY,
             motor: MotorConstants {
                 r_ohm: motor.r_ohm,
@@ -404,6 +416,19 @@ impl<const E: usize> Supervisor<E> {
                 if self.load == LoadStatus::Pending && self.awaiting.is_none() =>
             {
                 match calib_record::load(flash, self.cfg_hash) {
+                    // A count N does not divide cannot come from this configuration's
+                    // sweep (N is in the record's hash): commission again.
+                    Ok(l)
+                        if l.record.calibration.alignment.pole_pairs
+                            % self.sensor_periods.max(1)
+                            != 0 =>
+                    {
+                        self.load = LoadStatus::Unavailable;
+                        events.push(Event::NotLoaded {
+                            t_ms,
+                            reason: "PolePairs",
+                        });
+                    }
                     Ok(l) => {
                         self.generation = self.generation.wrapping_add(1);
                         self.alignment = l.record.calibration.alignment;
@@ -531,14 +556,20 @@ impl<const E: usize> Supervisor<E> {
             self.motor.coulomb_nm = f.amps_constant_a * kt;
             events.push(self.motion_event(t_ms));
         }
-        if before == State::Sweep && state == State::SpinUp {
+        // Accepted, or another pole-pair count to put in force and sweep again (the
+        // offset is the second sweep's business).
+        if before == State::Sweep && matches!(state, State::SpinUp | State::Align) {
             if let Some(r) = tm.snapshot.sweep {
                 self.alignment = r.alignment;
+                if state == State::Align {
+                    self.alignment.pole_pairs = r.whole_pole_pairs;
+                }
                 events.push(Event::Aligned {
                     t_ms,
                     offset_e_rad: r.alignment.offset_e_rad,
                     reversed: r.alignment.reversed,
                     ratio: r.ratio,
+                    pole_pairs: self.alignment.pole_pairs,
                 });
             }
         }
@@ -599,9 +630,17 @@ impl<const E: usize> Supervisor<E> {
         out
     }
 
+    /// The pole pairs in force: the alignment's, or the configured ones before one.
+    pub fn pole_pairs(&self) -> u16 {
+        match self.alignment.pole_pairs {
+            0 => self.configured_pole_pairs,
+            p => p,
+        }
+    }
+
     /// The torque constant `1.5·p·ψ` of the flux linkage in force (N·m/A).
     fn torque_constant(&self) -> f32 {
-        1.5 * self.pole_pairs * self.motor.flux_wb
+        1.5 * self.pole_pairs() as f32 * self.motor.flux_wb
     }
 
     /// The motion constants in force, for the stream.
@@ -666,7 +705,11 @@ impl<const E: usize> Supervisor<E> {
     {
         let cal = Calibration {
             coefficients: tm.coefficients,
-            alignment: self.alignment,
+            // A stored alignment names its count.
+            alignment: Alignment {
+                pole_pairs: self.pole_pairs(),
+                ..self.alignment
+            },
             motor: self.motor,
         };
         let event = match calib_record::store(flash, &cal, self.cfg_hash) {

@@ -122,8 +122,15 @@ pub struct InstallAck {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SweepResult {
     /// Sensor periods travelled over one commanded sensor period (1 when the pole-pair
-    /// count and the sensor periods are right; 0 when the rotor did not follow).
+    /// count in force and the sensor periods are right; 0 when the rotor did not follow).
     pub ratio: f32,
+    /// The motor's pole pairs as the travel gives them (`p_in_force / ratio`; finite,
+    /// huge when the rotor did not follow), and the nearest count N divides.
+    pub pole_pairs: f32,
+    pub whole_pole_pairs: u16,
+    /// The sensor's periods N the sweep ran with.
+    pub sensor_periods: u16,
+    /// The offset and direction for the count in force (which it names).
     pub alignment: Alignment,
 }
 
@@ -390,12 +397,15 @@ pub enum Event {
     Stored { t_ms: u32 },
     /// A store failed (the previous record is intact); the reason's name.
     StoreFailed { t_ms: u32, reason: &'static str },
-    /// The alignment sweep's measurement.
+    /// The alignment sweep's measurement: the sensor's travel over one commanded
+    /// sensor period (`ratio`), and the pole pairs put in force with the offset (another
+    /// count than before is swept again).
     Aligned {
         t_ms: u32,
         offset_e_rad: f32,
         reversed: bool,
         ratio: f32,
+        pole_pairs: u16,
     },
     /// The offset moved onto the corrected angle, after adaptation.
     OffsetCorrected { t_ms: u32, offset_e_rad: f32 },
@@ -435,6 +445,7 @@ pub enum Event {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum FieldValue {
     U32(u32),
+    U16(u16),
     U8(u8),
     F32(f32),
     Bool(bool),
@@ -520,10 +531,12 @@ impl Event {
                 offset_e_rad,
                 reversed,
                 ratio,
+                pole_pairs,
             } => &[
                 ("offset_e_rad", F32(offset_e_rad)),
                 ("reversed", Bool(reversed)),
                 ("ratio", F32(ratio)),
+                ("pole_pairs", U16(pole_pairs)),
                 ("t_ms", U32(t_ms)),
             ],
             Event::OffsetCorrected { t_ms, offset_e_rad } => {
@@ -690,12 +703,14 @@ fn log_event(seq: u32, e: &Event) {
             offset_e_rad,
             reversed,
             ratio,
+            pole_pairs,
         } => defmt::info!(
-            "mras-aligned seq={=u32} offset_e_rad={=f32} reversed={=bool} ratio={=f32} t_ms={=u32}",
+            "mras-aligned seq={=u32} offset_e_rad={=f32} reversed={=bool} ratio={=f32} pole_pairs={=u16} t_ms={=u32}",
             seq,
             offset_e_rad,
             reversed,
             ratio,
+            pole_pairs,
             t_ms
         ),
         Event::OffsetCorrected { t_ms, offset_e_rad } => defmt::info!(

@@ -45,13 +45,25 @@ fn run_until(
     }
 }
 
-/// A sweep that found the pole pairs right.
+/// A sweep with 4 pole pairs in force on N = 2 in which the sensor travelled `ratio`
+/// of a period.
 fn swept(ratio: f32) -> Option<SweepResult> {
+    swept_at(4.0, ratio)
+}
+
+/// A sweep with `in_force` pole pairs in force on N = 2, as `drive::align` reports it.
+fn swept_at(in_force: f32, ratio: f32) -> Option<SweepResult> {
+    let pole_pairs = in_force / ratio.max(1e-6);
+    let whole = ((pole_pairs / 2.0).round().max(1.0) * 2.0).min(u16::MAX as f32);
     Some(SweepResult {
         ratio,
+        pole_pairs,
+        whole_pole_pairs: whole as u16,
+        sensor_periods: 2,
         alignment: Alignment {
             offset_e_rad: 0.4,
             reversed: true,
+            pole_pairs: in_force as u16,
         },
     })
 }
@@ -355,19 +367,28 @@ fn the_sensor_check_waits_for_the_current_zero_and_refuses_a_broken_one() {
 
 #[test]
 fn the_sweep_checks_rotation_and_pole_pairs() {
+    // 4 pole pairs in force on N = 2: the travel gives 4/ratio, within 0.7 of 4 on.
     for (ratio, cause) in [
         (0.0, Some(Cause::NoRotation)),
-        (0.3, Some(Cause::NoRotation)),
-        (0.75, Some(Cause::PolePairs)),
+        // 23.5 pole pairs: beyond `max_pole_pairs` (16) and its tolerance.
+        (0.17, Some(Cause::NoRotation)),
+        // 3 and 5: half-way to a count N divides, once the one in force was swept
+        // again... and again.
         (4.0 / 3.0, Some(Cause::PolePairs)),
-        (0.95, None),
-        (1.08, None),
+        // 4 and a rotor that rings: on.
+        (0.87, None),
+        (1.2, None),
     ] {
         let mut c = drive_to(State::Sweep);
-        c.step(&Inputs {
-            sweep: swept(ratio),
-            ..healthy()
-        });
+        for _ in 0..MAX_SWEEPS {
+            c.step(&Inputs {
+                sweep: swept(ratio),
+                ..healthy()
+            });
+            if c.state() == State::Align {
+                run_until(&mut c, State::Sweep, 1.0, |_| healthy());
+            }
+        }
         assert_eq!(c.cause(), cause, "ratio {ratio}");
         if cause.is_none() {
             assert_eq!(c.state(), State::SpinUp);
@@ -378,6 +399,73 @@ fn the_sweep_checks_rotation_and_pole_pairs() {
     let p = params();
     run_until(&mut c, State::Safe, 3.0 * p.sweep_s + 1.1, |_| healthy());
     assert_eq!(c.cause(), Some(Cause::Timeout(State::Sweep)));
+}
+
+/// Another pole-pair count than the one in force (2, 6, 8 or 16 on a drive configured
+/// for 4): aligned and swept again with it in force, then on once a sweep confirms the
+/// count in force; at most `MAX_SWEEPS`, and never the same count twice. Without the
+/// motor's identification the configured count is a requirement.
+#[test]
+fn another_pole_pair_count_is_aligned_and_swept_again() {
+    let sweep = |c: &mut Commissioning, r: Option<SweepResult>| {
+        c.step(&Inputs {
+            sweep: r,
+            ..healthy()
+        });
+        if c.state() == State::Align {
+            run_until(c, State::Sweep, 1.0, |_| healthy());
+        }
+    };
+    for p_true in [2.0f32, 6.0, 8.0, 16.0] {
+        // Found at once.
+        let mut c = drive_to(State::Sweep);
+        sweep(&mut c, swept(4.0 / p_true));
+        assert_eq!(c.state(), State::Sweep, "p {p_true}");
+        sweep(&mut c, swept_at(p_true, 0.98));
+        assert_eq!(c.state(), State::SpinUp, "p {p_true}");
+        // The first sweep's estimate one count off (not the one in force): found by
+        // the third.
+        let off = if p_true < 16.0 {
+            p_true + 2.0
+        } else {
+            p_true - 2.0
+        };
+        if off == 4.0 {
+            continue;
+        }
+        let mut c = drive_to(State::Sweep);
+        sweep(&mut c, swept(4.0 / off));
+        sweep(&mut c, swept_at(off, off / p_true));
+        assert_eq!(c.state(), State::Sweep, "p {p_true}");
+        sweep(&mut c, swept_at(p_true, 1.0));
+        assert_eq!(c.state(), State::SpinUp, "p {p_true}");
+    }
+    // Three sweeps that each find another count: refused.
+    let mut c = drive_to(State::Sweep);
+    for in_force in [4.0, 6.0, 8.0] {
+        sweep(&mut c, swept_at(in_force, in_force / (in_force + 2.0)));
+    }
+    assert_eq!(c.cause(), Some(Cause::PolePairs));
+    // The count in force found again, or the one swept before: refused at once.
+    let mut c = drive_to(State::Sweep);
+    sweep(&mut c, swept(4.0 / 6.0));
+    sweep(&mut c, swept_at(6.0, 1.2));
+    assert_eq!(c.cause(), Some(Cause::PolePairs));
+    let mut c = drive_to(State::Sweep);
+    sweep(&mut c, swept(4.0 / 2.9));
+    assert_eq!(c.state(), State::Sweep);
+    sweep(&mut c, swept_at(2.0, 2.0 / 3.1));
+    assert_eq!(c.cause(), Some(Cause::PolePairs));
+    let mut c = Commissioning::new(Params {
+        identify_motor: false,
+        ..params()
+    });
+    run_until(&mut c, State::Sweep, 10.0, hardware);
+    c.step(&Inputs {
+        sweep: swept(4.0 / 6.0),
+        ..healthy()
+    });
+    assert_eq!(c.cause(), Some(Cause::PolePairs));
 }
 
 #[test]

@@ -392,13 +392,41 @@ fn an_installed_bank_from_the_data_goes_to_the_control_period_first() {
     assert_eq!(task.report().coefficients, record);
 }
 
+/// The alignment's pole pairs are the ones the commutation uses (0: the configured
+/// 4); a count the sensor's periods (N = 2) do not divide keeps the bridge off.
+#[test]
+fn the_alignments_pole_pairs_are_in_force_and_one_n_does_not_divide_keeps_the_bridge_off() {
+    let at = |pole_pairs: u16| {
+        let mut p = period();
+        let cmd = Command {
+            alignment: Alignment {
+                pole_pairs,
+                ..Alignment::IDENTITY
+            },
+            ..running()
+        };
+        let mut o = p.step(&sample(0.7), &cmd);
+        for _ in 0..10 {
+            o = p.step(&sample(0.7), &cmd);
+        }
+        o
+    };
+    let (configured, four, six, three) = (at(0), at(4), at(6), at(3));
+    assert!(configured.enable && four.enable && six.enable);
+    assert_eq!(configured.duties, four.duties);
+    // θe = (p/N)·θs: 1.4 rad at 4 pole pairs, 2.1 rad at 6.
+    assert_ne!(six.duties, four.duties);
+    assert!(!three.enable);
+    assert_eq!(three.duties, [0.5; 3]);
+}
+
 #[test]
 fn a_reversed_sensor_reports_speed_in_the_motor_frame() {
     let mut p = period();
     let cmd = Command {
         alignment: Alignment {
-            offset_e_rad: 0.0,
             reversed: true,
+            ..Alignment::IDENTITY
         },
         ..Command::OFF
     };

@@ -71,7 +71,7 @@ fn hash() -> u32 {
 }
 
 fn supervisor() -> Supervisor {
-    Supervisor::new(Params::default(), hash(), 20_000, 20, &MOTOR)
+    Supervisor::new(Params::default(), hash(), 20_000, 20, &MOTOR, 2)
 }
 
 fn coefficients() -> Coefficients {
@@ -169,9 +169,13 @@ fn run<const E: usize>(
 fn sweep_result() -> SweepResult {
     SweepResult {
         ratio: 1.01,
+        pole_pairs: POLE_PAIRS as f32 / 1.01,
+        whole_pole_pairs: POLE_PAIRS,
+        sensor_periods: 2,
         alignment: Alignment {
             offset_e_rad: -1.25,
             reversed: true,
+            pole_pairs: POLE_PAIRS,
         },
     }
 }
@@ -283,6 +287,101 @@ fn first_power_up_commissions_and_stores_the_alignment() {
         Event::Motion { flux_wb, inertia_kg_m2, .. }
             if *flux_wb == m.flux_wb && *inertia_kg_m2 == m.inertia_kg_m2
     )));
+}
+
+/// A motor of 6 pole pairs on the drive configured for 4: the first sweep's travel
+/// (4/6 of a sensor period) puts 6 in force with a second alignment, the second sweep
+/// confirms it; the command, the events, the torque constant of J and the record all
+/// carry 6. A record whose count N does not divide is not loaded (commissions again).
+#[test]
+fn another_pole_pair_count_is_put_in_force_swept_again_and_stored() {
+    let mut s = supervisor();
+    let mut flash = Flash::default();
+    let mut ticks = 0;
+    let mut sweeps = Vec::new();
+    let (events, cmd) = run(
+        &mut s,
+        &mut flash,
+        &mut ticks,
+        20_000,
+        |s, tm| {
+            let in_force = s.pole_pairs();
+            tm.snapshot.sweep = (s.state() == State::Sweep).then(|| SweepResult {
+                ratio: in_force as f32 / 6.0,
+                pole_pairs: 6.0,
+                whole_pole_pairs: 6,
+                sensor_periods: 2,
+                alignment: Alignment {
+                    offset_e_rad: 0.5 * in_force as f32 - 2.5,
+                    reversed: false,
+                    pole_pairs: in_force,
+                },
+            });
+            if s.state() == State::Sweep && sweeps.last() != Some(&in_force) {
+                sweeps.push(in_force);
+            }
+            tm.converged = s.state() == State::Adapt;
+        },
+        |s| s.state() == State::Run,
+    );
+    assert_eq!(s.state(), State::Run, "{events:?}");
+    assert_eq!(sweeps, [4, 6]);
+    let aligned: Vec<(u16, f32)> = events
+        .iter()
+        .filter_map(|e| match e {
+            Event::Aligned {
+                pole_pairs, ratio, ..
+            } => Some((*pole_pairs, *ratio)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(aligned, [(6, 4.0 / 6.0), (6, 1.0)]);
+    // The second sweep's offset, for its count.
+    let expected = Alignment {
+        offset_e_rad: 0.5,
+        reversed: false,
+        pole_pairs: 6,
+    };
+    assert_eq!(cmd.alignment, expected);
+    assert_eq!(s.pole_pairs(), 6);
+    let stored = calib_record::load(&flash, hash())
+        .unwrap()
+        .record
+        .calibration;
+    assert_eq!(stored.alignment, expected);
+    let kt = 1.5 * 6.0 * FLUX_WB;
+    let rel = |found: f32, truth: f32| (found / truth - 1.0).abs();
+    assert!(
+        rel(stored.motor.inertia_kg_m2, AMPS_PER_ACCEL * kt) < 0.02,
+        "{stored:?}"
+    );
+
+    // The same record with 3 pole pairs (N = 2 does not divide 3): not loaded.
+    let mut bad = stored;
+    bad.alignment.pole_pairs = 3;
+    let mut flash = Flash::default();
+    calib_record::store(&mut flash, &bad, hash()).unwrap();
+    let mut s = supervisor();
+    let mut ticks = 0;
+    let (events, _) = run(
+        &mut s,
+        &mut flash,
+        &mut ticks,
+        200,
+        |_, _| {},
+        |s| s.state() == State::Identify,
+    );
+    assert!(
+        events.iter().any(|e| matches!(
+            e,
+            Event::NotLoaded {
+                reason: "PolePairs",
+                ..
+            }
+        )),
+        "{events:?}"
+    );
+    assert!(!s.calibration_loaded());
 }
 
 /// The motor a record carries: what a load puts in force.
@@ -535,7 +634,7 @@ fn a_two_speed_commissioning_installs_and_stores_the_sensor_error_alone() {
         c
     };
     for accepted in [true, false] {
-        let mut s = Supervisor::new(params, hash(), 20_000, 20, &MOTOR);
+        let mut s = Supervisor::new(params, hash(), 20_000, 20, &MOTOR, 2);
         let mut flash = Flash::default();
         let mut ticks = 0;
         let mut omega_rad_s: f32 = 0.0;
@@ -630,7 +729,8 @@ fn a_two_speed_commissioning_installs_and_stores_the_sensor_error_alone() {
 #[test]
 fn a_fault_is_never_dropped_and_events_that_do_not_fit_are_counted() {
     fn drive<const E: usize>() -> (Vec<Event>, Supervisor<E>, u32) {
-        let mut s = Supervisor::<E>::with_event_room(Params::default(), hash(), 20_000, 20, &MOTOR);
+        let mut s =
+            Supervisor::<E>::with_event_room(Params::default(), hash(), 20_000, 20, &MOTOR, 2);
         let mut flash = Flash::default();
         let mut ticks = 0;
         let (mut events, _) = commission(&mut s, &mut flash, &mut ticks, State::Run);

@@ -536,7 +536,8 @@ pub fn motor_run(
     let board = Board::commissioning_with_motor(1, adjust)?;
     let motor = board.plant.motor.clone();
     let mut emu = Emu::new(elf, board, None)?;
-    run_until_state(&mut emu, "Run", 4.0)?;
+    // Another pole-pair count than the firmware's is aligned and swept twice.
+    run_until_state(&mut emu, "Run", 6.5)?;
     emu.run_for(0.2)?;
     Ok((finish("motor", &emu, t0, Vec::new())?, motor))
 }

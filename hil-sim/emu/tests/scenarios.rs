@@ -105,6 +105,23 @@ const COMMISSIONING: [&str; 10] = [
     "Run",
 ];
 
+/// [`COMMISSIONING`] on a motor of another pole-pair count than the firmware's: the
+/// first sweep finds the count, the second confirms it.
+const SWEPT_TWICE: [&str; 12] = [
+    "LoadCalibration",
+    "Identify",
+    "Align",
+    "Sweep",
+    "Align",
+    "Sweep",
+    "SpinUp",
+    "Adapt",
+    "Verify",
+    "Motion",
+    "Store",
+    "Run",
+];
+
 #[test]
 fn erased_flash_commissions_to_run_then_the_next_power_up_loads() {
     let o = run("power-up");
@@ -495,22 +512,25 @@ fn attaching_in_run_halts_with_the_bridge_off_and_the_drive_runs_on() {
 }
 
 /// The release ELF identifies motors its constants do not describe (they stay the
-/// nominal R 0.3 ohm, L 0.5 mH, ψ 20 mWb, J 2e-4): the smallest inductance, the highest
-/// resistance and the lowest resistance of the ratings, each with its own magnet and
-/// inertia, behind the board's 820 ns of dead time (the scenario's fan load scaled with
-/// the torque constant, as in hil-sim's population). Each commissions to Run within
-/// budget, with R within 5 %, Ld, Lq within 10 %, ψ within 3 % and J within 10 % of the
-/// plant's, as the stream's `mras-identified` and `mras-motion` say.
+/// nominal 4 pole pairs, R 0.3 ohm, L 0.5 mH, ψ 20 mWb, J 2e-4): the smallest
+/// inductance, the highest resistance and the lowest resistance of the ratings, with 6,
+/// 2 and 8 pole pairs and each its own magnet and inertia, behind the board's 820 ns of
+/// dead time (the scenario's fan load scaled with the torque constant, as in hil-sim's
+/// population). Each commissions to Run within budget (aligned and swept twice), with
+/// its pole pairs found, R within 5 %, Ld, Lq within 10 %, ψ within 3 % and J within
+/// 10 % of the plant's, as the stream's `mras-aligned`, `mras-identified` and
+/// `mras-motion` say.
 #[test]
 fn the_release_elf_identifies_three_motors_it_was_not_built_for() {
     let elf = elf();
-    for (r_ohm, l_h, flux_wb, j_kg_m2) in [
-        (0.2, 30e-6, 8e-3, 1e-4),
-        (1.8, 1.5e-3, 12e-3, 5e-4),
-        (0.06, 0.15e-3, 4e-3, 2e-5),
+    for (pole_pairs, r_ohm, l_h, flux_wb, j_kg_m2) in [
+        (6, 0.2, 30e-6, 8e-3, 1e-4),
+        (2, 1.8, 1.5e-3, 12e-3, 3e-4),
+        (8, 0.06, 0.15e-3, 4e-3, 1e-4),
     ] {
         let (o, m) = scenarios::motor_run(&elf, |m| {
-            m.viscous_nm_s_rad *= flux_wb / m.flux_wb;
+            m.viscous_nm_s_rad *= (pole_pairs as f64 * flux_wb) / (m.pole_pairs as f64 * m.flux_wb);
+            m.pole_pairs = pole_pairs;
             m.r_ohm = r_ohm;
             m.l_h = l_h;
             m.flux_wb = flux_wb;
@@ -518,12 +538,12 @@ fn the_release_elf_identifies_three_motors_it_was_not_built_for() {
         })
         .unwrap_or_else(|e| panic!("R {r_ohm} L {l_h}: {e:#}"));
         let what = format!(
-            "R {r_ohm} ohm, L {:.0} uH, flux {:.0} mWb, J {j_kg_m2:.0e}",
+            "p {pole_pairs}, R {r_ohm} ohm, L {:.0} uH, flux {:.0} mWb, J {j_kg_m2:.0e}",
             1e6 * l_h,
             1e3 * flux_wb
         );
         healthy(&o);
-        assert_eq!(states(&o, 0), COMMISSIONING, "{what}");
+        assert_eq!(states(&o, 0), SWEPT_TWICE, "{what}");
         let field = |kind: &str, k: &str| -> f64 {
             let text = &o
                 .events
@@ -536,6 +556,19 @@ fn the_release_elf_identifies_three_motors_it_was_not_built_for() {
                 .and_then(|v| v.parse().ok())
                 .unwrap_or_else(|| panic!("{what}: no {k} in `{text}`"))
         };
+        // The last alignment's count: the one in force.
+        let found = o
+            .events
+            .iter()
+            .rev()
+            .find(|e| e.kind == "mras-aligned")
+            .and_then(|e| {
+                e.text
+                    .split_whitespace()
+                    .find_map(|kv| kv.strip_prefix("pole_pairs="))
+                    .and_then(|v| v.parse::<u32>().ok())
+            });
+        assert_eq!(found, Some(pole_pairs), "{what}");
         let identified = |k: &str| field("mras-identified", k);
         let (r, ld, lq) = (identified("r_ohm"), identified("ld_h"), identified("lq_h"));
         let (psi, j) = (
@@ -543,7 +576,7 @@ fn the_release_elf_identifies_three_motors_it_was_not_built_for() {
             field("mras-motion", "inertia_kg_m2"),
         );
         eprintln!(
-            "{what}: identified R {r:.4} ohm ({:+.2} %), Ld {:.1} uH ({:+.2} %), Lq {:.1} uH ({:+.2} %), inverter {} V, flux {:.3} mWb ({:+.2} %), J {j:.3e} ({:+.2} %); Identify {} ms, Run at {} ms",
+            "{what}: {pole_pairs} pole pairs found; identified R {r:.4} ohm ({:+.2} %), Ld {:.1} uH ({:+.2} %), Lq {:.1} uH ({:+.2} %), inverter {} V, flux {:.3} mWb ({:+.2} %), J {j:.3e} ({:+.2} %); Identify {} ms, Run at {} ms",
             100.0 * (r / m.r_ohm - 1.0),
             1e6 * ld,
             100.0 * (ld / m.l_h - 1.0),

@@ -27,7 +27,7 @@ pub fn boots() -> &'static (Boot, Boot) {
     BOOTS.get_or_init(|| {
         let sc = Scenario::load("commissioning").unwrap();
         let (a, flash) =
-            power_up::boot(&sc, SimFlash::new(RamFlash::default()), 1, 3.0, None).unwrap();
+            power_up::boot(&sc, SimFlash::new(RamFlash::default()), 1, 3.6, None).unwrap();
         let (b, _) = power_up::boot(&sc, flash, 2, 1.0, None).unwrap();
         (a, b)
     })

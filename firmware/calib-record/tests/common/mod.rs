@@ -28,11 +28,12 @@ pub fn coefs(tag: f32) -> Coefficients {
 }
 
 /// A valid alignment derived from the tag: the offset walks around [-π, π) (tag 0 is
-/// exactly -π), the direction is the parity of the tag's bits.
+/// exactly -π), the direction is the parity of the tag's bits, the pole pairs 1-64.
 pub fn alignment(tag: f32) -> Alignment {
     Alignment {
         offset_e_rad: (tag * 0.731).rem_euclid(TAU) - PI,
         reversed: tag.to_bits().count_ones() % 2 == 1,
+        pole_pairs: 1 + (tag.to_bits() % 64) as u16,
     }
 }
 
@@ -75,11 +76,15 @@ pub fn calib(tag: f32) -> Calibration {
     }
 }
 
-/// `c` with the identity alignment and [`MOTOR`].
+/// `c` with the identity alignment (4 pole pairs: a stored alignment has a count) and
+/// [`MOTOR`].
 pub fn with_identity(c: Coefficients) -> Calibration {
     Calibration {
         coefficients: c,
-        alignment: Alignment::IDENTITY,
+        alignment: Alignment {
+            pole_pairs: 4,
+            ..Alignment::IDENTITY
+        },
         motor: MOTOR,
     }
 }
@@ -181,7 +186,25 @@ pub fn v3_record(cal: &Calibration, seq: u32, hash: u32) -> [u8; V3_RECORD_BYTES
     b
 }
 
-/// Bytes 0..16 of a version 1, 2 or 3 record: magic, version, count, sequence, hash.
+/// A correctly formed format-version-4 record, built by hand from the version-4
+/// layout: the version-3 header and paths with version 4, the eight motor constants
+/// from byte 216, CRC-32/ISO-HDLC over bytes 0..248, commit mark (bytes 20..24 zero:
+/// no pole-pair count).
+pub fn v4_record(cal: &Calibration, seq: u32, hash: u32) -> [u8; 256] {
+    let mut b = [0u8; 256];
+    let paths = v3_record(cal, seq, hash);
+    b[..216].copy_from_slice(&paths[..216]);
+    b[4..6].copy_from_slice(&4u16.to_le_bytes());
+    for (n, v) in motor_fields(&cal.motor).into_iter().enumerate() {
+        b[216 + 4 * n..220 + 4 * n].copy_from_slice(&v.to_bits().to_le_bytes());
+    }
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&b[..248]);
+    b[248..252].copy_from_slice(&crc.to_le_bytes());
+    b[252..256].copy_from_slice(&(!0x4D52_4153u32).to_le_bytes());
+    b
+}
+
+/// Bytes 0..16 of a version 1, 2, 3 or 4 record: magic, version, count, sequence, hash.
 fn legacy_header(b: &mut [u8], version: u16, c: &Coefficients, seq: u32, hash: u32) {
     b[0..4].copy_from_slice(&0x4D52_4153u32.to_le_bytes()); // "MRAS"
     b[4..6].copy_from_slice(&version.to_le_bytes());
