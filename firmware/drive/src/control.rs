@@ -547,29 +547,28 @@ impl<T: Trig> ControlPeriod<T> {
                 } else {
                     mech_angle(&est)
                 };
-                let torque = match cmd.setpoint {
+                let (id_ref, torque) = match cmd.setpoint {
                     Setpoint::Speed { omega_rad_s } => {
                         self.application.reset();
                         let r = MotionRef {
                             omega_rad_s,
                             ..MotionRef::default()
                         };
-                        self.speed.torque(&r, theta, omega, t, self.torque_limit_nm)
+                        let torque = self.speed.torque(&r, theta, omega, t, self.torque_limit_nm);
+                        (0.0, torque)
                     }
-                    Setpoint::Coast { .. } => {
-                        self.speed.reset();
-                        self.application.reset();
-                        0.0
-                    }
+                    // No torque; both motion loops are reset below.
+                    Setpoint::Coast { id_a } => (id_a, 0.0),
                     _ => {
                         self.speed.reset();
-                        self.application.torque(
+                        let torque = self.application.torque(
                             &self.reference,
                             theta,
                             omega,
                             t,
                             self.torque_limit_nm,
-                        )
+                        );
+                        (0.0, torque)
                     }
                 };
                 let theta_e = crate::mutant::commutation_angle(electrical_angle(
@@ -577,10 +576,6 @@ impl<T: Trig> ControlPeriod<T> {
                     self.electrical_per_sensor,
                     est.theta_e_rad,
                 ));
-                let id_ref = match cmd.setpoint {
-                    Setpoint::Coast { id_a } => id_a,
-                    _ => 0.0,
-                };
                 (
                     theta_e,
                     id_ref,
@@ -590,10 +585,7 @@ impl<T: Trig> ControlPeriod<T> {
             }
             Setpoint::Off | Setpoint::Identify { .. } => (0.0, 0.0, 0.0, 0.0),
         };
-        if !matches!(
-            cmd.setpoint,
-            Setpoint::Speed { .. } | Setpoint::Application | Setpoint::Coast { .. }
-        ) {
+        if !matches!(cmd.setpoint, Setpoint::Speed { .. } | Setpoint::Application) {
             self.speed.reset();
             self.application.reset();
         }
