@@ -871,6 +871,7 @@ impl Commissioning {
             // The fit starts here, at the speed the coast left (its friction can slow a
             // light rotor by most of it, faster than the observer's feed-forward knows).
             self.fit_from_rad_s = i.omega_rad_s;
+            self.fit = InertiaFit::about(i.omega_rad_s);
         }
         self.fit.add(i.dt_s, i.theta_rad, i.iq_integral_a_s);
         self.hold_speed(i.dt_s);

@@ -78,8 +78,17 @@ pub struct DriveConfig {
     pub supervisor_divider: u32,
 }
 
-/// Half-width of the current band the inverter compensation ramps across (A).
+/// The narrowest half-width of the current band the inverter compensation ramps across
+/// (A): the sampled current's noise.
 pub const COMPENSATION_BAND_A: f32 = 0.2;
+
+/// 1/√x to 0.2 % (the exponent bits' seed and one Newton step; finite at 0), for the
+/// inverter compensation's band.
+#[inline(always)]
+fn inv_sqrt_coarse(x: f32) -> f32 {
+    let y = f32::from_bits(0x5f37_5a86_u32.wrapping_sub(x.to_bits() >> 1));
+    y * (1.5 - 0.5 * x * y * y)
+}
 
 /// Samples averaged for the current sensors' zero.
 const CURRENT_ZERO_SAMPLES: u32 = 256;
@@ -146,6 +155,8 @@ pub struct ControlPeriod<T: Trig> {
     ident_frame: (f32, f32),
     /// Each phase's voltage error the identification found (V), compensated.
     inverter_phase_v: f32,
+    /// 2L/T (Ω): the applied voltage per amp of PWM ripple, peak to mean.
+    two_l_over_t_ohm: f32,
     shift: ShiftMeter,
     /// The offset the shift is measured against.
     shift_base: Option<calib_record::Alignment>,
@@ -328,6 +339,7 @@ impl<T: Trig> ControlPeriod<T> {
             ident_installed: false,
             ident_frame: (0.0, 1.0),
             inverter_phase_v: 0.0,
+            two_l_over_t_ohm: 2.0 * m.l_h / cfg.control_period_s,
             shift: ShiftMeter::default(),
             shift_base: None,
             torque_cmd_nm: 0.0,
@@ -612,9 +624,11 @@ impl<T: Trig> ControlPeriod<T> {
         }
         // The voltage acts through the next period: rotate it to the angle the rotor
         // reaches in the middle of that period.
-        let lead = 1.5 * we * t;
-        let (va, vb) = inverse_park(vd, vq, trig.sin_cos(theta_e + lead));
-        let (ca, cb) = self.inverter_compensation(ia, ib);
+        let ahead = trig.sin_cos(theta_e + 1.5 * we * t);
+        let (va, vb) = inverse_park(vd, vq, ahead);
+        let (id_ahead, iq_ahead) = self.current.ahead_a();
+        let (ca, cb) =
+            self.inverter_compensation(inverse_park(id_ahead, iq_ahead, ahead), (va, vb));
         let (duties, _) = svpwm(va + ca, vb + cb, self.cfg.motor.vdc_v);
         self.torque_cmd_nm = self.torque_constant_nm_a * iq_ref;
         self.duties_loaded(duties);
@@ -632,26 +646,44 @@ impl<T: Trig> ControlPeriod<T> {
         self.direction * self.torque_cmd_nm * self.observer_torque_scale + self.ripple_nm
     }
 
-    /// The inverter's voltage error as identified, put back (αβ, V): each phase's share
-    /// with its current's sign, linear across [`COMPENSATION_BAND_A`] around zero (the
-    /// measured current is noisy there). Without it the loop integrates through the
-    /// error at every current reversal and steps from zero current much slower than
-    /// designed on a small L (a third of its bandwidth at 30 µH). The band is narrower
-    /// than the one the PWM ripple really spreads the error over (`|v|·T/(2L)`, up to
-    /// 1 A at speed): a sampled current lags a fast step by a period, and a narrow band
-    /// catches up with it; at speed it over-corrects near each zero crossing, a cost of
-    /// a few 1e-4 of torque per amp.
+    /// The inverter's voltage error as identified, put back (αβ, V), for the αβ current
+    /// predicted for the period the voltage `(va, vb)` acts through: each phase's share
+    /// with its current's sign, linear across the band in which the PWM ripple takes
+    /// the phase current through zero within a period (`|v|·T/(2L)` for the voltage
+    /// applied, at least [`COMPENSATION_BAND_A`]). The voltage applied holds the
+    /// compensation too, so the band is found once more with it. Without compensation
+    /// the loop integrates through the error at every current reversal and steps from
+    /// zero current much slower than designed on a small L (a third of its bandwidth at
+    /// 30 µH). The sampled current would not do: it lags the period the voltage acts
+    /// through by one and a half periods, so a step from zero would go uncompensated
+    /// for two periods (half the bandwidth at 30 µH).
     #[inline(always)]
-    fn inverter_compensation(&self, ia: f32, ib: f32) -> (f32, f32) {
+    fn inverter_compensation(
+        &self,
+        (i_alpha, i_beta): (f32, f32),
+        (va, vb): (f32, f32),
+    ) -> (f32, f32) {
         let v = self.inverter_phase_v;
         if v == 0.0 {
             return (0.0, 0.0);
         }
-        let k = 1.0 / COMPENSATION_BAND_A;
-        let share = |i: f32| v * mras::min_f32(mras::max_f32(i * k, -1.0), 1.0);
-        let (a, b, c) = (share(ia), share(ib), share(-ia - ib));
-        // Amplitude-invariant Clarke; the common mode drops out.
-        ((2.0 * a - b - c) * (1.0 / 3.0), (b - c) * 0.577_350_26)
+        // The phase currents (inverse amplitude-invariant Clarke).
+        let (half_a, b_part) = (0.5 * i_alpha, 0.866_025_4 * i_beta);
+        let phases = [i_alpha, b_part - half_a, -b_part - half_a];
+        let (mut xa, mut xb) = (va, vb);
+        let mut c = (0.0, 0.0);
+        for _ in 0..2 {
+            // 1/band (a zero voltage gives the narrowest band); 1/|v| to 0.2 %.
+            let k = mras::min_f32(
+                inv_sqrt_coarse(xa * xa + xb * xb) * self.two_l_over_t_ohm,
+                1.0 / COMPENSATION_BAND_A,
+            );
+            let [a, b, cc] = phases.map(|i| v * mras::min_f32(mras::max_f32(i * k, -1.0), 1.0));
+            // Amplitude-invariant Clarke; the common mode drops out.
+            c = ((2.0 * a - b - cc) * (1.0 / 3.0), (b - cc) * 0.577_350_26);
+            (xa, xb) = (va + c.0, vb + c.1);
+        }
+        c
     }
 
     /// Put the pole pairs of the alignment in force (0: the configured count): the
@@ -730,6 +762,7 @@ impl<T: Trig> ControlPeriod<T> {
                 let m = &mut self.cfg.motor;
                 m.r_ohm = x.r_ohm;
                 m.l_h = 0.5 * (x.ld_h + x.lq_h);
+                self.two_l_over_t_ohm = 2.0 * m.l_h / self.cfg.control_period_s;
                 self.current = CurrentLoop::new(CurrentLoopParams {
                     r_ohm: m.r_ohm,
                     l_h: m.l_h,

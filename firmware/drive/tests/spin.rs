@@ -43,8 +43,8 @@ fn spin(
     out
 }
 
-fn fit(samples: &[(f32, f32)]) -> Option<drive::spin::MotionFit> {
-    let mut f = InertiaFit::default();
+fn fit(samples: &[(f32, f32)], omega_ref_rad_s: f32) -> Option<drive::spin::MotionFit> {
+    let mut f = InertiaFit::about(omega_ref_rad_s);
     for &(th, q) in samples {
         f.add(DT, th, q);
     }
@@ -53,11 +53,13 @@ fn fit(samples: &[(f32, f32)]) -> Option<drive::spin::MotionFit> {
 
 /// A speed loop's spin-up on a 180 mrad pk-pk sensor (its error at 2 and 4 per
 /// revolution, as the commissioning scenario's), the current following a ramp with a
-/// ripple at the sensor's frequencies: J/kt within 10 % (the spin-up's rough fit); and
-/// Motion's dip of 30 % and back on a corrected sensor: J/kt within 2 %. Friction as the
-/// current it takes at the speed, within 5 % (one speed region separates viscous from
-/// constant friction only weakly); for the lightest and the heaviest rotor per amp of the
-/// ratings.
+/// ripple at the sensor's frequencies: J/kt within 12 % (the spin-up's rough fit: at low
+/// speed the raw sensor's error is slow enough to pass the fit's filters, and it biases
+/// the lightest rotor's by 11 %); and Motion's dip of 30 % and back on a corrected
+/// sensor, the regressors about the speed it starts at: J/kt within 0.5 %. Friction as
+/// the current it takes at the speed, within 1 % (one speed region separates viscous
+/// from constant friction only weakly); for the lightest and the heaviest rotor per amp
+/// of the ratings.
 /// A run: its name, the speed reference, the starting speed, the sensor's error and the
 /// tolerances on J/kt and on the friction.
 type Run<'a> = (
@@ -88,8 +90,8 @@ fn the_fit_finds_inertia_and_friction_through_the_sensors_error() {
             target * (1.0 - 0.3 * d)
         };
         let runs: [Run; 2] = [
-            ("spin-up, raw sensor", &spin_up, 0.0, &raw, 0.10, 0.05),
-            ("dip, corrected sensor", &dip, target, &|_| 0.0, 0.02, 0.05),
+            ("spin-up, raw sensor", &spin_up, 0.0, &raw, 0.12, 0.01),
+            ("dip, corrected sensor", &dip, target, &|_| 0.0, 0.005, 0.01),
         ];
         for (what, reference, w0, err, tol_j, tol_b) in runs {
             let iq = |t: f32, w: f32| {
@@ -97,7 +99,7 @@ fn the_fit_finds_inertia_and_friction_through_the_sensors_error() {
                 (j_over_kt * 60.0 * (reference(t) - w + ripple) + b_over_kt * w).clamp(-10.0, 10.0)
             };
             let s = spin(0.5, w0, j_over_kt, b_over_kt, iq, err);
-            let f = fit(&s).unwrap_or_else(|| panic!("J/kt {j_over_kt}, {what}: no fit"));
+            let f = fit(&s, w0).unwrap_or_else(|| panic!("J/kt {j_over_kt}, {what}: no fit"));
             let rel = |a: f32, b: f32| (a / b - 1.0).abs();
             assert!(
                 rel(f.amps_per_accel_a_s2, j_over_kt) < tol_j,
@@ -116,7 +118,8 @@ fn the_fit_finds_inertia_and_friction_through_the_sensors_error() {
 fn the_fit_finds_the_starting_speed() {
     let (j_over_kt, b_over_kt) = (2e-3, 4e-3);
     let iq = |t: f32, _: f32| if t > 0.05 && t < 0.15 { 1.5 } else { 0.0 };
-    let f = fit(&spin(0.3, 125.0, j_over_kt, b_over_kt, iq, &|_| 0.0)).expect("a fit");
+    // The regressors about another speed than the start's: the fit still finds it.
+    let f = fit(&spin(0.3, 125.0, j_over_kt, b_over_kt, iq, &|_| 0.0), 100.0).expect("a fit");
     assert!(
         (f.amps_per_accel_a_s2 / j_over_kt - 1.0).abs() < 0.01,
         "{f:?}"
@@ -130,14 +133,14 @@ fn the_fit_finds_the_starting_speed() {
 #[test]
 fn without_an_acceleration_there_is_no_fit() {
     let steady = spin(0.4, 100.0, 2e-3, 1e-3, |_, w| 1e-3 * w, &|_| 0.0);
-    assert_eq!(fit(&steady), None);
+    assert_eq!(fit(&steady, 100.0), None);
     let still = spin(0.4, 0.0, 2e-3, 1e-3, |_, _| 0.0, &|_| 0.0);
-    assert_eq!(fit(&still), None);
+    assert_eq!(fit(&still, 0.0), None);
     let backwards: Vec<(f32, f32)> = spin(0.4, 0.0, 2e-3, 0.0, |_, _| 1.0, &|_| 0.0)
         .into_iter()
         .map(|(th, q)| (th, -q))
         .collect();
-    assert_eq!(fit(&backwards), None);
+    assert_eq!(fit(&backwards, 0.0), None);
 }
 
 /// Two windows of the coast, id = +I then -I, in a frame 0.3 rad off the rotor's, with
