@@ -99,12 +99,11 @@ fn twenty_random_motors_are_identified_and_commissioned() {
         );
         // The commissioning scenario's own bound, 1690x, on every motor whose electrical
         // fundamental is not the sensor's first harmonic. Where it is (p = N = 2), a
-        // torque error at the electrical frequency (a current sensor's zero left by a
-        // fraction of a count gives one) moves the rotor at the sensor's m = 1, and at
-        // one commissioning speed the adaptation takes that motion for the sensor's
-        // error: 1 mA wobbles a rotor by 1.5·p·ψ/J · 1 mA / ωe² (the lightest, 2 pole
-        // pairs, 35 mWb, 1.9e-5 kg m^2: 0.09 mrad, its θ̂ error in Run), so a light one
-        // stays below 1690x.
+        // torque error at the electrical frequency that the 1 kHz current loop lets
+        // through moves a light rotor at the sensor's m = 1, and at one commissioning
+        // speed the adaptation takes that motion for the sensor's error: the lightest
+        // (2 pole pairs, 35 mWb, 1.9e-5 kg m^2) wobbles by 0.10 mrad in Run, its θ̂
+        // error there (1087x; 2082x with the current loop at 2 kHz).
         let run = b.run.as_ref().unwrap();
         let ratio = run.raw_pk_pk_mrad / run.estimate_pk_pk_mrad;
         let bound = if d.pole_pairs == SENSOR_PERIODS {
