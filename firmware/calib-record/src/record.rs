@@ -49,6 +49,16 @@ impl Alignment {
         reversed: false,
         pole_pairs: 0,
     };
+
+    /// The pole pairs this alignment is for: its own count, or `configured` where it
+    /// carries none (0, not measured yet).
+    pub const fn pole_pairs_or(&self, configured: u16) -> u16 {
+        if self.pole_pairs == 0 {
+            configured
+        } else {
+            self.pole_pairs
+        }
+    }
 }
 
 /// The motor's constants identified at commissioning (what the drive runs on).

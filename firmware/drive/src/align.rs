@@ -31,8 +31,15 @@ use calib_record::Alignment;
 use core::f32::consts::{PI, TAU};
 
 /// The hold at each end, as a fraction of one direction's duration: the rotor settles
-/// before the forward travel is read.
+/// before the field turns back (the fit leaves the holds out: the command stands).
 const HOLD_FRACTION: f32 = 0.25;
+
+/// Whether a sensor of `sensor_periods` periods per revolution names the electrical
+/// angle of `pole_pairs` pole pairs: N divides p (p ≥ 1), so its 2π/N ambiguity is a
+/// whole number of electrical turns.
+pub fn pole_pairs_serve(pole_pairs: u16, sensor_periods: u16) -> bool {
+    pole_pairs > 0 && pole_pairs.checked_rem(sensor_periods) == Some(0)
+}
 
 /// Wrap an angle into [-π, π] (nearest whole turn removed; exact for |x| < 1e4 rad).
 #[inline]

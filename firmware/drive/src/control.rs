@@ -247,7 +247,7 @@ impl DriveConfig {
                 "must equal the core's sample_period_s",
             ));
         }
-        if m.pole_pairs == 0 || m.pole_pairs % core.sensor_periods != 0 {
+        if !crate::align::pole_pairs_serve(m.pole_pairs, core.sensor_periods) {
             return Err(ConfigError::new(
                 "motor.pole_pairs",
                 "must be a multiple of the sensor periods N (else the sensor's 2π/N ambiguity is not a whole electrical turn)",
@@ -425,7 +425,7 @@ impl<T: Trig> ControlPeriod<T> {
         }
         self.direction = if cmd.alignment.reversed { -1.0 } else { 1.0 };
         if cmd.alignment.pole_pairs != self.alignment_pole_pairs {
-            self.install_pole_pairs(cmd.alignment.pole_pairs);
+            self.install_pole_pairs(&cmd.alignment);
         }
         self.tracker
             .set_frozen(cmd.adaptation == Adaptation::Frozen);
@@ -690,16 +690,11 @@ impl<T: Trig> ControlPeriod<T> {
     /// electrical angle's scale, the electrical speed, the back-EMF's integral and the
     /// torque constant. A count N does not divide keeps the bridge off.
     #[inline(never)]
-    fn install_pole_pairs(&mut self, count: u16) {
-        self.alignment_pole_pairs = count;
-        let p = if count == 0 {
-            self.cfg.motor.pole_pairs
-        } else {
-            count
-        };
+    fn install_pole_pairs(&mut self, alignment: &calib_record::Alignment) {
+        self.alignment_pole_pairs = alignment.pole_pairs;
+        let p = alignment.pole_pairs_or(self.cfg.motor.pole_pairs);
         let n = self.tracker.config().sensor_periods;
-        let whole = p.checked_rem(n) == Some(0);
-        self.pole_pairs_valid = whole && p > 0;
+        self.pole_pairs_valid = crate::align::pole_pairs_serve(p, n);
         if let (true, Some(k)) = (self.pole_pairs_valid, p.checked_div(n)) {
             self.electrical_per_sensor = k as f32;
             self.pole_pairs = p as f32;

@@ -419,9 +419,10 @@ impl<const E: usize> Supervisor<E> {
                     // A count N does not divide cannot come from this configuration's
                     // sweep (N is in the record's hash): commission again.
                     Ok(l)
-                        if l.record.calibration.alignment.pole_pairs
-                            % self.sensor_periods.max(1)
-                            != 0 =>
+                        if !crate::align::pole_pairs_serve(
+                            l.record.calibration.alignment.pole_pairs,
+                            self.sensor_periods,
+                        ) =>
                     {
                         self.load = LoadStatus::Unavailable;
                         events.push(Event::NotLoaded {
@@ -632,10 +633,7 @@ impl<const E: usize> Supervisor<E> {
 
     /// The pole pairs in force: the alignment's, or the configured ones before one.
     pub fn pole_pairs(&self) -> u16 {
-        match self.alignment.pole_pairs {
-            0 => self.configured_pole_pairs,
-            p => p,
-        }
+        self.alignment.pole_pairs_or(self.configured_pole_pairs)
     }
 
     /// The torque constant `1.5·p·ψ` of the flux linkage in force (N·m/A).
