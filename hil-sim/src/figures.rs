@@ -505,7 +505,7 @@ fn commissioning() -> Result<Sections> {
 /// the time Identify took, when Run came and the spatial error in Run.
 fn identification() -> Result<Sections> {
     use crate::identification::{
-        commission, commission_as, nominal, population_of, Errors, MOTORS, SEED,
+        commission, commission_as, nominal, population_of, Errors, MOTORS, RUN_SETTLE_S, SEED,
     };
     use drive::commissioning::State;
     use rayon::prelude::*;
@@ -524,7 +524,21 @@ fn identification() -> Result<Sections> {
     let mut worst = Errors::default();
     let (mut bw_lo, mut bw_hi) = (f64::INFINITY, 0f64);
     let (mut in_run, mut counts_found) = (0, 0);
+    let speed_rad_s = sc
+        .file
+        .commissioning
+        .as_ref()
+        .map_or(Ok(f64::NAN), |c| c.params().map(|p| p.speed_rad_s as f64))?;
+    let (mut worst_speed, mut worst_angle_mrad) = (0f64, 0f64);
     for o in &runs {
+        if let Some((slow, fast)) = o.speed_from_store_rad_s {
+            worst_speed = worst_speed
+                .max(1.0 - slow / speed_rad_s)
+                .max(fast / speed_rad_s - 1.0);
+        }
+        if let Some((low, high)) = o.angle_error_from_store_mrad {
+            worst_angle_mrad = worst_angle_mrad.max(high - low);
+        }
         let (d, b) = (o.draw, &o.boot);
         in_run += (b.final_state == State::Run) as usize;
         let found = o.pole_pairs_found();
@@ -570,7 +584,7 @@ fn identification() -> Result<Sections> {
     }
     let _ = writeln!(
         s,
-        "\n{in_run} of {} motors to Run, the pole pairs found on {counts_found} (the firmware's nominal motor has {}). Worst error: R {:.2} %, Ld {:.2} %, Lq {:.2} %, ψ {}, J {}. The current loop, designed for {design_hz:.0} Hz, steps at {bw_lo:.0}-{bw_hi:.0} Hz (the firmware's nominal motor: {}).",
+        "\n{in_run} of {} motors to Run, the pole pairs found on {counts_found} (the firmware's nominal motor has {}). Worst error: R {:.2} %, Ld {:.2} %, Lq {:.2} %, ψ {}, J {}. The current loop, designed for {design_hz:.0} Hz, steps at {bw_lo:.0}-{bw_hi:.0} Hz (the firmware's nominal motor: {}). Run's spatial error is taken from {RUN_SETTLE_S} s after its entry to the end. From Store's entry on (the identified ψ and J put in force, then the application's loop taking over at speed) the rotor's speed stays within {:.2} % of the commissioning speed and θ̂'s error within a {worst_angle_mrad:.2} mrad span.",
         runs.len(),
         nominal().pole_pairs,
         100.0 * worst.r,
@@ -580,7 +594,8 @@ fn identification() -> Result<Sections> {
         pct(worst.inertia).trim_start_matches('+'),
         nominal_run
             .loop_bandwidth_hz()
-            .map_or("—".to_string(), |f| format!("{f:.0} Hz"))
+            .map_or("—".to_string(), |f| format!("{f:.0} Hz")),
+        100.0 * worst_speed
     );
     // The reason for it: the firmware before it identified its motor, on the smallest L
     // and on the largest J of the population.

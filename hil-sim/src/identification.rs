@@ -5,7 +5,7 @@
 
 use crate::power_up::{self, Boot};
 use crate::rig::{Rig, SimFlash, Step};
-use crate::scenario::Scenario;
+use crate::scenario::{Probe, Scenario};
 use anyhow::Result;
 use calib_record::RamFlash;
 use drive::commissioning::State;
@@ -139,6 +139,12 @@ pub struct Outcome {
     /// The d current's step at Align's start, measured at the plant: the time to 63.2 %
     /// of its final value from the first period in Align (interpolated between periods).
     pub t63_s: Option<f64>,
+    /// The rotor's slowest and fastest speed (rad/s, the plant's) from Store's entry to
+    /// the end: the hand-over from commissioning to the application at speed.
+    pub speed_from_store_rad_s: Option<(f64, f64)>,
+    /// θ̂'s smallest and largest error against the rotor (mechanical mrad, the probe's
+    /// measure) over the same span: what the hand-over does to the angle.
+    pub angle_error_from_store_mrad: Option<(f64, f64)>,
 }
 
 /// What was identified against the plant: each relative error (found/true - 1).
@@ -207,9 +213,13 @@ impl Outcome {
 pub const STEP_A: f64 = 2.0;
 
 /// How long each power-up of the population runs: a motor of another pole-pair count
-/// than the nominal one is aligned and swept twice and comes to Run at about 5 s, and
-/// the spatial error is taken over the last 20 %.
+/// than the nominal one is aligned and swept twice and comes to Run at about 5 s.
 pub const DURATION_S: f64 = 7.0;
+
+/// Run's spatial error is taken from this long after its entry to the end: the same
+/// part of each motor's Run, whenever it came (the adaptation's tracking starts once
+/// the speed has settled).
+pub const RUN_SETTLE_S: f64 = 0.5;
 
 /// `sc` (the `commissioning` scenario) on motor `d`, from an erased flash, for
 /// [`DURATION_S`]. The
@@ -240,12 +250,24 @@ pub fn commission_as(sc: &Scenario, d: Draw, identify: bool) -> Result<Outcome> 
     // The α current (the alignment's d axis) over Align's first 2 ms.
     const TRACE: usize = 40;
     let mut trace: Vec<(f64, f64)> = Vec::new();
+    let mut speed: Option<(f64, f64)> = None;
+    let mut angle: Option<(f64, f64)> = None;
+    let probe = Probe::of(&rig.plant.sensor.params);
+    let widen = |span: &mut Option<(f64, f64)>, x: f64| {
+        let (lo, hi) = span.get_or_insert((x, x));
+        (*lo, *hi) = (lo.min(x), hi.max(x));
+    };
     let mut hook = |rig: &mut Rig, s: &Step| {
-        if rig.supervisor().map(|x| x.state()) == Some(State::Align) && trace.len() < TRACE {
+        let state = rig.supervisor().map(|x| x.state());
+        if state == Some(State::Align) && trace.len() < TRACE {
             trace.push((s.truth.t_s, rig.plant.currents_ab()[0]));
         }
+        if speed.is_some() || state == Some(State::Store) {
+            widen(&mut speed, s.truth.omega_rad_s);
+            widen(&mut angle, 1e3 * probe.errors_rad(s).1);
+        }
     };
-    let boot = power_up::run_boot(&mut rig, &sc, DURATION_S, Some(&mut hook));
+    let boot = power_up::run_boot_settled(&mut rig, &sc, DURATION_S, RUN_SETTLE_S, Some(&mut hook));
     let mut t63_s = None;
     if let (true, Some(&(t0, _))) = (trace.len() == TRACE, trace.first()) {
         let tail = &trace[TRACE - 10..];
@@ -260,5 +282,7 @@ pub fn commission_as(sc: &Scenario, d: Draw, identify: bool) -> Result<Outcome> 
         draw: d,
         boot,
         t63_s,
+        speed_from_store_rad_s: speed,
+        angle_error_from_store_mrad: angle,
     })
 }

@@ -192,11 +192,35 @@ pub fn boot(
     Ok((boot, flash))
 }
 
-/// Run a power-up on a rig made by [`rig`] or [`rig_with`] (with any queue depths).
+/// Run a power-up on a rig made by [`rig`] or [`rig_with`] (with any queue depths); Run
+/// is measured over the last fifth of `duration_s`.
 pub fn run_boot<const H: usize, const U: usize>(
     rig: &mut Rig<F32Trig, H, U>,
     sc: &Scenario,
     duration_s: f64,
+    hook: Option<Hook<H, U>>,
+) -> Boot {
+    run_boot_measured(rig, sc, duration_s, None, hook)
+}
+
+/// [`run_boot`], with Run measured from `settle_s` after its entry to the end (where
+/// motors reach Run at different times, the same share of each one's Run: the last fifth
+/// of the run could fall within the first moments of a late one's).
+pub fn run_boot_settled<const H: usize, const U: usize>(
+    rig: &mut Rig<F32Trig, H, U>,
+    sc: &Scenario,
+    duration_s: f64,
+    settle_s: f64,
+    hook: Option<Hook<H, U>>,
+) -> Boot {
+    run_boot_measured(rig, sc, duration_s, Some(settle_s), hook)
+}
+
+fn run_boot_measured<const H: usize, const U: usize>(
+    rig: &mut Rig<F32Trig, H, U>,
+    sc: &Scenario,
+    duration_s: f64,
+    settle_s: Option<f64>,
     mut hook: Option<Hook<H, U>>,
 ) -> Boot {
     let t_s = sc.sample_period_s();
@@ -207,7 +231,7 @@ pub fn run_boot<const H: usize, const U: usize>(
     // Spin-up error: the last complete 0.1 s slice before adaptation starts.
     const SLICE_S: f64 = 0.1;
     let (mut spin_slice, mut spin_up): (Option<(f64, Window)>, Option<Window>) = (None, None);
-    let run_from = 0.8 * duration_s;
+    let mut run_from = 0.8 * duration_s;
     let mut run = Window::new(run_from, duration_s + t_s);
     let (mut speed_sum, mut run_n) = (0.0, 0u64);
     let mut current = CurrentVector::new(&rig.plant.motor);
@@ -229,6 +253,10 @@ pub fn run_boot<const H: usize, const U: usize>(
         seen = rig.streamed().len();
         if transitions.last().map(|(_, x)| *x) != Some(state) {
             transitions.push((s.truth.t_s, state));
+            if let (State::Run, Some(settle_s)) = (state, settle_s) {
+                run_from = s.truth.t_s + settle_s;
+                run = Window::new(run_from, duration_s + t_s);
+            }
             if state == State::Adapt {
                 adapt_start = Some((s.truth.t_s, s.truth.theta_rad));
             } else if let Some((t0, th0)) = adapt_start.take() {

@@ -561,7 +561,7 @@ impl<T: Trig> ControlPeriod<T> {
                 };
                 let (id_ref, torque) = match cmd.setpoint {
                     Setpoint::Speed { omega_rad_s } => {
-                        self.application.reset();
+                        self.application.hand_over(&mut self.speed);
                         let r = MotionRef {
                             omega_rad_s,
                             ..MotionRef::default()
@@ -572,7 +572,7 @@ impl<T: Trig> ControlPeriod<T> {
                     // No torque; both motion loops are reset below.
                     Setpoint::Coast { id_a } => (id_a, 0.0),
                     _ => {
-                        self.speed.reset();
+                        self.speed.hand_over(&mut self.application);
                         let torque = self.application.torque(
                             &self.reference,
                             theta,
@@ -707,12 +707,21 @@ impl<T: Trig> ControlPeriod<T> {
     /// Put identified (or loaded) motion constants in force at electrical speed
     /// `we_rad_s`: ψ in the torque constant, its limit and the current loop's back-EMF
     /// feed-forward (its integrator gives back what the feed-forward adds, so the voltage
-    /// does not step), and J/kt in the motion loops (their inertia, which keeps their
-    /// torque) and in the observer's feed-forward.
+    /// does not step), and J/kt in the motion loops and in the observer's feed-forward.
+    /// The motion loops' integrators keep the current they ask for across both.
     #[inline(never)]
     fn install_motion(&mut self, m: MotionConstants, we_rad_s: f32) {
+        let scale_before = self.observer_torque_scale;
+        let mut fed = 1.0;
         let motor = &mut self.cfg.motor;
         if m.flux_wb > 0.0 {
+            // Keep the current the integrators hold, not their torque in the old
+            // constant's units: a ψ found at a quarter of the nominal would otherwise
+            // ask four times the load's current and kick a light rotor to overspeed.
+            let k = m.flux_wb / motor.flux_wb;
+            self.speed.scale_torque(k);
+            self.application.scale_torque(k);
+            fed = k;
             self.current.set_flux(m.flux_wb, we_rad_s);
             motor.flux_wb = m.flux_wb;
             self.torque_constant_nm_a = 1.5 * self.pole_pairs * m.flux_wb;
@@ -726,6 +735,9 @@ impl<T: Trig> ControlPeriod<T> {
             self.observer_torque_scale =
                 self.tracker.config().observer.inertia_kg_m2 / motor.inertia_kg_m2;
         }
+        // The observer's disturbance held what its feed-forward lacked: it takes the step.
+        self.tracker
+            .scale_disturbance(fed * self.observer_torque_scale / scale_before);
         self.motion = m;
     }
 

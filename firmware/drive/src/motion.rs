@@ -113,6 +113,30 @@ impl MotionLoop {
         self.inertia_kg_m2 = inertia_kg_m2;
     }
 
+    /// Scale the torque the integrator holds by `k`: where the torque constant changes
+    /// by `k`, the current it asks for (what balanced the load) stays.
+    pub fn scale_torque(&mut self, k: f32) {
+        self.integral *= k;
+    }
+
+    /// Hand the torque the integrator holds to `next`, which goes on from it (no dip
+    /// where one loop takes over from the other at speed), and forget it.
+    pub fn hand_over(&mut self, next: &mut MotionLoop) {
+        if self.integral != 0.0 {
+            next.integral = self.gain_i() * self.integral * self.inertia_kg_m2
+                / (next.gain_i() * next.inertia_kg_m2);
+        }
+        self.reset();
+    }
+
+    /// The integrator's gain: its state times this is an acceleration.
+    fn gain_i(&self) -> f32 {
+        match self.mode {
+            LoopMode::Position => self.ki,
+            LoopMode::Velocity => self.kp,
+        }
+    }
+
     /// Forget the integrator and the homing (the loop is not in use).
     pub fn reset(&mut self) {
         self.integral = 0.0;
@@ -140,10 +164,7 @@ impl MotionLoop {
             }
             LoopMode::Velocity => (e_w, self.kd * e_w),
         };
-        let gain_i = match self.mode {
-            LoopMode::Position => self.ki,
-            LoopMode::Velocity => self.kp,
-        };
+        let gain_i = self.gain_i();
         let integral = self.integral + e_int * t_s;
         let unclamped = self.inertia_kg_m2 * (r.accel_rad_s2 + alpha_pd + gain_i * integral);
         // min/max, not `clamp`: no panic path for a limit the compiler cannot prove.
@@ -201,6 +222,49 @@ mod tests {
         assert!((w - 100.0).abs() < 0.1, "{w}");
         // Limited acceleration for ~0.5 s; a wound-up integrator overshoots by far more.
         assert!(peak < 110.0, "overshoot to {peak}");
+    }
+
+    /// A loaded rotor at speed on the velocity loop; the position loop takes over with
+    /// the torque the integrator held: no step in the torque, no dip in the speed.
+    /// (From an empty integrator the load would brake it by far more.)
+    #[test]
+    fn a_loop_takes_over_the_torque_at_speed() {
+        let (j, load_nm, dt) = (2e-5, 0.05, 50e-6);
+        let mut speed = MotionLoop::new(LoopMode::Velocity, 10.0, j);
+        let mut position = MotionLoop::new(LoopMode::Position, 10.0, j);
+        let r = |t: f32| MotionRef {
+            theta: Angle {
+                turns: 0,
+                rad: 100.0 * t,
+            },
+            omega_rad_s: 100.0,
+            accel_rad_s2: 0.0,
+        };
+        let (mut w, mut th, mut held) = (100.0f32, 0.0f32, 0.0);
+        for k in 0..40_000 {
+            held = speed.torque(&r(k as f32 * dt), Angle::default(), w, dt, 1.0);
+            w += (held - load_nm) / j * dt;
+        }
+        assert!((held - load_nm).abs() < 1e-4, "{held}");
+        speed.hand_over(&mut position);
+        let (mut slowest, mut first) = (w, None);
+        for k in 0..20_000 {
+            let t = position.torque(&r(k as f32 * dt), Angle { turns: 0, rad: th }, w, dt, 1.0);
+            first.get_or_insert(t);
+            w += (t - load_nm) / j * dt;
+            th += w * dt;
+            slowest = slowest.min(w);
+        }
+        let first = first.unwrap();
+        assert!(
+            (first - held).abs() < 1e-3 * load_nm,
+            "{first} after {held}"
+        );
+        assert!(slowest > 99.9, "dipped to {slowest}");
+        // The speed loop forgot it; a hand-over from an empty loop keeps the other's.
+        let mut again = position;
+        speed.hand_over(&mut again);
+        assert_eq!(again, position);
     }
 
     #[test]

@@ -576,6 +576,14 @@ impl<T: Trig> Front<T> {
         self.acq_left == 0
     }
 
+    /// Scale the observer's disturbance estimate by `k` where the torque fed forward is
+    /// scaled by `k` (a torque constant or inertia put in force at speed): at a steady
+    /// speed the estimate holds the feed-forward's mean, so θ̂ does not jump. Its
+    /// low-frequency estimate, not the torque of the moment, which may ring.
+    pub fn scale_disturbance(&mut self, k: f32) {
+        self.obs.disturbance_nm *= k;
+    }
+
     /// Forget the observer state; the next good sample re-acquires. Coefficients stay.
     pub fn reset_observer(&mut self) {
         self.acquired = false;
