@@ -46,7 +46,7 @@ pub struct Generator {
     run: fn() -> Result<Sections>,
 }
 
-pub const GENERATORS: [Generator; 7] = [
+pub const GENERATORS: [Generator; 8] = [
     Generator {
         name: "scenarios",
         sections: &["scenarios", "scenarios-ci", "scenarios-summary"],
@@ -89,13 +89,19 @@ pub const GENERATORS: [Generator; 7] = [
         in_ci: false,
         run: ripple_full,
     },
+    Generator {
+        name: "identification-seeds",
+        sections: &["identification-seeds"],
+        in_ci: false,
+        run: identification_seeds,
+    },
 ];
 
 pub fn run(a: &Args) -> Result<()> {
     if a.list {
         for g in &GENERATORS {
             println!(
-                "{:<14} {:<8} {}",
+                "{:<22} {:<8} {}",
                 g.name,
                 if g.in_ci { "in CI" } else { "full" },
                 g.sections.join(", ")
@@ -524,11 +530,7 @@ fn identification() -> Result<Sections> {
     let mut worst = Errors::default();
     let (mut bw_lo, mut bw_hi) = (f64::INFINITY, 0f64);
     let (mut in_run, mut counts_found) = (0, 0);
-    let speed_rad_s = sc
-        .file
-        .commissioning
-        .as_ref()
-        .map_or(Ok(f64::NAN), |c| c.params().map(|p| p.speed_rad_s as f64))?;
+    let speed_rad_s = crate::identification::Targets::of(&sc)?.speed_rad_s;
     let (mut worst_speed, mut worst_angle_mrad) = (0f64, 0f64);
     for o in &runs {
         if let Some((slow, fast)) = o.speed_from_store_rad_s {
@@ -660,13 +662,8 @@ fn identification() -> Result<Sections> {
         let old = commission_as(&sc, d, false)?;
         let _ = writeln!(
             without,
-            "| {what} | {} | {:.3} | {:.1} | {:.1} | {:.2e} | {:.0} | {with} | {} |",
-            d.pole_pairs,
-            d.r_ohm,
-            1e6 * d.l_h,
-            1e3 * d.flux_wb,
-            d.j_kg_m2,
-            1.5 * d.pole_pairs as f64 * d.flux_wb / d.j_kg_m2,
+            "| {what} | {} | {with} | {} |",
+            motor_cells(&d),
             ended(&old)
         );
     }
@@ -674,6 +671,85 @@ fn identification() -> Result<Sections> {
         ("identification", s),
         ("identification-without", without),
     ])
+}
+
+/// A motor's table cells: p, R (Ω), L (µH), ψ (mWb), J (kg·m²), 1.5·p·ψ/J (rad/s²/A).
+fn motor_cells(d: &crate::identification::Draw) -> String {
+    format!(
+        "{} | {:.3} | {:.1} | {:.1} | {:.2e} | {:.0}",
+        d.pole_pairs,
+        d.r_ohm,
+        1e6 * d.l_h,
+        1e3 * d.flux_wb,
+        d.j_kg_m2,
+        1.5 * d.pole_pairs as f64 * d.flux_wb / d.j_kg_m2
+    )
+}
+
+/// The population of [`identification`] drawn with other seeds: how many motors meet
+/// every bound of `identification::bounds`, and what the others miss.
+fn identification_seeds() -> Result<Sections> {
+    use crate::identification::{commission, population_of, Targets, MOTORS, SEED};
+    use rayon::prelude::*;
+    let sc = Scenario::load("commissioning")?;
+    let targets = Targets::of(&sc)?;
+    let seeds = SEED..SEED + 6;
+    let mut summary = String::from(
+        "| seed | motors to Run | meeting every bound | worst ψ | worst J | worst current loop (of its design) |\n|---:|---:|---:|---:|---:|---:|\n",
+    );
+    let mut missed = String::from(
+        "| seed | p | R (Ω) | L (µH) | ψ (mWb) | J (kg·m²) | 1.5·p·ψ/J (rad/s²/A) | misses |\n|---:|---:|---:|---:|---:|---:|---:|---|\n",
+    );
+    let (mut all, mut all_met) = (0, 0);
+    for seed in seeds.clone() {
+        eprintln!("identification-seeds: seed {seed}");
+        let mut runs: Vec<_> = population_of(&sc, MOTORS, seed)?
+            .into_par_iter()
+            .map(|d| commission(&sc, d))
+            .collect::<Result<_>>()?;
+        runs.sort_by(|a, b| a.draw.l_h.total_cmp(&b.draw.l_h));
+        let (mut in_run, mut met) = (0, 0);
+        let (mut flux, mut inertia, mut current_loop) = (0f64, 0f64, 0f64);
+        for o in &runs {
+            let d = o.draw;
+            in_run += (o.boot.final_state == drive::commissioning::State::Run) as usize;
+            if let Some(e) = o.errors() {
+                flux = flux.max(e.flux.map_or(0.0, f64::abs));
+                inertia = inertia.max(e.inertia.map_or(0.0, f64::abs));
+            }
+            if let Some(f) = o.loop_bandwidth_hz() {
+                current_loop = current_loop.max((f / targets.current_bandwidth_hz - 1.0).abs());
+            }
+            let m = o.shortfalls(&targets);
+            if m.is_empty() {
+                met += 1;
+                continue;
+            }
+            let _ = writeln!(
+                missed,
+                "| {seed} | {} | {} |",
+                motor_cells(&d),
+                m.join("; ")
+            );
+        }
+        (all, all_met) = (all + runs.len(), all_met + met);
+        let _ = writeln!(
+            summary,
+            "| {seed}{} | {in_run} of {} | {met} | {:.2} % | {:.2} % | {:.1} % |",
+            if seed == SEED { " (the test's)" } else { "" },
+            runs.len(),
+            100.0 * flux,
+            100.0 * inertia,
+            100.0 * current_loop
+        );
+    }
+    let _ = writeln!(
+        summary,
+        "\n{all_met} of {all} motors over seeds {}-{} meet every bound. Those that do not:\n\n{missed}",
+        seeds.start,
+        seeds.end - 1
+    );
+    Ok(vec![("identification-seeds", summary)])
 }
 
 fn laws() -> Result<Sections> {

@@ -6,7 +6,7 @@
 
 use calib_record::RamFlash;
 use drive::commissioning::State;
-use hil_sim::identification::{commission, nominal, population_of, Errors, MOTORS, SEED};
+use hil_sim::identification::{commission, nominal, population_of, Errors, Targets, MOTORS, SEED};
 use hil_sim::power_up;
 use hil_sim::rig::SimFlash;
 use hil_sim::scenario::Scenario;
@@ -46,8 +46,7 @@ fn twenty_random_motors_are_identified_and_commissioned() {
     let mut worst = Errors::default();
     let mut worst_bandwidth = 0f64;
     let (mut worst_speed, mut worst_angle_mrad) = (0f64, 0f64);
-    let commissioning = sc.file.commissioning.as_ref().unwrap();
-    let speed_rad_s = commissioning.params().unwrap().speed_rad_s as f64;
+    let targets = Targets::of(&sc).unwrap();
     for o in &outcomes {
         let d = o.draw;
         let b = &o.boot;
@@ -62,8 +61,21 @@ fn twenty_random_motors_are_identified_and_commissioned() {
             d.j_kg_m2,
             b.transitions
         );
-        assert_eq!(b.final_state, State::Run, "{what} cause {:?}", b.cause);
-        assert_eq!(o.pole_pairs_found(), Some(d.pole_pairs as u16), "{what}");
+        // Every bound of `identification::bounds`. The spatial one is the commissioning
+        // scenario's, 1690x, from RUN_SETTLE_S after Run's entry, on every motor whose
+        // electrical fundamental is not the sensor's first harmonic. Where it is
+        // (p = N = 2), a torque error at the electrical frequency that the 1 kHz current
+        // loop lets through moves a light rotor at the sensor's m = 1, and at one
+        // commissioning speed the adaptation takes that motion for the sensor's error:
+        // the lightest (2 pole pairs, 35 mWb, 1.9e-5 kg m^2) wobbles by about 0.1 mrad in
+        // Run, its θ̂ error there (about 920x against 750x). The hand-over from commissioning
+        // to the application at speed (Store puts the identified ψ and J in force, then
+        // the application's loop takes over from the speed loop) moves neither the rotor
+        // nor θ̂: a ψ found at a quarter of the nominal once took a light rotor to 1.8
+        // times its speed, an observer fed four times the torque without its
+        // disturbance following moved θ̂ by 30 mrad.
+        let missed = o.shortfalls(&targets);
+        assert!(missed.is_empty(), "{what}: {}", missed.join("; "));
         let e = o.errors().expect("identified");
         let (flux, inertia) = (e.flux.expect("flux"), e.inertia.expect("inertia"));
         let t63 = o.t63_s.unwrap();
@@ -84,72 +96,12 @@ fn twenty_random_motors_are_identified_and_commissioned() {
         );
         worst = worst.worst(e);
         worst_bandwidth = worst_bandwidth.max(eb.abs());
-        assert!(e.r.abs() < 0.05, "{what}: R {:+.4}", e.r);
-        assert!(
-            e.ld.abs() < 0.10 && e.lq.abs() < 0.10,
-            "{what}: Ld {:+.4} Lq {:+.4}",
-            e.ld,
-            e.lq
-        );
-        assert!(flux.abs() < 0.03, "{what}: flux {flux:+.4}");
-        assert!(inertia.abs() < 0.10, "{what}: J {inertia:+.4}");
-        // From zero current the step crosses the band in which the inverter's error
-        // turns over; the compensation follows it from the current predicted for the
-        // period its voltage acts through.
-        assert!(
-            eb.abs() < 0.20,
-            "{what}: current loop {bw:.0} Hz, {eb:+.3} off its design"
-        );
-        // The commissioning scenario's own bound, 1690x, on every motor whose electrical
-        // fundamental is not the sensor's first harmonic, from RUN_SETTLE_S after Run's
-        // entry. Where it is (p = N = 2), a torque error at the electrical frequency
-        // that the 1 kHz current loop lets through moves a light rotor at the sensor's
-        // m = 1, and at one commissioning speed the adaptation takes that motion for the
-        // sensor's error: the lightest (2 pole pairs, 35 mWb, 1.9e-5 kg m^2) wobbles by
-        // about 0.1 mrad in Run, its θ̂ error there (885x).
-        let run = b.run.as_ref().unwrap();
-        let ratio = run.raw_pk_pk_mrad / run.estimate_pk_pk_mrad;
-        let bound = if d.pole_pairs == SENSOR_PERIODS {
-            750.0
-        } else {
-            1690.0
-        };
-        assert!(
-            ratio > bound,
-            "{what}: raw {:.1} mrad pk-pk, estimate {:.4} mrad pk-pk: {ratio:.0}x",
-            run.raw_pk_pk_mrad,
-            run.estimate_pk_pk_mrad
-        );
-        assert!(
-            run.to_s - run.from_s > 1.0,
-            "{what}: Run measured over {:.3}-{:.3} s only",
-            run.from_s,
-            run.to_s
-        );
-        // The hand-over from commissioning to the application at speed: Store puts the
-        // identified ψ and J in force, then the application's loop takes over from the
-        // speed loop. Neither moves the rotor or θ̂ (a ψ found at a quarter of the
-        // nominal once took a light rotor to 1.8 times its speed; an observer fed four
-        // times the torque without its disturbance following moved θ̂ by 30 mrad).
         let (slow, fast) = o.speed_from_store_rad_s.unwrap();
-        assert!(
-            slow > 0.99 * speed_rad_s && fast < 1.01 * speed_rad_s,
-            "{what}: {slow:.2}-{fast:.2} rad/s from Store on, at {speed_rad_s:.2}"
-        );
+        worst_speed = worst_speed
+            .max(1.0 - slow / targets.speed_rad_s)
+            .max(fast / targets.speed_rad_s - 1.0);
         let (low, high) = o.angle_error_from_store_mrad.unwrap();
-        assert!(
-            high - low < 2.0,
-            "{what}: θ̂'s error spans {:.3} mrad from Store on",
-            high - low
-        );
-        worst_speed = worst_speed.max(
-            (slow / speed_rad_s - 1.0)
-                .abs()
-                .max(fast / speed_rad_s - 1.0),
-        );
         worst_angle_mrad = worst_angle_mrad.max(high - low);
-        assert_eq!(b.faulted_samples, 0, "{what}");
-        assert!(b.losses().is_none(), "{what}: {:?}", b.losses());
     }
     eprintln!(
         "{} motors: worst R {:.2} %, Ld {:.2} %, Lq {:.2} %, flux {:.2} %, J {:.2} %, current-loop bandwidth {:.1} % off its design",

@@ -48,7 +48,7 @@ struct Generator {
     in_ci: InCi,
 }
 
-const GENERATORS: [Generator; 12] = [
+const GENERATORS: [Generator; 13] = [
     Generator {
         name: "size",
         command: "cargo xtask size",
@@ -130,6 +130,13 @@ const GENERATORS: [Generator; 12] = [
         name: "ripple",
         command: "cargo xtask docs ripple",
         sections: &["ripple"],
+        data: &[],
+        in_ci: InCi::No,
+    },
+    Generator {
+        name: "identification-seeds",
+        command: "cargo xtask docs identification-seeds",
+        sections: &["identification-seeds"],
         data: &[],
         in_ci: InCi::No,
     },

@@ -67,7 +67,8 @@ cargo xtask <command>
                 docs/figures/cycles.md and the pages that show it
   docs [GEN..]  every generated figure of the docs: runs the generators (all, or
                 those named: size perf emu-report cycles bench-accuracy scenarios
-                commissioning laws core ripple-ci ripple; minutes for all) into
+                commissioning identification laws core ripple-ci ripple
+                identification-seeds; minutes for all) into
                 docs/figures/, then splices them into README.md and docs/*.md
   docs --render splice the pages from the committed figure files only (after a
                 template or prose edit; seconds)
