@@ -533,13 +533,11 @@ fn identification() -> Result<Sections> {
     let speed_rad_s = crate::identification::Targets::of(&sc)?.speed_rad_s;
     let (mut worst_speed, mut worst_angle_mrad) = (0f64, 0f64);
     for o in &runs {
-        if let Some((slow, fast)) = o.speed_from_store_rad_s {
-            worst_speed = worst_speed
-                .max(1.0 - slow / speed_rad_s)
-                .max(fast / speed_rad_s - 1.0);
+        if let Some(x) = o.speed_from_store_error(speed_rad_s) {
+            worst_speed = worst_speed.max(x);
         }
-        if let Some((low, high)) = o.angle_error_from_store_mrad {
-            worst_angle_mrad = worst_angle_mrad.max(high - low);
+        if let Some(x) = o.angle_span_from_store_mrad() {
+            worst_angle_mrad = worst_angle_mrad.max(x);
         }
         let (d, b) = (o.draw, &o.boot);
         in_run += (b.final_state == State::Run) as usize;
@@ -689,7 +687,7 @@ fn motor_cells(d: &crate::identification::Draw) -> String {
 /// The population of [`identification`] drawn with other seeds: how many motors meet
 /// every bound of `identification::bounds`, and what the others miss.
 fn identification_seeds() -> Result<Sections> {
-    use crate::identification::{commission, population_of, Targets, MOTORS, SEED};
+    use crate::identification::{commission, population_of, Errors, Targets, MOTORS, SEED};
     use rayon::prelude::*;
     let sc = Scenario::load("commissioning")?;
     let targets = Targets::of(&sc)?;
@@ -709,16 +707,15 @@ fn identification_seeds() -> Result<Sections> {
             .collect::<Result<_>>()?;
         runs.sort_by(|a, b| a.draw.l_h.total_cmp(&b.draw.l_h));
         let (mut in_run, mut met) = (0, 0);
-        let (mut flux, mut inertia, mut current_loop) = (0f64, 0f64, 0f64);
+        let (mut worst, mut current_loop) = (Errors::default(), 0f64);
         for o in &runs {
             let d = o.draw;
             in_run += (o.boot.final_state == drive::commissioning::State::Run) as usize;
             if let Some(e) = o.errors() {
-                flux = flux.max(e.flux.map_or(0.0, f64::abs));
-                inertia = inertia.max(e.inertia.map_or(0.0, f64::abs));
+                worst = worst.worst(e);
             }
-            if let Some(f) = o.loop_bandwidth_hz() {
-                current_loop = current_loop.max((f / targets.current_bandwidth_hz - 1.0).abs());
+            if let Some(x) = o.current_loop_error(targets.current_bandwidth_hz) {
+                current_loop = current_loop.max(x.abs());
             }
             let m = o.shortfalls(&targets);
             if m.is_empty() {
@@ -738,8 +735,8 @@ fn identification_seeds() -> Result<Sections> {
             "| {seed}{} | {in_run} of {} | {met} | {:.2} % | {:.2} % | {:.1} % |",
             if seed == SEED { " (the test's)" } else { "" },
             runs.len(),
-            100.0 * flux,
-            100.0 * inertia,
+            100.0 * worst.flux.unwrap_or(0.0),
+            100.0 * worst.inertia.unwrap_or(0.0),
             100.0 * current_loop
         );
     }

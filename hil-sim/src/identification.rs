@@ -246,19 +246,17 @@ impl Outcome {
         over("J", e.and_then(|e| e.inertia), INERTIA);
         over(
             "current loop",
-            self.loop_bandwidth_hz()
-                .map(|f| f / t.current_bandwidth_hz - 1.0),
+            self.current_loop_error(t.current_bandwidth_hz),
             CURRENT_LOOP,
         );
-        if let Some((slow, fast)) = self.speed_from_store_rad_s {
-            let worst = (1.0 - slow / t.speed_rad_s).max(fast / t.speed_rad_s - 1.0);
-            over("speed from Store on", Some(worst), SPEED);
+        if let Some(x) = self.speed_from_store_error(t.speed_rad_s) {
+            over("speed from Store on", Some(x), SPEED);
         }
-        match self.angle_error_from_store_mrad {
-            Some((low, high)) if high - low < ANGLE_SPAN_MRAD => {}
+        match self.angle_span_from_store_mrad() {
+            Some(span) if span < ANGLE_SPAN_MRAD => {}
             span => v.push(format!(
                 "θ̂'s error from Store on spans {:.3} mrad",
-                span.map_or(f64::NAN, |(l, h)| h - l)
+                span.unwrap_or(f64::NAN)
             )),
         }
         match &b.run {
@@ -287,6 +285,25 @@ impl Outcome {
             v.push(format!("stream losses {losses:?}"));
         }
         v
+    }
+
+    /// The current loop's step against its design bandwidth: the bandwidth the step
+    /// shows over `design_hz`, less 1.
+    pub fn current_loop_error(&self, design_hz: f64) -> Option<f64> {
+        self.loop_bandwidth_hz().map(|f| f / design_hz - 1.0)
+    }
+
+    /// How far the rotor's speed strayed from `speed_rad_s` from Store on, either way
+    /// (relative).
+    pub fn speed_from_store_error(&self, speed_rad_s: f64) -> Option<f64> {
+        self.speed_from_store_rad_s
+            .map(|(slow, fast)| (1.0 - slow / speed_rad_s).max(fast / speed_rad_s - 1.0))
+    }
+
+    /// The span of θ̂'s error from Store on (mrad).
+    pub fn angle_span_from_store_mrad(&self) -> Option<f64> {
+        self.angle_error_from_store_mrad
+            .map(|(low, high)| high - low)
     }
 
     /// The current loop's bandwidth as its step shows it (Hz): 1/(2π·t63).

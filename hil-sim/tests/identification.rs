@@ -18,10 +18,10 @@ const SENSOR_PERIODS: u32 = 2;
 #[test]
 fn twenty_random_motors_are_identified_and_commissioned() {
     let sc = Scenario::load("commissioning").unwrap();
-    let design_hz = sc.file.control.current_bandwidth_hz;
+    let targets = Targets::of(&sc).unwrap();
+    let design_hz = targets.current_bandwidth_hz;
     let draws = population_of(&sc, MOTORS, SEED).unwrap();
-    let n = sc.file.sensor.to_params().unwrap().model.sensor_periods as u32;
-    assert_eq!(n, SENSOR_PERIODS);
+    assert_eq!(targets.sensor_periods, SENSOR_PERIODS);
     // For reference: the same on the firmware's nominal motor.
     let nominal = commission(&sc, nominal()).unwrap();
     let reference_s = nominal.t63_s.unwrap();
@@ -46,7 +46,6 @@ fn twenty_random_motors_are_identified_and_commissioned() {
     let mut worst = Errors::default();
     let mut worst_bandwidth = 0f64;
     let (mut worst_speed, mut worst_angle_mrad) = (0f64, 0f64);
-    let targets = Targets::of(&sc).unwrap();
     for o in &outcomes {
         let d = o.draw;
         let b = &o.boot;
@@ -78,9 +77,8 @@ fn twenty_random_motors_are_identified_and_commissioned() {
         assert!(missed.is_empty(), "{what}: {}", missed.join("; "));
         let e = o.errors().expect("identified");
         let (flux, inertia) = (e.flux.expect("flux"), e.inertia.expect("inertia"));
-        let t63 = o.t63_s.unwrap();
-        let eb = 1.0 / (std::f64::consts::TAU * t63 * design_hz) - 1.0;
-        let bw = 1.0 / (std::f64::consts::TAU * t63);
+        let eb = o.current_loop_error(design_hz).unwrap();
+        let bw = o.loop_bandwidth_hz().unwrap();
         eprintln!(
             "{what}\n  R {:+.2} %, Ld {:+.2} %, Lq {:+.2} %, flux {:+.2} %, J {:+.2} %, current loop {:.0} Hz ({:+.1} % of its design), in Run {:.4} mrad pk-pk, Identify {:.3} s, Run at {:.3} s",
             100.0 * e.r,
@@ -96,12 +94,8 @@ fn twenty_random_motors_are_identified_and_commissioned() {
         );
         worst = worst.worst(e);
         worst_bandwidth = worst_bandwidth.max(eb.abs());
-        let (slow, fast) = o.speed_from_store_rad_s.unwrap();
-        worst_speed = worst_speed
-            .max(1.0 - slow / targets.speed_rad_s)
-            .max(fast / targets.speed_rad_s - 1.0);
-        let (low, high) = o.angle_error_from_store_mrad.unwrap();
-        worst_angle_mrad = worst_angle_mrad.max(high - low);
+        worst_speed = worst_speed.max(o.speed_from_store_error(targets.speed_rad_s).unwrap());
+        worst_angle_mrad = worst_angle_mrad.max(o.angle_span_from_store_mrad().unwrap());
     }
     eprintln!(
         "{} motors: worst R {:.2} %, Ld {:.2} %, Lq {:.2} %, flux {:.2} %, J {:.2} %, current-loop bandwidth {:.1} % off its design",
