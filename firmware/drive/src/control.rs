@@ -90,6 +90,53 @@ fn inv_sqrt_coarse(x: f32) -> f32 {
     y * (1.5 - 0.5 * x * y * y)
 }
 
+/// The voltage `phase_v` an inverter loses per phase against its current, put back (αβ,
+/// V) for the αβ current `(i_alpha, i_beta)` under the voltage `(va, vb)`: each phase's
+/// share with its current's sign, linear across the band in which the PWM ripple takes
+/// the phase current through zero within a period (`|v|·T/(2L)` for the voltage
+/// applied, `two_l_over_t_ohm` = 2L/T, at least [`COMPENSATION_BAND_A`]). Without it
+/// the current loop integrates through the error at every current reversal and steps
+/// from zero much slower than designed on a small L (a third of its bandwidth at 30 µH).
+///
+/// The voltage applied holds the compensation too, so the band must agree with what it
+/// widens: the compensation for `|v|`'s band and the one for `|v + c|`'s lie either
+/// side of that fixed point, and the band at the mean of the two lands nearer. Over the
+/// drive's ratings (the test's grid) it is within 17 % of the fixed point on 99 % of
+/// the cases; found once more from `|v + c|` alone, 46 %, swinging past it where the
+/// compensation is as large as the voltage: a step from zero on 20-30 µH stepped at
+/// 70 % of the loop's bandwidth, and steps at 101-113 % with the mean. (One more pass
+/// from the exact solution of `s = |v| + g/s` comes within 6 %, for 120 cycles more,
+/// and steps no nearer the ideal inverter's 109-114 %.)
+#[inline(always)]
+fn inverter_compensation(
+    phase_v: f32,
+    two_l_over_t_ohm: f32,
+    (i_alpha, i_beta): (f32, f32),
+    (va, vb): (f32, f32),
+) -> (f32, f32) {
+    if phase_v == 0.0 {
+        return (0.0, 0.0);
+    }
+    // The phase currents (inverse amplitude-invariant Clarke).
+    let (half_a, b_part) = (0.5 * i_alpha, 0.866_025_4 * i_beta);
+    let phases = [i_alpha, b_part - half_a, -b_part - half_a];
+    let share = |k: f32| {
+        let [a, b, c] = phases.map(|i| phase_v * mras::min_f32(mras::max_f32(i * k, -1.0), 1.0));
+        // Amplitude-invariant Clarke; the common mode drops out.
+        ((2.0 * a - b - c) * (1.0 / 3.0), (b - c) * 0.577_350_26)
+    };
+    // The band's voltage: |v| (to 0.2 %), at least the narrowest band's.
+    let s_floor = two_l_over_t_ohm * COMPENSATION_BAND_A;
+    let m0 = va * va + vb * vb;
+    let s0 = mras::max_f32(m0 * inv_sqrt_coarse(m0), s_floor);
+    let c = share(two_l_over_t_ohm / s0);
+    // And |v + c|: the band at the mean of the two.
+    let (xa, xb) = (va + c.0, vb + c.1);
+    let m1 = xa * xa + xb * xb;
+    let s = mras::max_f32(0.5 * (s0 + m1 * inv_sqrt_coarse(m1)), s_floor);
+    share(two_l_over_t_ohm / s)
+}
+
 /// Samples averaged for the current sensors' zero.
 const CURRENT_ZERO_SAMPLES: u32 = 256;
 
@@ -647,43 +694,13 @@ impl<T: Trig> ControlPeriod<T> {
     }
 
     /// The inverter's voltage error as identified, put back (αβ, V), for the αβ current
-    /// predicted for the period the voltage `(va, vb)` acts through: each phase's share
-    /// with its current's sign, linear across the band in which the PWM ripple takes
-    /// the phase current through zero within a period (`|v|·T/(2L)` for the voltage
-    /// applied, at least [`COMPENSATION_BAND_A`]). The voltage applied holds the
-    /// compensation too, so the band is found once more with it. Without compensation
-    /// the loop integrates through the error at every current reversal and steps from
-    /// zero current much slower than designed on a small L (a third of its bandwidth at
-    /// 30 µH). The sampled current would not do: it lags the period the voltage acts
-    /// through by one and a half periods, so a step from zero would go uncompensated
-    /// for two periods (half the bandwidth at 30 µH).
+    /// predicted for the period the voltage `(va, vb)` acts through
+    /// ([`inverter_compensation`]). The sampled current would not do: it lags the period
+    /// the voltage acts through by one and a half periods, so a step from zero would go
+    /// uncompensated for two periods (half the bandwidth at 30 µH).
     #[inline(always)]
-    fn inverter_compensation(
-        &self,
-        (i_alpha, i_beta): (f32, f32),
-        (va, vb): (f32, f32),
-    ) -> (f32, f32) {
-        let v = self.inverter_phase_v;
-        if v == 0.0 {
-            return (0.0, 0.0);
-        }
-        // The phase currents (inverse amplitude-invariant Clarke).
-        let (half_a, b_part) = (0.5 * i_alpha, 0.866_025_4 * i_beta);
-        let phases = [i_alpha, b_part - half_a, -b_part - half_a];
-        let (mut xa, mut xb) = (va, vb);
-        let mut c = (0.0, 0.0);
-        for _ in 0..2 {
-            // 1/band (a zero voltage gives the narrowest band); 1/|v| to 0.2 %.
-            let k = mras::min_f32(
-                inv_sqrt_coarse(xa * xa + xb * xb) * self.two_l_over_t_ohm,
-                1.0 / COMPENSATION_BAND_A,
-            );
-            let [a, b, cc] = phases.map(|i| v * mras::min_f32(mras::max_f32(i * k, -1.0), 1.0));
-            // Amplitude-invariant Clarke; the common mode drops out.
-            c = ((2.0 * a - b - cc) * (1.0 / 3.0), (b - cc) * 0.577_350_26);
-            (xa, xb) = (va + c.0, vb + c.1);
-        }
-        c
+    fn inverter_compensation(&self, i_ab: (f32, f32), v_ab: (f32, f32)) -> (f32, f32) {
+        inverter_compensation(self.inverter_phase_v, self.two_l_over_t_ohm, i_ab, v_ab)
     }
 
     /// Put the pole pairs of the alignment in force (0: the configured count): the
@@ -1037,5 +1054,87 @@ fn mech_angle(e: &Estimate) -> Angle {
     Angle {
         turns: e.turns,
         rad: e.theta_rad,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use std::vec::Vec;
+
+    /// The compensation its own band agrees with: `c = f(|v + c|)`, solved by bisection
+    /// on the band's voltage in f64 (the compensation falls as it grows).
+    fn fixed_point(phase_v: f64, two_l_over_t: f64, i: (f64, f64), v: (f64, f64)) -> (f64, f64) {
+        let share = |s: f64| {
+            let k = (two_l_over_t / s).min(1.0 / COMPENSATION_BAND_A as f64);
+            let p = [
+                i.0,
+                0.5 * (3f64.sqrt() * i.1 - i.0),
+                -0.5 * (3f64.sqrt() * i.1 + i.0),
+            ]
+            .map(|x| phase_v * (x * k).clamp(-1.0, 1.0));
+            (
+                (2.0 * p[0] - p[1] - p[2]) / 3.0,
+                (p[1] - p[2]) / 3f64.sqrt(),
+            )
+        };
+        let (mut lo, mut hi) = (0.0, 1e3);
+        for _ in 0..200 {
+            let s = 0.5 * (lo + hi);
+            let c = share(s);
+            if (v.0 + c.0).hypot(v.1 + c.1) > s {
+                lo = s;
+            } else {
+                hi = s;
+            }
+        }
+        share(lo)
+    }
+
+    #[test]
+    fn the_inverter_compensation_agrees_with_the_band_it_widens() {
+        // Over the drive's ratings (20 µH-2 mH at 20 kHz, 0.1-1 V lost per phase), the
+        // current and voltage from 10 mA and 10 mV up, the voltage within 70° of the
+        // current either way (a step, a motor at speed).
+        let mut errors = Vec::new();
+        for phase_v in [0.1, 0.3, 1.0] {
+            for l_h in [20e-6, 60e-6, 200e-6, 2e-3] {
+                let two_l_over_t = 2.0 * l_h / 50e-6;
+                for i_a in [0.01, 0.05, 0.2, 0.5, 1.0, 2.0, 4.0] {
+                    for i_rad in [0.0f64, 0.3, 0.7, 1.2] {
+                        for v_v in [0.01, 0.05, 0.2, 0.5, 1.0, 3.0, 10.0] {
+                            for dv_rad in [-1.2, -0.6, 0.0, 0.6, 1.2] {
+                                let i = (i_a * i_rad.cos(), i_a * i_rad.sin());
+                                let v_rad = i_rad + dv_rad;
+                                let v = (v_v * v_rad.cos(), v_v * v_rad.sin());
+                                let want = fixed_point(phase_v, two_l_over_t, i, v);
+                                let got = inverter_compensation(
+                                    phase_v as f32,
+                                    two_l_over_t as f32,
+                                    (i.0 as f32, i.1 as f32),
+                                    (v.0 as f32, v.1 as f32),
+                                );
+                                let size = want.0.hypot(want.1);
+                                if size > 1e-3 * phase_v {
+                                    let err = (got.0 as f64 - want.0).hypot(got.1 as f64 - want.1);
+                                    errors.push((err / size, i, v, phase_v, l_h));
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        errors.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let at = |q: f64| errors[((errors.len() - 1) as f64 * q) as usize];
+        let (p99, worst) = (at(0.99), at(1.0));
+        std::println!("{} cases: p99 {:.4}, worst {worst:?}", errors.len(), p99.0);
+        // 17.3 % and 30.9 % today; 46 % and 60 % from |v + c| found once more alone.
+        assert!(
+            p99.0 <= 0.18,
+            "99 % within 18 % of the fixed point: {p99:?}"
+        );
+        assert!(worst.0 <= 0.32, "all within 32 %: {worst:?}");
     }
 }
