@@ -740,12 +740,17 @@ fn identification_seeds() -> Result<Sections> {
             100.0 * current_loop
         );
     }
-    let _ = writeln!(
+    let _ = write!(
         summary,
-        "\n{all_met} of {all} motors over seeds {}-{} meet every bound. Those that do not:\n\n{missed}",
+        "\n{all_met} of {all} motors over seeds {}-{} meet every bound.",
         seeds.start,
         seeds.end - 1
     );
+    if all_met < all {
+        let _ = writeln!(summary, " Those that do not:\n\n{missed}");
+    } else {
+        summary.push('\n');
+    }
     Ok(vec![("identification-seeds", summary)])
 }
 

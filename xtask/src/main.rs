@@ -25,10 +25,11 @@ const QEMU_IMAGE: &str = "mras-qemu";
 /// host profile ([`HOST_PROFILE`]).
 pub(crate) const EMULATOR: &str = "drive-emu";
 /// Budgets of the size report: growth is a decision, not an accident. The part has
-/// 256 KiB in the bank the code runs from (memory.x); 96 KiB leaves room for the
-/// application beside a core that chooses its bank from the data (the size today:
-/// docs/figures/size.md, `cargo xtask size`).
-const FLASH_BUDGET_BYTES: u64 = 96 * 1024;
+/// 256 KiB in the bank the code runs from (memory.x); 112 KiB leaves room for the
+/// application beside a core that chooses its bank from the data and a drive that
+/// identifies its motor (the motor's identification took the firmware past the 96 KiB
+/// of the budget before; the size today: docs/figures/size.md, `cargo xtask size`).
+const FLASH_BUDGET_BYTES: u64 = 112 * 1024;
 const RAM_BUDGET_BYTES: u64 = 16 * 1024;
 
 const HELP: &str = "\

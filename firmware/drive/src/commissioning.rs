@@ -21,7 +21,7 @@
 //! firmware and hil-sim both run that supervisor.
 
 use crate::ident::{IdentError, IdentStatus};
-use crate::spin::{FluxMeter, InertiaFit, MotionFit};
+use crate::spin::{FluxMeter, InertiaFit, MotionFit, Probe};
 use crate::telemetry::{Fault, SweepResult};
 
 /// Where the sequence is.
@@ -270,6 +270,13 @@ pub const MAX_SWEEPS: u8 = 3;
 /// The identification's own stages are bounded (1 s each); this bounds the whole.
 pub const IDENTIFY_TIMEOUT_S: f32 = 5.0;
 
+/// A coast that slows the rotor below this share of its speed ends at once: it would
+/// stop within the coast (see `Commissioning::measure_motion`).
+pub const COAST_CUT: f32 = 0.5;
+
+/// SpinUp's torque probe's q current, as a share of the alignment's.
+pub const PROBE_SHARE: f32 = 0.25;
+
 /// The speed setpoint's dip in [`State::Motion`], as a share of the commissioning
 /// speed: down and back up, each over half of `Params::spin_up_ramp_s`. It gives the
 /// inertia's fit, which starts after the coast, an acceleration whatever the friction
@@ -439,6 +446,9 @@ pub enum Setpoint {
     /// the rotor coasts while the control period integrates the back-EMF
     /// ([`crate::spin`]).
     Coast { id_a: f32 },
+    /// The q current held at `iq_a` and the d current at zero in the estimate's frame,
+    /// open loop in speed: SpinUp's torque probe ([`crate::spin::Probe`]).
+    Torque { iq_a: f32 },
     /// The application's own motion control.
     Application,
 }
@@ -516,13 +526,21 @@ pub struct Commissioning {
     /// sensor, then in [`State::Motion`] the coast's ψ and the fit over the dip and the
     /// recovery on the corrected one ([`crate::spin`]).
     fit: InertiaFit,
+    /// SpinUp's torque probe from rest, then the back-EMF over the rest of SpinUp: a
+    /// rough J/kt and ψ for the loops before the rotor is at speed.
+    probe: Probe,
+    spin_flux: FluxMeter,
     spin_up_fit: Option<MotionFit>,
     motion_fit: Option<MotionFit>,
     flux: FluxMeter,
     flux_half: u8,
     flux_wb: Option<f32>,
-    /// ω̂ where Motion's fit starts (the coast's end).
-    fit_from_rad_s: f32,
+    /// ω̂ where Motion's fit starts (the coast's end), once it has.
+    fit_from_rad_s: Option<f32>,
+    /// ω̂ at the coast's start, and whether the coast was cut ([`COAST_CUT`]): ψ then
+    /// comes from the back-EMF at held speed over the dip.
+    coast_from_rad_s: Option<f32>,
+    coast_cut: bool,
     /// Sweeps done (each with the count the one before found in force), and the count
     /// in force in the one before the last (0 before a second).
     sweeps: u8,
@@ -548,12 +566,16 @@ impl Commissioning {
             steady_s: 0.0,
             settled: false,
             fit: InertiaFit::default(),
+            probe: Probe::default(),
+            spin_flux: FluxMeter::default(),
             spin_up_fit: None,
             motion_fit: None,
             flux: FluxMeter::default(),
             flux_half: 0,
             flux_wb: None,
-            fit_from_rad_s: 0.0,
+            fit_from_rad_s: None,
+            coast_from_rad_s: None,
+            coast_cut: false,
             sweeps: 0,
             swept_before: 0,
             residual_sum: 0.0,
@@ -567,6 +589,30 @@ impl Commissioning {
     /// light rotor the torque with it).
     pub fn spin_up_fit(&self) -> Option<MotionFit> {
         self.spin_up_fit
+    }
+
+    /// The torque probe's J/kt (A·s²/rad) on the step SpinUp's probe ended with one
+    /// (None on every other step): the loops' first estimate of the rotor's
+    /// acceleration per amp.
+    pub fn probe_ended(&self) -> Option<f32> {
+        self.probe.ended()
+    }
+
+    /// ψ (Wb) from the back-EMF over SpinUp after its probe, once SpinUp ended: rough
+    /// (the q current's R·i and the inverter's error are in it), for the current loop's
+    /// feed-forward and the torque constant until `Motion`'s coast measures it.
+    pub fn spin_up_flux_wb(&self) -> Option<f32> {
+        self.spin_flux.flux_wb()
+    }
+
+    /// SpinUp's time since its probe ended (s).
+    fn spin_s(&self) -> f32 {
+        self.in_state_s - self.probe.duration_s()
+    }
+
+    /// The probe's q current (A): a quarter of the alignment's.
+    fn probe_current_a(&self) -> f32 {
+        PROBE_SHARE * self.params.align_current_a
     }
 
     /// The fit over [`State::Motion`]'s dip and recovery after the coast, on the
@@ -583,7 +629,7 @@ impl Commissioning {
     /// In [`State::Motion`]'s coast: its first half (0, +id) or its second (1, −id).
     fn coast_half(&self) -> Option<u8> {
         let p = &self.params;
-        (self.state == State::Motion && self.in_state_s < p.coast_s)
+        (self.state == State::Motion && self.in_state_s < p.coast_s && !self.coast_cut)
             .then_some((self.in_state_s >= 0.5 * p.coast_s) as u8)
     }
 
@@ -636,6 +682,12 @@ impl Commissioning {
     fn go(&mut self, s: State) {
         if matches!(s, State::SpinUp | State::Motion) {
             self.fit = InertiaFit::default();
+            self.probe = Probe::default();
+            self.spin_flux = FluxMeter::default();
+            self.flux = FluxMeter::default();
+            (self.flux_half, self.flux_wb) = (0, None);
+            (self.fit_from_rad_s, self.coast_from_rad_s) = (None, None);
+            self.coast_cut = false;
         }
         (self.residual_sum, self.residual_n) = (0.0, 0);
         self.state = s;
@@ -648,6 +700,7 @@ impl Commissioning {
 
     /// One step.
     pub fn step(&mut self, i: &Inputs) -> Outputs {
+        self.probe.next_step();
         if self.state != State::Safe {
             if !(i.dt_s.is_finite() && i.dt_s >= 0.0) {
                 self.force_safe(Cause::BadInput);
@@ -718,6 +771,13 @@ impl Commissioning {
             },
             State::SpinUp => {
                 self.fit.add(i.dt_s, i.theta_rad, i.iq_integral_a_s);
+                if p.identify_motor && self.probe.probing() {
+                    self.probe.add(i.dt_s, i.theta_rad, self.probe_current_a());
+                    return;
+                }
+                if p.identify_motor {
+                    self.spin_flux.add(i.theta_rad, i.flux_angle_wb_rad);
+                }
                 self.hold_speed(i.dt_s);
                 if self.held_s >= p.speed_settle_s {
                     // A rough J/kt if the fit is consistent (the loops stay on theirs
@@ -728,7 +788,7 @@ impl Commissioning {
                         .solve()
                         .filter(|f| p.identify_motor && f.starts_at(0.0, w));
                     self.go(State::Adapt);
-                } else if self.in_state_s >= p.spin_up_timeout_s {
+                } else if self.spin_s() >= p.spin_up_timeout_s {
                     self.force_safe(Cause::Timeout(State::SpinUp));
                 }
             }
@@ -853,31 +913,57 @@ impl Commissioning {
     fn measure_motion(&mut self, i: &Inputs) {
         let p = self.params;
         if let Some(half) = self.coast_half() {
-            if half != self.flux_half {
-                self.flux.close();
-                self.flux_half = half;
+            let from = *self.coast_from_rad_s.get_or_insert(i.omega_rad_s);
+            if libm::fabsf(i.omega_rad_s) >= COAST_CUT * libm::fabsf(from) {
+                if half != self.flux_half {
+                    self.flux.close();
+                    self.flux_half = half;
+                }
+                let since = self.in_state_s - half as f32 * 0.5 * p.coast_s;
+                if since >= COAST_SETTLE_S {
+                    self.flux.add(i.theta_rad, i.flux_angle_wb_rad);
+                }
+                return;
             }
-            let since = self.in_state_s - half as f32 * 0.5 * p.coast_s;
-            if since >= COAST_SETTLE_S {
-                self.flux.add(i.theta_rad, i.flux_angle_wb_rad);
-            }
+            // The rotor would stop within the coast (a fan on a light rotor): once it
+            // stands θ̂ loses it, and the coast's d current turns it. ψ from the
+            // back-EMF at held speed instead, over the dip.
+            self.coast_cut = true;
+            self.flux = FluxMeter::default();
             return;
         }
-        if self.flux_wb.is_none() {
-            match self.flux.flux_wb() {
-                Some(psi) => self.flux_wb = Some(psi),
-                None => return self.force_safe(Cause::Identify(IdentError::FluxOutOfRange)),
+        let from = match self.fit_from_rad_s {
+            Some(w) => w,
+            None => {
+                if !self.coast_cut {
+                    match self.flux.flux_wb() {
+                        Some(psi) => self.flux_wb = Some(psi),
+                        None => {
+                            return self.force_safe(Cause::Identify(IdentError::FluxOutOfRange))
+                        }
+                    }
+                }
+                // The fit starts here, at the speed the coast left (its friction can
+                // slow a light rotor by most of it, faster than the observer's
+                // feed-forward knows).
+                self.fit = InertiaFit::about(i.omega_rad_s);
+                *self.fit_from_rad_s.insert(i.omega_rad_s)
             }
-            // The fit starts here, at the speed the coast left (its friction can slow a
-            // light rotor by most of it, faster than the observer's feed-forward knows).
-            self.fit_from_rad_s = i.omega_rad_s;
-            self.fit = InertiaFit::about(i.omega_rad_s);
+        };
+        if self.coast_cut {
+            self.flux.add(i.theta_rad, i.flux_angle_wb_rad);
         }
         self.fit.add(i.dt_s, i.theta_rad, i.iq_integral_a_s);
         self.hold_speed(i.dt_s);
         let dipped = self.in_state_s >= p.coast_s + p.spin_up_ramp_s;
         if dipped && self.held_s >= p.speed_settle_s {
-            let (w0, w) = (self.fit_from_rad_s, p.speed_rad_s);
+            if self.coast_cut {
+                match self.flux.flux_wb() {
+                    Some(psi) => self.flux_wb = Some(psi),
+                    None => return self.force_safe(Cause::Identify(IdentError::FluxOutOfRange)),
+                }
+            }
+            let (w0, w) = (from, p.speed_rad_s);
             match self.fit.solve().filter(|f| f.starts_at(w0, w)) {
                 Some(f) => {
                     self.motion_fit = Some(f);
@@ -920,8 +1006,13 @@ impl Commissioning {
         let speed = Setpoint::Speed {
             omega_rad_s: self.commissioning_speed_rad_s(),
         };
-        let ramp = if self.in_state_s < p.spin_up_ramp_s {
-            self.in_state_s / p.spin_up_ramp_s
+        let since = if self.state == State::SpinUp {
+            self.spin_s()
+        } else {
+            self.in_state_s
+        };
+        let ramp = if since < p.spin_up_ramp_s {
+            since / p.spin_up_ramp_s
         } else {
             1.0
         };
@@ -955,6 +1046,13 @@ impl Commissioning {
                 Adaptation::Frozen,
                 Request::None,
             ),
+            State::SpinUp if p.identify_motor && self.probe.probing() => (
+                Setpoint::Torque {
+                    iq_a: self.probe_current_a(),
+                },
+                Adaptation::Frozen,
+                Request::None,
+            ),
             State::SpinUp => (ramped, Adaptation::Frozen, Request::None),
             State::Adapt | State::Refine | State::SecondSpeed => {
                 (speed, Adaptation::Commissioning, Request::None)
@@ -973,7 +1071,9 @@ impl Commissioning {
                 }
                 None => {
                     // Down over the first half ramp, back up over the second.
-                    let t = (self.in_state_s - p.coast_s) / (0.5 * p.spin_up_ramp_s);
+                    // At the full speed until then after a coast that was cut.
+                    let t =
+                        mras::max_f32(self.in_state_s - p.coast_s, 0.0) / (0.5 * p.spin_up_ramp_s);
                     let dip = if t < 1.0 {
                         t
                     } else if t < 2.0 {

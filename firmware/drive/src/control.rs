@@ -599,7 +599,10 @@ impl<T: Trig> ControlPeriod<T> {
                 );
                 (angle, self.limit_current(current_a), 0.0, 0.0)
             }
-            Setpoint::Speed { .. } | Setpoint::Application | Setpoint::Coast { .. } => {
+            Setpoint::Speed { .. }
+            | Setpoint::Application
+            | Setpoint::Coast { .. }
+            | Setpoint::Torque { .. } => {
                 let omega = self.direction * est.omega_rad_s;
                 let theta = if cmd.alignment.reversed {
                     mech_angle(&est).negated()
@@ -618,6 +621,8 @@ impl<T: Trig> ControlPeriod<T> {
                     }
                     // No torque; both motion loops are reset below.
                     Setpoint::Coast { id_a } => (id_a, 0.0),
+                    // The probe's current, open loop in speed (the loops are reset).
+                    Setpoint::Torque { iq_a } => (0.0, iq_a * self.torque_constant_nm_a),
                     _ => {
                         self.speed.hand_over(&mut self.application);
                         let torque = self.application.torque(
@@ -656,18 +661,20 @@ impl<T: Trig> ControlPeriod<T> {
         let (i_alpha, i_beta) = clarke(ia, ib);
         let (id, iq) = park(i_alpha, i_beta, trig.sin_cos(theta_e));
         let (vd, vq, _) = self.current.step((id_ref, iq_ref), (id, iq), we, t);
-        match cmd.setpoint {
-            Setpoint::Speed { .. } => self.iq_integral_a_s += iq * t,
-            Setpoint::Coast { .. } => {
-                // The back-EMF: what the loop applies less R·i and jωe·L·i (the loop
-                // holds some q current where the back-EMF falls faster than its
-                // integrator follows: a light rotor, a low R).
-                let m = &self.cfg.motor;
-                let k = self.period_per_pole_pair_s;
-                self.flux_angle_wb_rad[0] += (vd - m.r_ohm * id + we * m.l_h * iq) * k;
-                self.flux_angle_wb_rad[1] += (vq - m.r_ohm * iq - we * m.l_h * id) * k;
+        if matches!(
+            cmd.setpoint,
+            Setpoint::Speed { .. } | Setpoint::Torque { .. } | Setpoint::Coast { .. }
+        ) {
+            if !matches!(cmd.setpoint, Setpoint::Coast { .. }) {
+                self.iq_integral_a_s += iq * t;
             }
-            _ => {}
+            // The back-EMF: what the loop applies less R·i and jωe·L·i (the loop holds
+            // some q current in a coast where the back-EMF falls faster than its
+            // integrator follows: a light rotor, a low R).
+            let m = &self.cfg.motor;
+            let k = self.period_per_pole_pair_s;
+            self.flux_angle_wb_rad[0] += (vd - m.r_ohm * id + we * m.l_h * iq) * k;
+            self.flux_angle_wb_rad[1] += (vq - m.r_ohm * iq - we * m.l_h * id) * k;
         }
         // The voltage acts through the next period: rotate it to the angle the rotor
         // reaches in the middle of that period.

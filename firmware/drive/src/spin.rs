@@ -1,8 +1,10 @@
 //! The motor's mechanical constants, identified at speed: the inertia J of rotor and load
 //! and its friction ([`InertiaFit`]), and the permanent-magnet flux linkage ψ
-//! ([`FluxMeter`]). The commissioning ([`crate::commissioning`]) fits J roughly over
-//! SpinUp's ramp on the uncorrected sensor, for the loops of the states that follow, and
-//! again in its `Motion` state on the corrected sensor, after a coast that measures ψ.
+//! ([`FluxMeter`]). The commissioning ([`crate::commissioning`]) starts SpinUp with a
+//! torque probe from rest ([`Probe`]: J/kt for the speed loop that follows), then fits J
+//! roughly over SpinUp's ramp on the uncorrected sensor and measures ψ roughly from its
+//! back-EMF, for the loops of the states that follow, and again in its `Motion` state on
+//! the corrected sensor, after a coast that measures ψ.
 //!
 //! **Inertia.** From the fit's first sample (t = 0), the motion
 //! `J·dω/dt = kt·iq − B·ω − Tc` integrated twice reads
@@ -40,7 +42,12 @@
 //! ripple is small it turns over within a few mA of zero, where the current sensing's own
 //! errors put the current. Motion's inertia fit starts after the coast: its friction can
 //! slow a light rotor by most of its speed, faster than the observer's feed-forward
-//! knows, and the loop's frame lags the rotor's meanwhile.
+//! knows, and the loop's frame lags the rotor's meanwhile. A load that would stop the
+//! rotor within the coast (a fan on a light rotor: J/B of about 10 ms against the
+//! coast's 40 ms) cuts it once the speed has halved, before θ̂ loses the rotor and the d
+//! current turns it backwards; ψ then comes from the same integral at held speed over
+//! Motion's dip, where the q current's R·i and the inverter's error do not cancel (a
+//! rough ψ from SpinUp is measured the same way).
 
 use crate::align::wrap_pi;
 
@@ -87,6 +94,89 @@ pub const START_SPEED_TOLERANCE: f32 = 0.1;
 /// Time constant of each of the fit's two low-passes (s): the sensor's error at 20 rev/s
 /// and N = 2 (40 Hz and above) is 40x smaller behind them.
 pub const FIT_FILTER_S: f32 = 0.02;
+
+/// The torque probe's q current runs until the rotor has travelled this far (rad,
+/// mechanical): far enough that the uncorrected sensor's error is a small share of it.
+pub const PROBE_TRAVEL_RAD: f32 = 0.5;
+/// ... or for this long (s): a rotor at the ratings' least acceleration per amp (80
+/// rad/s²/A) travels 0.5 rad in 0.16 s at a quarter of the alignment's current.
+pub const PROBE_TIMEOUT_S: f32 = 0.25;
+/// Below this travel the probe gives nothing (the loops keep what they have).
+const PROBE_MIN_TRAVEL_RAD: f32 = 0.2;
+
+/// SpinUp's torque probe: a constant q current from rest until the rotor has travelled
+/// [`PROBE_TRAVEL_RAD`] or [`PROBE_TIMEOUT_S`] has passed. Its load is the rotor's own
+/// inertia (a fan's torque grows with the speed, still small), so the travel
+/// `d = ω0·t + a·t²/2` at a quarter of the travel and at its end gives the acceleration
+/// per amp whatever speed the rotor had at the first sample (the current was on a
+/// period before it), and J/kt = i/a, within the share the uncorrected sensor's error
+/// has of the travel. The speed loop closes after it on that J/kt: on the nominal one a
+/// light rotor's loop runs several times faster than designed and swings between a
+/// quarter and one and a half times the commissioning speed.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Probe {
+    travel: Option<Travel>,
+    travel_rad: f32,
+    t_s: f32,
+    /// (t, d) where the travel first reached a quarter of [`PROBE_TRAVEL_RAD`].
+    quarter: Option<(f32, f32)>,
+    done: bool,
+    /// J/kt (A·s²/rad), on the step the probe ended with one.
+    ended: Option<f32>,
+}
+
+impl Probe {
+    pub fn probing(&self) -> bool {
+        !self.done
+    }
+
+    /// How long it has run (s).
+    pub fn duration_s(&self) -> f32 {
+        self.t_s
+    }
+
+    /// J/kt on the step the probe ended with one ([`Probe::next_step`] clears it).
+    pub fn ended(&self) -> Option<f32> {
+        self.ended
+    }
+
+    /// A new step: what ended is reported once.
+    pub fn next_step(&mut self) {
+        self.ended = None;
+    }
+
+    /// One sample: `dt_s` since the previous one, the mechanical angle (wrapped) and the
+    /// q current applied (A).
+    pub fn add(&mut self, dt_s: f32, theta_rad: f32, current_a: f32) {
+        match &mut self.travel {
+            None => self.travel = Some(Travel::new(theta_rad)),
+            Some(t) => {
+                self.t_s += dt_s;
+                self.travel_rad = t.add(theta_rad);
+            }
+        }
+        let d = libm::fabsf(self.travel_rad);
+        if self.quarter.is_none() && d >= 0.25 * PROBE_TRAVEL_RAD {
+            self.quarter = Some((self.t_s, d));
+        }
+        if !(d < PROBE_TRAVEL_RAD && self.t_s < PROBE_TIMEOUT_S) {
+            self.done = true;
+            // d/t = ω0 + a·t/2 at both points (from the start alone if the quarter
+            // came at the end).
+            let (t1, d1) = match self.quarter {
+                Some((t1, d1)) if t1 < self.t_s => (t1, d1),
+                _ => (0.0, 0.0),
+            };
+            let v1 = if t1 > 0.0 { d1 / t1 } else { 0.0 };
+            let accel = 2.0 * (d / self.t_s - v1) / (self.t_s - t1);
+            let per_amp = accel / current_a;
+            self.ended = (d >= PROBE_MIN_TRAVEL_RAD
+                && per_amp >= ACCEL_PER_AMP_RANGE.0
+                && per_amp <= ACCEL_PER_AMP_RANGE.1)
+                .then(|| 1.0 / per_amp);
+        }
+    }
+}
 
 /// A continuous angle from wrapped samples (each step turns less than π).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

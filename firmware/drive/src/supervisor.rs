@@ -536,11 +536,37 @@ impl<const E: usize> Supervisor<E> {
                 v_inverter_v: x.v_inverter_v,
             });
         }
-        if let (State::SpinUp, State::Adapt, Some(f)) = (before, state, self.sm.spin_up_fit()) {
-            // A rough J/kt now: the motion loops and the observer in acceleration per amp.
-            self.motion = self
-                .motion
-                .changed(|m| m.amps_per_accel_a_s2 = f.amps_per_accel_a_s2);
+        if let Some(amps_per_accel) = self.sm.probe_ended() {
+            // The speed loop closes on the probe's J/kt where it is below the one in
+            // force, never above: on the uncorrected sensor ω̂ swings by tens of rad/s at
+            // speed, and a heavy rotor's loop at its design gain turns that into the
+            // current limit (the nominal's lower gain carries it to speed).
+            let in_force = if self.motion.amps_per_accel_a_s2 > 0.0 {
+                self.motion.amps_per_accel_a_s2
+            } else {
+                self.motor.inertia_kg_m2 / self.torque_constant()
+            };
+            if amps_per_accel < in_force {
+                self.motion = self
+                    .motion
+                    .changed(|m| m.amps_per_accel_a_s2 = amps_per_accel);
+            }
+        }
+        if let (State::SpinUp, State::Adapt) = (before, state) {
+            // A rough J/kt and ψ now: the motion loops and the observer in acceleration
+            // per amp, the current loop's back-EMF feed-forward.
+            let fit = self.sm.spin_up_fit();
+            let psi = self.sm.spin_up_flux_wb();
+            if fit.is_some() || psi.is_some() {
+                self.motion = self.motion.changed(|m| {
+                    if let Some(f) = fit {
+                        m.amps_per_accel_a_s2 = f.amps_per_accel_a_s2;
+                    }
+                    if let Some(psi) = psi {
+                        m.flux_wb = psi;
+                    }
+                });
+            }
         }
         if let (State::Motion, State::Store, Some(psi), Some(f)) =
             (before, state, self.sm.flux_wb(), self.sm.motion_fit())

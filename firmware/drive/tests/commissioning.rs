@@ -87,6 +87,7 @@ fn with_rotor(c: &Commissioning, mut i: Inputs) -> Inputs {
     match (c.state(), c.outputs().setpoint) {
         (State::CheckSensor, _) => r = Rotor::default(),
         (_, Setpoint::Speed { omega_rad_s }) => r.step(i.dt_s, Drive::Speed(omega_rad_s)),
+        (_, Setpoint::Torque { iq_a }) => r.step(i.dt_s, Drive::Torque(iq_a)),
         (_, Setpoint::Coast { .. }) => r.step(i.dt_s, Drive::Coast),
         _ => r.step(i.dt_s, Drive::Hold),
     }
@@ -333,11 +334,24 @@ fn outputs_per_state() {
     assert!(
         matches!(drive_to(Sweep).outputs().setpoint, Setpoint::Sweep { current_a, duration_s } if current_a > 0.0 && duration_s > 0.0)
     );
-    // The spin-up's setpoint ramps from zero.
+    // The spin-up starts with its torque probe at a quarter of the alignment's current
+    // (the rotor travels half a radian), then its speed setpoint ramps from zero.
     let mut c = drive_to(SpinUp);
-    assert_eq!(c.outputs().setpoint, Setpoint::Speed { omega_rad_s: 0.0 });
-    c.step(&hardware(&c));
-    assert!(matches!(c.outputs().setpoint, Setpoint::Speed { omega_rad_s } if omega_rad_s > 0.0));
+    let probe = Setpoint::Torque {
+        iq_a: PROBE_SHARE * params().align_current_a,
+    };
+    let mut probe_s = 0.0;
+    while c.outputs().setpoint == probe {
+        c.step(&hardware(&c));
+        probe_s += DT;
+        assert!(probe_s <= drive::spin::PROBE_TIMEOUT_S + DT);
+    }
+    let w = params().speed_rad_s;
+    assert!(
+        matches!(c.outputs().setpoint, Setpoint::Speed { omega_rad_s } if omega_rad_s > 0.0 && omega_rad_s < 0.01 * w),
+        "{:?} after the probe",
+        c.outputs().setpoint
+    );
     // Only the sensor check measures the current sensors' zero (bridge off).
     assert!(Commissioning::new(params()).outputs().calibrate_currents);
     assert!(!drive_to(Align).outputs().calibrate_currents);
@@ -558,13 +572,19 @@ fn spin_up_timeout_and_settling() {
         State::SpinUp,
         "settling must restart after leaving the band"
     );
-    // Never reaching speed: timeout.
+    // Never reaching speed: timeout, counted from the torque probe's end (a rotor that
+    // does not turn holds the probe to its own limit).
     let mut c = drive_to(State::SpinUp);
     let slow = Inputs {
         omega_rad_s: 0.2 * p.speed_rad_s,
         ..hardware(&c)
     };
-    run_until(&mut c, State::Safe, p.spin_up_timeout_s + 0.1, |_| slow);
+    let limit_s = drive::spin::PROBE_TIMEOUT_S + p.spin_up_timeout_s;
+    for _ in 0..((limit_s - 0.02) / DT) as usize {
+        c.step(&slow);
+    }
+    assert_eq!(c.state(), State::SpinUp);
+    run_until(&mut c, State::Safe, 0.03, |_| slow);
     assert_eq!(c.cause(), Some(Cause::Timeout(State::SpinUp)));
 }
 
@@ -1026,4 +1046,58 @@ fn without_the_motors_identification_the_sequence_skips_identify_and_motion() {
         ..healthy()
     });
     assert_eq!(c.state(), State::Run);
+}
+
+#[test]
+fn spin_up_probes_the_acceleration_per_amp_and_measures_a_rough_flux() {
+    let rel = |found: f32, truth: f32| (found / truth - 1.0).abs();
+    let mut c = drive_to(State::SpinUp);
+    // The probe: J/kt from the travel under its current, reported on one step only.
+    let mut probed = vec![];
+    while matches!(c.outputs().setpoint, Setpoint::Torque { .. }) {
+        c.step(&hardware(&c));
+        probed.extend(c.probe_ended());
+    }
+    assert_eq!(probed.len(), 1, "{probed:?}");
+    // The rotor's friction takes a small share of the probe's current from rest.
+    assert!(rel(probed[0], AMPS_PER_ACCEL) < 0.02, "{probed:?}");
+    c.step(&hardware(&c));
+    assert_eq!(c.probe_ended(), None);
+    assert_eq!(c.spin_up_flux_wb(), None, "no travel at speed yet");
+    run_until(&mut c, State::Adapt, 3.0, hardware);
+    // The back-EMF over the rest of SpinUp: the scripted rotor has no R·i or inverter
+    // error in it.
+    let psi = c.spin_up_flux_wb().expect("a rough flux");
+    assert!(rel(psi, FLUX_WB) < 1e-3, "{psi}");
+}
+
+#[test]
+fn a_coast_that_would_stop_the_rotor_is_cut_and_the_flux_is_measured_at_held_speed() {
+    let p = params();
+    let rel = |found: f32, truth: f32| (found / truth - 1.0).abs();
+    let mut c = drive_to(State::Motion);
+    // The first step of the coast, then a rotor slowed below `COAST_CUT` of its speed (a
+    // fan on a light rotor) on the second; a coast that keeps its speed runs its whole
+    // length (`spin_up_and_motion_fit_inertia_and_friction_and_the_coast_measures_the_flux`).
+    let mut coasted = 0;
+    let mut first = true;
+    while c.state() == State::Motion {
+        let mut i = hardware(&c);
+        if matches!(c.outputs().setpoint, Setpoint::Coast { .. }) {
+            coasted += 1;
+            if !first {
+                i.omega_rad_s = 0.9 * COAST_CUT * p.speed_rad_s;
+            }
+            first = false;
+        }
+        c.step(&i);
+    }
+    assert_eq!(
+        coasted, 2,
+        "the coast ends on the step that finds the speed halved"
+    );
+    assert_eq!(c.state(), State::Store, "{:?}", c.cause());
+    let psi = c.flux_wb().expect("flux at held speed");
+    assert!(rel(psi, FLUX_WB) < 1e-3, "flux {psi}");
+    assert!(c.motion_fit().is_some());
 }

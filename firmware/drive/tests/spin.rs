@@ -3,7 +3,9 @@
 //! the coast's two halves give ψ whatever the frame's error and what is odd in id.
 
 use core::f32::consts::TAU;
-use drive::spin::{FluxMeter, InertiaFit, Travel, START_SPEED_TOLERANCE};
+use drive::spin::{
+    FluxMeter, InertiaFit, Probe, Travel, PROBE_TIMEOUT_S, PROBE_TRAVEL_RAD, START_SPEED_TOLERANCE,
+};
 
 const DT: f32 = 1e-3;
 
@@ -171,4 +173,52 @@ fn the_coasts_two_halves_give_the_flux_whatever_the_frame() {
     none.add(0.0, [0.0; 2]);
     none.add(3.0, [0.0; 2]);
     assert_eq!(none.flux_wb(), None);
+}
+
+#[test]
+fn the_probe_finds_the_acceleration_per_amp_from_rest() {
+    // 0.5 A on a rotor of 200 rad/s²/A from rest, its angle wrapped and read with a
+    // sensor error of 10 mrad at 5 per turn.
+    let (amps, per_amp) = (0.5f32, 200.0f32);
+    let mut p = Probe::default();
+    let mut t = 0.0f32;
+    let mut ended = vec![];
+    while p.probing() {
+        p.next_step();
+        let th = 0.5 * amps * per_amp * t * t;
+        p.add(
+            DT,
+            (2.0 + th + 0.01 * (5.0 * th).sin()).rem_euclid(TAU),
+            amps,
+        );
+        ended.extend(p.ended());
+        t += DT;
+        assert!(t <= PROBE_TIMEOUT_S + 2.0 * DT);
+    }
+    assert_eq!(ended.len(), 1);
+    assert!((ended[0] * per_amp - 1.0).abs() < 0.06, "{ended:?}");
+    // It ended on its travel, not its time.
+    let t_travel = (2.0 * PROBE_TRAVEL_RAD / (amps * per_amp)).sqrt();
+    assert!(
+        (p.duration_s() - t_travel).abs() < 2.0 * DT,
+        "{}",
+        p.duration_s()
+    );
+    p.next_step();
+    assert_eq!(p.ended(), None, "reported once");
+}
+
+#[test]
+fn a_rotor_that_does_not_turn_gives_the_probe_nothing() {
+    for theta in [1.0, f32::NAN] {
+        let mut p = Probe::default();
+        let mut steps = 0;
+        while p.probing() {
+            p.next_step();
+            p.add(DT, theta, 0.5);
+            assert_eq!(p.ended(), None);
+            steps += 1;
+            assert!(steps as f32 * DT <= PROBE_TIMEOUT_S + 2.0 * DT);
+        }
+    }
 }

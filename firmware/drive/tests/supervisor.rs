@@ -127,6 +127,7 @@ fn turn(rotor: &mut Rotor, state: State, cmd: &Command, tm: &mut Telemetry) {
     let _ = state;
     let drive = match cmd.setpoint {
         Setpoint::Speed { omega_rad_s } => Drive::Speed(omega_rad_s),
+        Setpoint::Torque { iq_a } => Drive::Torque(iq_a),
         Setpoint::Coast { .. } => Drive::Coast,
         _ => Drive::Hold,
     };

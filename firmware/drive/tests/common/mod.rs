@@ -22,6 +22,8 @@ pub struct Rotor {
 pub enum Drive {
     /// Driven toward this speed against the friction, at [`SPIN_UP_A`] at most.
     Speed(f32),
+    /// At this q current (A), open loop in speed (SpinUp's torque probe).
+    Torque(f32),
     /// No torque: the friction slows it.
     Coast,
     /// At the speed it has (the application's loop holds it).
@@ -36,6 +38,11 @@ impl Rotor {
                 let friction = AMPS_PER_SPEED * self.omega_rad_s;
                 let wanted = AMPS_PER_ACCEL * (target - self.omega_rad_s) / dt_s + friction;
                 let iq = wanted.clamp(-SPIN_UP_A, SPIN_UP_A);
+                self.omega_rad_s += (iq - friction) / AMPS_PER_ACCEL * dt_s;
+                self.iq_integral_a_s += iq * dt_s;
+            }
+            Drive::Torque(iq) => {
+                let friction = AMPS_PER_SPEED * self.omega_rad_s;
                 self.omega_rad_s += (iq - friction) / AMPS_PER_ACCEL * dt_s;
                 self.iq_integral_a_s += iq * dt_s;
             }
