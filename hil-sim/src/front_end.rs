@@ -16,6 +16,11 @@ pub struct FrontEnd {
     pub gain_y: f32,
     /// |raw| at or above this is a railed (saturated) channel; `inf` disables.
     pub raw_limit: f32,
+    /// Quadrature correction: `y += skew · x` after scaling. Not a config key: replay sets
+    /// it from an ellipse fit of the recording (a shaft moving at m = 1, 2, see
+    /// `replay`); 0 leaves the scaling exactly as the keys give it.
+    #[serde(skip)]
+    pub skew: f32,
 }
 
 impl Default for FrontEnd {
@@ -26,6 +31,7 @@ impl Default for FrontEnd {
             gain_x: 1.0,
             gain_y: 1.0,
             raw_limit: f32::INFINITY,
+            skew: 0.0,
         }
     }
 }
@@ -38,13 +44,19 @@ impl FrontEnd {
             return Err(Fault::SensorSaturated);
         }
         let x = (x_raw - self.offset_x) * self.gain_x;
-        Ok((x, (y_raw - self.offset_y) * self.gain_y))
+        let y = (y_raw - self.offset_y) * self.gain_y;
+        // (Only when set: without it the samples are bit for bit the keys' scaling.)
+        if self.skew != 0.0 {
+            return Ok((x, y + self.skew * x));
+        }
+        Ok((x, y))
     }
 
     pub fn validate(&self) -> Result<(), ConfigError> {
         for (v, field) in [
             (self.offset_x, "input.offset_x"),
             (self.offset_y, "input.offset_y"),
+            (self.skew, "input (ellipse fit's quadrature)"),
         ] {
             if !v.is_finite() {
                 return Err(ConfigError::new(field, "must be finite"));
@@ -77,6 +89,7 @@ mod tests {
             gain_x: 1.0 / 1600.0,
             gain_y: -1.0 / 1500.0,
             raw_limit: 4095.0,
+            skew: 0.0,
         };
         assert_eq!(f.scale(3648.0, 500.0), Ok((1.0, 1.0)));
         assert_eq!(f.scale(4095.0, 2000.0), Err(Fault::SensorSaturated));

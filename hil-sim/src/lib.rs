@@ -20,6 +20,7 @@ pub mod plots;
 pub mod power_up;
 pub mod probe_bench;
 pub mod replay;
+pub mod replay_checks;
 pub mod report;
 pub mod rig;
 pub mod rtt_log;

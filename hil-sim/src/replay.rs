@@ -12,6 +12,7 @@ use crate::core_config::CoreConfigFile;
 use crate::front_end::FrontEnd;
 use crate::input_error::InputError;
 use crate::pending::Pending;
+use crate::replay_checks::{self, MotionReport, SensorPeriodsReport, DEFAULT_SENSOR_PERIODS};
 use crate::survey::{self, Samples, SurveyReport};
 use anyhow::{anyhow, bail, Context, Result};
 use mras::{Config, Fault, PathKind, Tracker};
@@ -35,25 +36,42 @@ pub struct Args {
     #[arg(long)]
     pub output: PathBuf,
     /// Core configuration (TOML; every key optional, see
-    /// hil-sim/tests/data/core_config_full.toml). Without it: the core defaults (paths
-    /// offset, amplitude-quadrature, h4..h8) and input scaling estimated from the data.
+    /// hil-sim/tests/data/core_config_full.toml). Without it: the core defaults, the
+    /// paths from the data (--bank) and input scaling estimated from the data.
     /// Without [observer] eigenvalues_hz: the default 100/10/1 Hz, or scaled down to suit
     /// the recording's sample rate and speed (the summary and report say which and why).
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Sensor periods per mechanical revolution N (a `sensor_periods` in --config wins).
-    #[arg(long, default_value_t = 2)]
-    pub sensor_periods: u16,
+    /// Sensor periods per mechanical revolution N. Without it: `sensor_periods` in
+    /// --config (which wins over the flag too), else read from the recording (the sensor
+    /// angle's travel over theta_rad's, rounded and checked), else 2. The summary and
+    /// report say which.
+    #[arg(long)]
+    pub sensor_periods: Option<u16>,
     /// Also write a JSON report: faults, final coefficients, convergence, input scaling,
     /// the observer's eigenvalues and, with theta_rad, the raw and corrected spatial error.
     #[arg(long)]
     pub report: Option<PathBuf>,
-    /// Choose the path bank from the recording: the core's rounds (the bank adapts,
-    /// then the sensor's error spectrum m = 1..16 is surveyed with adaptation frozen and
-    /// the bank grows by its largest harmonics, up to 16 paths); the summary and report
-    /// name the paths and what was left. Not with `paths` in --config.
-    #[arg(long)]
+    /// The path bank when --config gives no `paths` (which always win): `data` (the
+    /// default) chooses it from the recording (the core's rounds: the bank adapts, the
+    /// sensor's error spectrum m = 1..16 is surveyed with adaptation frozen and the bank
+    /// grows by its largest harmonics, up to 16 paths; the summary and report name the
+    /// paths and what was left); `default` takes the core's fixed bank (offset,
+    /// amplitude-quadrature, h4..h8).
+    #[arg(long, value_enum)]
+    pub bank: Option<BankChoice>,
+    /// The same as `--bank data`.
+    #[arg(long, hide = true)]
     pub paths_from_data: bool,
+}
+
+/// `--bank`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BankChoice {
+    /// From the recording's error spectrum (`mras::survey`).
+    Data,
+    /// The core's fixed default bank.
+    Default,
 }
 
 /// Rows above which progress is printed to stderr.
@@ -523,15 +541,83 @@ fn observer_eigenvalues(
 struct Setup {
     cfg: Config,
     front: FrontEnd,
-    /// The scaling estimated from the recording (not given by `[input]`).
-    estimated: bool,
+    /// The min/max scaling the raw sensor is scored through (`front` unless an ellipse
+    /// fit replaced it).
+    raw_front: FrontEnd,
+    /// The scaling estimated from the recording (not given by `[input]`): "estimated
+    /// from min/max", "ellipse fit" or "config".
+    scaling_source: &'static str,
     observer: ObserverReport,
     survey: Option<SurveyReport>,
+    sensor_periods: SensorPeriodsReport,
+    bank: BankReport,
+    motion: MotionReport,
 }
 
-/// The core configuration: `--config` (or the defaults), N from the file or the flag,
-/// observer eigenvalues from the file or chosen from the recording, paths from the file
-/// or the survey; and the front end, its scaling from the file or estimated.
+/// Where the path bank came from (report key `bank`).
+#[derive(Clone, Debug, Serialize)]
+struct BankReport {
+    /// "config", "data" or "default".
+    source: &'static str,
+    reason: String,
+}
+
+/// The scaled sensor vector's angle of row `k` (rad, sensor electrical).
+fn sensor_angle_rad(r: &Recording, front: &FrontEnd, k: usize) -> f64 {
+    let x = (r.x[k] as f64 - front.offset_x as f64) * front.gain_x as f64;
+    let y = (r.y[k] as f64 - front.offset_y as f64) * front.gain_y as f64;
+    y.atan2(x)
+}
+
+/// The raw sensor's mechanical error against theta_rad, row by row, its constant (a
+/// circular mean, sensor electrical: the sensor's zero is arbitrary) removed.
+fn raw_error_rad(r: &Recording, front: &FrontEnd, n: u16) -> Vec<f64> {
+    let n = n as f64;
+    let e: Vec<f64> = (0..r.rows())
+        .map(|k| sensor_angle_rad(r, front, k) - n * r.theta_rad[k])
+        .collect();
+    let (sn, cs) = e
+        .iter()
+        .fold((0.0, 0.0), |(s, c), v| (s + v.sin(), c + v.cos()));
+    let c = f64::atan2(sn, cs);
+    e.iter().map(|v| wrap_pi(v - c) / n).collect()
+}
+
+/// The scaling an ellipse fit of the whole recording gives (offsets, amplitude ratio and
+/// quadrature: the sensor's m = 1, 2 errors from the vector's shape, which the shaft's
+/// motion does not change), common gain 1/ax.
+fn ellipse_front_end(r: &Recording, base: &FrontEnd) -> Result<FrontEnd> {
+    let samples: Vec<(f32, f32)> = r.x.iter().copied().zip(r.y.iter().copied()).collect();
+    let fit = crate::baselines::Ellipse::fit(&samples)
+        .map_err(|e| anyhow!("{}: ellipse fit of x, y: {e}", r.name))?;
+    let p = fit.params();
+    // x = ax·cos θ + ox, y = ay·sin(θ + φ) + oy: ax from x's RMS over the file.
+    let ms =
+        r.x.iter()
+            .map(|&x| (x as f64 - p.offset_x).powi(2))
+            .sum::<f64>()
+            / r.rows() as f64;
+    let g = 1.0 / (2.0 * ms).sqrt();
+    let (sin_q, cos_q) = p.quadrature_rad.sin_cos();
+    let front = FrontEnd {
+        offset_x: p.offset_x as f32,
+        offset_y: p.offset_y as f32,
+        gain_x: g as f32,
+        gain_y: (g / (p.amplitude_ratio * cos_q)) as f32,
+        skew: (-sin_q / cos_q) as f32,
+        ..*base
+    };
+    front
+        .validate()
+        .map_err(|e| anyhow!("{}: ellipse fit: {e}", r.name))?;
+    Ok(front)
+}
+
+/// The core configuration: `--config` (or the defaults), N from the file, the flag, the
+/// recording or the default, observer eigenvalues from the file or chosen from the
+/// recording, paths from the file, the survey or the defaults, the shaft's motion at
+/// m = 1, 2 checked against theta_rad; and the front end, its scaling from the file or
+/// estimated.
 fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<Setup> {
     let file = match &a.config {
         Some(p) => {
@@ -545,18 +631,66 @@ fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<Setup> {
         sample_period_s: period_s as f32,
         ..file.config
     };
-    if !file.sets("sensor_periods") {
-        if a.sensor_periods == 0 {
-            bail!("--sensor-periods must be at least 1");
-        }
-        cfg.sensor_periods = a.sensor_periods;
-    }
     let estimated = !file.input_given();
     let mut front = file.input;
     if estimated {
         let [ox, gx, oy, gy] = estimate_scaling(r)?;
         (front.offset_x, front.gain_x, front.offset_y, front.gain_y) = (ox, gx, oy, gy);
     }
+    let has_theta = !r.theta_rad.is_empty();
+
+    // N: the file, the flag, the reference, the default.
+    let no_travel = |reason: String| SensorPeriodsReport {
+        source: "default",
+        value: DEFAULT_SENSOR_PERIODS,
+        electrical_travel_rad: None,
+        mechanical_travel_rad: None,
+        ratio: None,
+        reason,
+    };
+    let n_report = if file.sets("sensor_periods") {
+        SensorPeriodsReport {
+            source: "config",
+            value: cfg.sensor_periods,
+            reason: "`sensor_periods` in the config file".into(),
+            ..no_travel(String::new())
+        }
+    } else if let Some(n) = a.sensor_periods {
+        if n == 0 {
+            bail!("--sensor-periods must be at least 1");
+        }
+        SensorPeriodsReport {
+            source: "--sensor-periods",
+            value: n,
+            reason: "given by --sensor-periods".into(),
+            ..no_travel(String::new())
+        }
+    } else if has_theta {
+        front.validate().map_err(|e| file.locate(e))?;
+        let (n, mut rep) =
+            replay_checks::sensor_periods_from_reference(&r.name, &r.theta_rad, |k| {
+                sensor_angle_rad(r, &front, k)
+            })?;
+        match n {
+            Some(n) => rep.value = n,
+            None => {
+                rep.source = "default";
+                rep.value = DEFAULT_SENSOR_PERIODS;
+                rep.reason = format!(
+                    "{}; the default N = {DEFAULT_SENSOR_PERIODS} (give --sensor-periods)",
+                    rep.reason
+                );
+            }
+        }
+        rep
+    } else {
+        no_travel(format!(
+            "no theta_rad column to read it from: the default N = {DEFAULT_SENSOR_PERIODS} \
+             (give --sensor-periods)"
+        ))
+    };
+    cfg.sensor_periods = n_report.value;
+
     let locate = |e: mras::ConfigError| {
         let why = match e.field {
             "observer.eigenvalues_hz" | "sample_period_s" => format!(
@@ -576,30 +710,207 @@ fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<Setup> {
     };
     // The front end first: the speed the eigenvalues are chosen by is measured through it.
     front.validate().map_err(locate)?;
-    let observer = observer_eigenvalues(&file, &mut cfg, &front, r, period_s)?;
+    let raw_front = front;
+    let mut observer = observer_eigenvalues(&file, &mut cfg, &front, r, period_s)?;
     cfg.validate().map_err(locate)?;
-    let survey = match (a.paths_from_data, file.sets("paths")) {
-        (false, _) => None,
-        (true, true) => bail!("--paths-from-data and `paths` in the --config file: choose one"),
-        (true, false) => {
-            let samples = Samples {
-                t_s: &r.t_s,
-                x: &r.x,
-                y: &r.y,
-                torque_nm: &r.torque_nm,
-            };
-            let s = survey::survey(&cfg, &front, &samples).context(r.name.clone())?;
-            cfg.set_paths(&s.kinds).map_err(locate)?;
-            cfg.validate().map_err(locate)?;
-            Some(s)
+
+    // The bank: the file's `paths` win; then the flag; then from the data.
+    let asked_data = a.paths_from_data || a.bank == Some(BankChoice::Data);
+    if a.paths_from_data && a.bank == Some(BankChoice::Default) {
+        bail!("--paths-from-data and --bank default: choose one");
+    }
+    let from_config = file.sets("paths");
+    if from_config && asked_data {
+        bail!(
+            "{} and `paths` in the --config file: choose one",
+            if a.paths_from_data {
+                "--paths-from-data"
+            } else {
+                "--bank data"
+            }
+        );
+    }
+
+    // The shaft's motion where the sensor's m = 1, 2 land, from the reference.
+    let mut motion = if has_theta {
+        let raw_e = raw_error_rad(r, &raw_front, cfg.sensor_periods);
+        replay_checks::shaft_motion(
+            &r.theta_rad,
+            &r.t_s,
+            r.rows() / 2..r.rows(),
+            cfg.sensor_periods,
+            |k| raw_e[k],
+        )
+        .unwrap_or_else(|| {
+            MotionReport::not_measured(
+                "the second half of theta_rad holds less than a whole revolution".into(),
+            )
+        })
+    } else {
+        MotionReport::not_measured(
+            "no theta_rad column: the shaft's own motion is not measured, and at one speed \
+             the sensor alone cannot tell it from its error at m = 1, 2; they are corrected \
+             as if the shaft turned evenly"
+                .into(),
+        )
+    };
+    let flagged = motion.flagged();
+    let mut scaling_source = if estimated {
+        "estimated from min/max"
+    } else {
+        "config"
+    };
+    let leave_m12 = !flagged.is_empty() && !from_config;
+    if leave_m12 && estimated {
+        front = ellipse_front_end(r, &front)?;
+        scaling_source = "ellipse fit";
+    }
+
+    let (bank, survey) = if from_config {
+        let b = BankReport {
+            source: "config",
+            reason: "`paths` in the config file".into(),
+        };
+        (b, None)
+    } else if a.bank == Some(BankChoice::Default) {
+        let b = BankReport {
+            source: "default",
+            reason: "--bank default: the core's fixed bank".into(),
+        };
+        (b, None)
+    } else {
+        let samples = Samples {
+            t_s: &r.t_s,
+            x: &r.x,
+            y: &r.y,
+            torque_nm: &r.torque_nm,
+        };
+        match survey::survey(&cfg, &front, &samples) {
+            Ok(s) => {
+                // The survey's bank, and the fixed bank's paths at the harmonics it left
+                // out, where it has room. The rounds give paths to harmonics above a
+                // quarter of the largest still without one, so a smaller harmonic (a
+                // product of the large ones, a few % of them) can stay without a path:
+                // the extreme sensor at N = 1, 1 kHz, 40 revolutions, 1 179x with the
+                // survey's bank (offset, C/D, h4, h5), 1 374x with the fixed one. And a
+                // recording that ends between rounds keeps the first round's bank:
+                // the extreme sensor at N = 2, 16 revolutions, 3 525x against 5 184x.
+                // With the fixed bank's paths joined, neither is below the fixed bank.
+                let mut kinds = s.kinds.clone();
+                let mut added = Vec::new();
+                for p in Config::default().paths() {
+                    let m = p.error_harmonic();
+                    let covered = kinds.iter().any(|k| k.error_harmonic() == m);
+                    if !covered && kinds.len() < mras::MAX_PATHS {
+                        kinds.push(*p);
+                        added.push(path_toml_name(*p));
+                    }
+                }
+                kinds.sort_by_key(|k| k.error_harmonic());
+                let joined = if added.is_empty() {
+                    String::new()
+                } else {
+                    format!(", with the fixed bank's {} joined", added.join(", "))
+                };
+                let reason = if s.complete {
+                    format!("the survey's bank{joined}")
+                } else {
+                    format!(
+                        "the survey's last round's bank (the recording ended before the grown \
+                         bank converged and was surveyed again){joined}"
+                    )
+                };
+                cfg.set_paths(&kinds).map_err(locate)?;
+                (
+                    BankReport {
+                        source: "data",
+                        reason,
+                    },
+                    Some(s),
+                )
+            }
+            // Too short for the survey: the default bank, said so.
+            Err(e) if !asked_data => {
+                let b = BankReport {
+                    source: "default",
+                    reason: format!(
+                        "the core's fixed bank: the bank could not be chosen from the data \
+                         ({e:#})"
+                    ),
+                };
+                (b, None)
+            }
+            Err(e) => return Err(e.context(r.name.clone())),
         }
     };
+
+    if !flagged.is_empty() {
+        let harmonics: Vec<String> = motion
+            .harmonics
+            .iter()
+            .filter(|h| h.flagged)
+            .map(|h| {
+                format!(
+                    "m = {} (the shaft's {}x: {:.3} mrad of motion, raw sensor error {:.3} mrad)",
+                    h.m, h.mechanical_harmonic, h.motion_mrad, h.raw_error_mrad
+                )
+            })
+            .collect();
+        motion.warning = Some(format!(
+            "the shaft moves at {} above {:.3} mrad: at one speed the MRAS takes that motion \
+             for sensor error (docs/theory.md §9); a corrected angle there is not claimed",
+            harmonics.join(", "),
+            motion.threshold_mrad
+        ));
+        if leave_m12 {
+            let dropped: Vec<PathKind> = flagged
+                .iter()
+                .filter_map(|&m| mras::survey::path_for(m))
+                .collect();
+            let kept: Vec<PathKind> = cfg
+                .paths()
+                .iter()
+                .copied()
+                .filter(|p| !dropped.contains(p))
+                .collect();
+            cfg.set_paths(&kept).map_err(locate)?;
+            // The eigenvalues again, for the bank's new lowest harmonic.
+            cfg.observer = file.config.observer;
+            observer = observer_eigenvalues(&file, &mut cfg, &front, r, period_s)?;
+            motion.action = Some(format!(
+                "m = {flagged:?} left out of the bank ({}): corrected there only by {}, \
+                 not fitted to the motion",
+                dropped
+                    .iter()
+                    .map(|p| path_toml_name(*p))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                if estimated {
+                    "the front end's ellipse fit (offsets, amplitude ratio, quadrature: the \
+                     vector's shape, which the motion does not change)"
+                } else {
+                    "the [input] scaling"
+                }
+            ));
+        } else {
+            motion.action = Some(
+                "none: `paths` in the config file are used as given (leave `offset` and \
+                 `amplitude-quadrature` out to keep m = 1, 2 from being fitted to the motion)"
+                    .into(),
+            );
+        }
+    }
+    cfg.validate().map_err(locate)?;
     Ok(Setup {
         cfg,
         front,
-        estimated,
+        raw_front,
+        scaling_source,
         observer,
         survey,
+        sensor_periods: n_report,
+        bank,
+        motion,
     })
 }
 
@@ -672,12 +983,14 @@ impl FaultCounts {
 
 #[derive(Serialize)]
 struct InputScalingReport {
-    /// "config" or "estimated from min/max".
+    /// "config", "estimated from min/max" or "ellipse fit".
     source: &'static str,
     offset_x: f32,
     offset_y: f32,
     gain_x: f32,
     gain_y: f32,
+    /// y += skew·x after scaling (the ellipse fit's quadrature; 0 otherwise).
+    skew: f32,
 }
 
 #[derive(Serialize)]
@@ -700,22 +1013,42 @@ struct ConvergenceReport {
     unseen_paths: Vec<String>,
 }
 
-#[derive(Clone, Copy, Serialize)]
+/// Spatial harmonics m of θrm the error is broken down into (m = 1..16: what a path
+/// reaches with N = 1).
+pub const SPECTRUM_HARMONICS: u32 = 16;
+
+#[derive(Clone, Serialize)]
 pub struct ErrorStats {
     pub pk_pk_rad: f64,
     pub rms_rad: f64,
     pub pk_pk_mrad: f64,
     pub rms_mrad: f64,
+    /// RMS of the spatial harmonics m = 1, 2 of θrm (where, on one speed, a shaft's
+    /// once- and twice-per-revolution motion and the sensor's error coincide) and of
+    /// m = 3..16, from `harmonics_mrad` (√(Σ a²/2)).
+    pub rms_m1_2_mrad: f64,
+    pub rms_m3_16_mrad: f64,
+    /// Amplitude of each spatial harmonic m = 1..16 of θrm (index m - 1).
+    pub harmonics_mrad: Vec<f64>,
 }
 
 impl ErrorStats {
     fn of<const B: usize>(e: &SpatialError<B>) -> Self {
         let (pp, rms) = (e.pk_pk_rad(), e.rms_rad());
+        let harmonics_mrad: Vec<f64> = (1..=SPECTRUM_HARMONICS)
+            .map(|m| e.harmonic_amplitude_rad(m) * 1e3)
+            .collect();
+        let band = |ms: std::ops::Range<usize>| {
+            (harmonics_mrad[ms].iter().map(|a| 0.5 * a * a).sum::<f64>()).sqrt()
+        };
         Self {
             pk_pk_rad: pp,
             rms_rad: rms,
             pk_pk_mrad: pp * 1e3,
             rms_mrad: rms * 1e3,
+            rms_m1_2_mrad: band(0..2),
+            rms_m3_16_mrad: band(2..SPECTRUM_HARMONICS as usize),
+            harmonics_mrad,
         }
     }
 }
@@ -744,10 +1077,16 @@ struct Report {
     rows: usize,
     sample_period_s: f32,
     sensor_periods: u16,
+    /// Where N came from.
+    sensor_periods_source: SensorPeriodsReport,
     paths: Vec<String>,
+    /// Where the paths came from.
+    bank: BankReport,
     input_scaling: InputScalingReport,
+    /// The shaft's motion at the sensor's m = 1, 2 (from theta_rad) and what replay did.
+    motion: MotionReport,
     observer: ObserverReport,
-    /// With --paths-from-data: the error spectrum the bank was chosen from.
+    /// With the bank from the data: the error spectrum it was chosen from.
     #[serde(skip_serializing_if = "Option::is_none")]
     survey: Option<SurveyReport>,
     faults: FaultCounts,
@@ -800,6 +1139,7 @@ fn spatial_error(
         hat.add(r.theta_rad[k], wrap_pi(hat_e(k) - hat_c));
     }
     let (raw_s, hat_s) = (ErrorStats::of(&raw), ErrorStats::of(&hat));
+    let reduction = raw_s.pk_pk_rad / hat_s.pk_pk_rad;
     SpatialErrorReport {
         method: format!(
             "second half of the file (rows {}..{}, after commissioning); error vs theta_rad \
@@ -814,7 +1154,7 @@ fn spatial_error(
         filled_bins: hat.filled_bins(),
         raw: raw_s,
         corrected: hat_s,
-        reduction: raw_s.pk_pk_rad / hat_s.pk_pk_rad,
+        reduction,
     }
 }
 
@@ -852,9 +1192,13 @@ pub fn run(a: &Args) -> Result<()> {
     let Setup {
         cfg,
         front,
-        estimated,
+        raw_front,
+        scaling_source,
         observer,
         survey,
+        sensor_periods,
+        bank,
+        motion,
     } = build_config(a, &rec, period_s)?;
     let mut tracker = Tracker::new(cfg)?;
     let paths: Vec<PathKind> = cfg.paths().to_vec();
@@ -925,7 +1269,7 @@ pub fn run(a: &Args) -> Result<()> {
         .with_context(|| out_name.clone())?;
 
     let spatial =
-        has_theta.then(|| spatial_error(&rec, &cfg, &front, window, &theta_hat_rad, &accepted));
+        has_theta.then(|| spatial_error(&rec, &cfg, &raw_front, window, &theta_hat_rad, &accepted));
     let conv = tracker.convergence();
     let coefs = tracker.coefficients();
     let n_paths = paths.len();
@@ -936,18 +1280,18 @@ pub fn run(a: &Args) -> Result<()> {
         rows,
         sample_period_s: cfg.sample_period_s,
         sensor_periods: cfg.sensor_periods,
+        sensor_periods_source: sensor_periods,
         paths: paths.iter().map(|p| path_toml_name(*p)).collect(),
+        bank,
         input_scaling: InputScalingReport {
-            source: if estimated {
-                "estimated from min/max"
-            } else {
-                "config"
-            },
+            source: scaling_source,
             offset_x: front.offset_x,
             offset_y: front.offset_y,
             gain_x: front.gain_x,
             gain_y: front.gain_y,
+            skew: front.skew,
         },
+        motion,
         observer,
         survey,
         faults,
@@ -1002,6 +1346,23 @@ pub fn run(a: &Args) -> Result<()> {
     Ok(())
 }
 
+/// The motion check in one line, when nothing was flagged.
+fn motion_line(m: &MotionReport) -> String {
+    if m.harmonics.is_empty() {
+        return format!("not checked ({})", m.method);
+    }
+    let each: Vec<String> = m
+        .harmonics
+        .iter()
+        .map(|h| format!("m = {}: {:.4} mrad", h.m, h.motion_mrad))
+        .collect();
+    format!(
+        "{} (below {:.4} mrad: none the MRAS would take for sensor error)",
+        each.join(", "),
+        m.threshold_mrad
+    )
+}
+
 fn print_summary(a: &Args, r: &Report, period_s: f64) {
     println!("hil-sim replay: {} -> {}", r.input, r.output);
     println!(
@@ -1011,10 +1372,23 @@ fn print_summary(a: &Args, r: &Report, period_s: f64) {
         1.0 / period_s,
         r.sensor_periods
     );
+    println!(
+        "  N = {} ({}): {}",
+        r.sensor_periods, r.sensor_periods_source.source, r.sensor_periods_source.reason
+    );
     let s = &r.input_scaling;
     println!(
-        "  input scaling ({}): x = (raw - {}) * {}, y = (raw - {}) * {}",
-        s.source, s.offset_x, s.gain_x, s.offset_y, s.gain_y
+        "  input scaling ({}): x = (raw - {}) * {}, y = (raw - {}) * {}{}",
+        s.source,
+        s.offset_x,
+        s.gain_x,
+        s.offset_y,
+        s.gain_y,
+        if s.skew != 0.0 {
+            format!(" + {} * x", s.skew)
+        } else {
+            String::new()
+        }
     );
     let o = &r.observer;
     println!(
@@ -1031,7 +1405,18 @@ fn print_summary(a: &Args, r: &Report, period_s: f64) {
                 ", lowest error harmonic {f:.3} Hz"
             ))
     );
-    println!("  paths: {}", r.paths.join(", "));
+    println!(
+        "  paths ({}: {}): {}",
+        r.bank.source,
+        r.bank.reason,
+        r.paths.join(", ")
+    );
+    if let Some(w) = &r.motion.warning {
+        println!("  WARNING: {w}");
+        if let Some(act) = &r.motion.action {
+            println!("    action: {act}");
+        }
+    }
     if let Some(s) = &r.survey {
         let spectrum: Vec<String> = s.error_mrad.iter().map(|e| format!("{e:.3}")).collect();
         println!(
@@ -1056,6 +1441,9 @@ fn print_summary(a: &Args, r: &Report, period_s: f64) {
                  again: the bank is the last round's (a longer recording lets the rounds finish)"
             );
         }
+    }
+    if r.motion.warning.is_none() {
+        println!("  shaft motion at m = 1, 2: {}", motion_line(&r.motion));
     }
     println!("  faults: {}", r.faults.summary());
     if let Some(line) = r.first_loss_of_lock_line {
@@ -1090,6 +1478,14 @@ fn print_summary(a: &Args, r: &Report, period_s: f64) {
             println!(
                 "    corrected  : {:.4} mrad pk-pk, {:.4} mrad rms  ({:.0}x)",
                 e.corrected.pk_pk_mrad, e.corrected.rms_mrad, e.reduction
+            );
+            println!(
+                "    rms at m = 1, 2: raw {:.3}, corrected {:.4} mrad; at m = 3..16: raw {:.3}, \
+                 corrected {:.4} mrad",
+                e.raw.rms_m1_2_mrad,
+                e.corrected.rms_m1_2_mrad,
+                e.raw.rms_m3_16_mrad,
+                e.corrected.rms_m3_16_mrad
             );
         }
         None => println!(

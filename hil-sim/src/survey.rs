@@ -1,5 +1,5 @@
-//! `replay --paths-from-data`: a first pass over the recording with the core choosing
-//! its bank from the data (`mras::Config::paths_from_data`, `mras::survey`,
+//! `replay`'s bank from the data (its default, `--bank data`): a first pass over the
+//! recording with the core choosing its bank from the data (`mras::Config::paths_from_data`, `mras::survey`,
 //! docs/theory.md section 8), the same code the firmware's commissioning runs; replay
 //! then runs the whole recording with that bank.
 
@@ -68,10 +68,10 @@ pub fn survey(cfg: &Config, front: &FrontEnd, s: &Samples) -> Result<SurveyRepor
         return Ok(r);
     }
     bail!(
-        "--paths-from-data: the first survey did not complete. It needs the offset and C/D \
+        "the bank from the data: the first survey did not complete. It needs the offset and C/D \
          paths to converge (at most {} revolutions at a speed the core adapts at), then \
          {SURVEY_PERIODS} whole sensor periods of one lock: give `paths` in a --config file \
-         instead",
+         or --bank default instead",
         mras::survey::FIRST_STAGE_MAX_REVS
     )
 }

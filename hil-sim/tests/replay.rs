@@ -78,8 +78,10 @@ fn replay_reproduces_the_live_estimate_bit_exactly() {
         )
         .unwrap();
     }
+    // The live tracker ran the core's fixed bank: so does replay (`--bank default`;
+    // without it the bank would come from the data).
     let files = Files::new(&text, Some(IDENTITY_CONFIG));
-    let stdout = files.run(&[]);
+    let stdout = files.run(&["--bank", "default"]);
     assert!(stdout.contains("corrected"), "{stdout}");
 
     let rep = report(&files.report);
@@ -168,11 +170,13 @@ fn default_config_commissions_a_recording_in_adc_counts() {
         )
         .unwrap();
     }
+    // The fixed bank, asked for (without it the bank comes from the data: below).
     let files = Files::new(&text, None);
-    let stdout = files.run(&[]);
+    let stdout = files.run(&["--bank", "default"]);
     let rep = report(&files.report);
     assert_eq!(rep["input_scaling"]["source"], "estimated from min/max");
     assert_eq!(rep["sensor_periods"], 2);
+    assert_eq!(rep["sensor_periods_source"]["source"], "from theta_rad");
     let obs = &rep["observer"];
     assert_eq!(obs["source"], "default", "{stdout}");
     assert_eq!(obs["eigenvalues_hz"], serde_json::json!([100.0, 10.0, 1.0]));
@@ -198,10 +202,23 @@ fn default_config_commissions_a_recording_in_adc_counts() {
     }
     let e = &rep["spatial_error"];
     let reduction = e["reduction"].as_f64().unwrap();
-    // Measured: converged, about 3 500x (one common estimated gain keeps the sensor's
-    // equal x/y harmonics equal; see `estimate_scaling`).
+    // Measured: converged, 5 184x (one common estimated gain keeps the sensor's equal
+    // x/y harmonics equal; see `estimate_scaling`).
     assert_eq!(rep["convergence"]["converged"], true, "{stdout}");
     assert!(reduction >= 1000.0, "{stdout}");
+
+    // No flags: the bank from the data. The recording ends before the survey's second
+    // round: its first round's bank (offset, C/D, h4, h5) gave 3 525x alone; with the
+    // fixed bank's paths joined (the same seven) 5 184x, as the fixed bank.
+    let files = Files::new(&text, None);
+    let stdout = files.run(&[]);
+    let rep = report(&files.report);
+    assert_eq!(rep["bank"]["source"], "data", "{stdout}");
+    assert!(rep["motion"]["warning"].is_null(), "{stdout}");
+    let from_data = rep["spatial_error"]["reduction"].as_f64().unwrap();
+    eprintln!("{stdout}");
+    eprintln!("reduction: default bank {reduction:.0}x, from the data {from_data:.0}x");
+    assert!(from_data >= 1000.0, "{stdout}");
 }
 
 #[test]
@@ -423,8 +440,9 @@ fn a_1_khz_recording_without_config_gets_eigenvalues_chosen_from_it() {
     assert_eq!(rep["convergence"]["converged"], true, "{stdout}");
     let e = &rep["spatial_error"];
     assert!(e["raw"]["pk_pk_mrad"].as_f64().unwrap() > 300.0, "{e}");
-    // Measured: 328 → 0.24 mrad pk-pk, 1 371x (per revolution: 10x from the 5th, 100x
-    // from the 8th, ~1 970x from the 12th). The default is refused at 1 kHz.
+    // Measured: 328 → 0.24 mrad pk-pk, 1 374x, the bank from the data (the survey's
+    // offset, C/D, h4, h5 alone: 1 179x; with the fixed bank's h6..h8 joined, the fixed
+    // bank's seven, as the fixed bank). The default eigenvalues are refused at 1 kHz.
     assert!(reduction(&rep) > 500.0, "{stdout}");
 }
 
@@ -445,8 +463,9 @@ fn a_slow_shaft_at_10_khz_gets_a_slower_observer_than_the_default() {
     );
     eprintln!("{stdout_d}");
     assert_eq!(default["observer"]["source"], "config");
-    // Measured: 3 303x with the chosen set, 4x with the default (its offset path never
-    // adapts: |H| below min_h).
+    // Measured: 2 317x with the chosen set, 4x with the default (its offset path never
+    // adapts: |H| below min_h; the survey does not complete with it either, and the
+    // fixed bank runs, said so in the summary).
     assert!(reduction(&chosen) > 1000.0, "{stdout}");
     assert!(reduction(&default) < 10.0, "{stdout_d}");
     // And it says so: the offset path never saw its error, so nothing converged.
@@ -509,7 +528,8 @@ fn sensor_beyond_the_default_bank() -> SensorModel {
 fn paths_from_the_data_cover_harmonics_the_default_bank_lacks() {
     // Long enough for the survey's rounds: the large m = 3, 4 first, then m = 12.
     let text = sensor_recording(&sensor_beyond_the_default_bank(), 20_000.0, 10.0, 60.0);
-    let (fixed, _) = replay_encoder(&text, None);
+    // (`--paths-from-data` is what no flag does, `--bank data`; still accepted.)
+    let (fixed, _) = replay_encoder_with(&text, None, &["--bank", "default"]);
     let (chosen, stdout) = replay_encoder_with(&text, None, &["--paths-from-data"]);
     eprintln!("{stdout}");
     assert!(fixed.get("survey").is_none());
@@ -520,7 +540,10 @@ fn paths_from_the_data_cover_harmonics_the_default_bank_lacks() {
         .iter()
         .map(|p| p.as_str().unwrap())
         .collect();
-    assert_eq!(chosen["paths"], survey["paths"]);
+    // The survey's bank, and the fixed bank's paths it left out (h6..h8 here) joined.
+    let ran = chosen["paths"].as_array().unwrap();
+    assert!(paths.iter().all(|p| ran.iter().any(|r| r == p)), "{ran:?}");
+    assert!(ran.iter().any(|r| r == "h8"), "{ran:?}");
     assert!(
         paths.contains(&"h10") && paths.contains(&"h13"),
         "{paths:?}"
@@ -553,5 +576,191 @@ fn paths_from_the_data_and_paths_in_the_config_are_refused_together() {
         Some("paths = [\"offset\"]\n"),
         &["--paths-from-data"],
         &["--paths-from-data and `paths`"],
+    );
+}
+
+/// Amplitude (rad) of the shaft's own once- and twice-per-revolution motion in
+/// [`rig_recording`]: 5 mrad each, 10 mrad pk-pk at each harmonic, the size of a rig's
+/// speed ripple (ripple-1rev's rotor moves 8-13 mrad pk-pk at 1x and 2x).
+const RIG_MOTION_RAD: [f64; 2] = [5.0e-3, 5.0e-3];
+
+/// An on-axis Hall-array encoder (N = 1, analog sin/cos) as a user's bench records it:
+/// offsets, amplitude imbalance and quadrature (m = 1, 2) and harmonics m = 3..12 falling
+/// from 3 mrad (ripple-1rev's sensor, h = 14, 15 left out), through a 12-bit converter
+/// with σ = 3·10⁻⁴ of noise, at 1 kHz and 1 rev/s, and a shaft whose angle (the
+/// reference `theta_rad` follows it) carries [`RIG_MOTION_RAD`] at m = 1, 2.
+fn rig_recording(revs: f64) -> String {
+    rig_recording_with(revs, 1.0, 3.0e-4)
+}
+
+fn rig_recording_with(revs: f64, motion_scale: f64, sigma: f64) -> String {
+    use rand::SeedableRng;
+    use rand_distr::Distribution;
+    let deg = std::f64::consts::PI / 180.0;
+    let mut sensor = SensorModel::ideal(1);
+    (sensor.ax, sensor.ay, sensor.bx1, sensor.phi_x1_rad) = (0.004, -0.003, 1.008, 0.15 * deg);
+    for (h, b, phi_deg) in [
+        (-2, 0.0030, 40.0),
+        (5, 0.0025, -70.0),
+        (6, 0.0020, 110.0),
+        (-5, 0.0016, 15.0),
+        (8, 0.0013, -150.0),
+        (9, 0.0011, 60.0),
+        (10, 0.0009, -20.0),
+        (11, 0.0008, 170.0),
+        (12, 0.0006, -100.0),
+        (13, 0.0005, 80.0),
+    ] {
+        sensor.push_harmonic(SensorHarmonic::equal(h, b, phi_deg * deg));
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let noise = rand_distr::Normal::new(0.0, sigma).unwrap();
+    let (rate_hz, speed_rev_s) = (1000.0, 1.0);
+    let lsb = 2.0 * ADC.full_scale / 4096.0;
+    let counts = |v: f64| (ADC.quantise(v) / lsb).round() + 2048.0;
+    let rows = (revs / speed_rev_s * rate_hz).round() as usize;
+    let mut text = String::from("t_s,x,y,theta_rad\n");
+    for k in 0..rows {
+        let t = k as f64 / rate_hz;
+        let smooth = 0.7 + std::f64::consts::TAU * speed_rev_s * t;
+        let th = smooth
+            + motion_scale * RIG_MOTION_RAD[0] * (smooth + 0.3).sin()
+            + motion_scale * RIG_MOTION_RAD[1] * (2.0 * smooth - 1.1).sin();
+        let (x, y) = sensor.vector(th);
+        let (x, y) = (x + noise.sample(&mut rng), y + noise.sample(&mut rng));
+        writeln!(text, "{t},{},{},{th}", counts(x), counts(y)).unwrap();
+    }
+    text
+}
+
+fn band_rms(rep: &serde_json::Value, which: &str, ms: std::ops::RangeInclusive<usize>) -> f64 {
+    let h = rep["spatial_error"][which]["harmonics_mrad"]
+        .as_array()
+        .unwrap();
+    ms.map(|m| 0.5 * h[m - 1].as_f64().unwrap().powi(2))
+        .sum::<f64>()
+        .sqrt()
+}
+
+/// Replay `text` with no flags but the files; its report and stdout.
+fn replay_plain(text: &str) -> (serde_json::Value, String) {
+    let files = Files::new(text, None);
+    let stdout = files.run(&[]);
+    (report(&files.report), stdout)
+}
+
+#[test]
+fn a_rig_recording_with_motion_at_once_and_twice_per_revolution_replays_without_flags() {
+    // Measured (40 revolutions, second half scored), RMS raw → corrected:
+    // * no flags: N = 1 from theta_rad; m = 1, 2 flagged as motion, left out of the bank
+    //   and corrected by the ellipse fit: m = 1, 2 4.48 → 0.42 mrad (what is left is the
+    //   observer's lag on the motion), m = 3..12 3.64 → 0.024 mrad (152x);
+    // * the bank from the data with m = 1, 2 fitted to the motion (`paths` offset, C/D,
+    //   h4..h13): m = 1, 2 4.48 → 5.00 mrad (the motion, worse than raw), m = 3..12
+    //   0.032 mrad (115x);
+    // * `--bank default`: m = 1, 2 flagged as above, 0.42 mrad; m = 3..12 1.30 mrad (h4..h8
+    //   reach m = 3..7 only); the fixed bank with offset and C/D (`paths`): m = 1, 2 5.00
+    //   mrad, m = 3..12 1.09 mrad (3.3x).
+    // Without the motion, the same sensor: m = 3..12 0.003 mrad, m = 1, 2 0.002 mrad.
+    let text = rig_recording(40.0);
+    let (rep, stdout) = replay_plain(&text);
+    eprintln!("{stdout}");
+    assert_eq!(rep["sensor_periods"], 1, "{stdout}");
+    assert_eq!(rep["sensor_periods_source"]["source"], "from theta_rad");
+    assert_eq!(rep["bank"]["source"], "data", "{stdout}");
+    let (raw12, cor12) = (
+        band_rms(&rep, "raw", 1..=2),
+        band_rms(&rep, "corrected", 1..=2),
+    );
+    let (raw3, cor3) = (
+        band_rms(&rep, "raw", 3..=12),
+        band_rms(&rep, "corrected", 3..=12),
+    );
+    eprintln!("m = 1, 2: {raw12:.3} -> {cor12:.3} mrad; m = 3..12: {raw3:.3} -> {cor3:.4} mrad");
+    assert!(raw3 / cor3 >= 30.0, "m = 3..12: {raw3} -> {cor3} mrad");
+    assert!(cor12 <= raw12, "m = 1, 2: {raw12} -> {cor12} mrad");
+    // The warning, in the report and the summary, naming both harmonics.
+    let motion = &rep["motion"];
+    let warning = motion["warning"].as_str().expect("motion warning");
+    assert!(
+        warning.contains("m = 1") && warning.contains("m = 2"),
+        "{warning}"
+    );
+    assert!(stdout.contains("WARNING: the shaft moves"), "{stdout}");
+    for h in motion["harmonics"].as_array().unwrap() {
+        assert_eq!(h["flagged"], true, "{h}");
+        let mrad = h["motion_mrad"].as_f64().unwrap();
+        assert!((mrad - 5.0).abs() < 0.1, "{h}");
+    }
+    let paths = rep["paths"].as_array().unwrap();
+    assert!(
+        !paths
+            .iter()
+            .any(|p| p == "offset" || p == "amplitude-quadrature"),
+        "{paths:?}"
+    );
+    assert_eq!(rep["input_scaling"]["source"], "ellipse fit");
+
+    // The fixed bank on request: m = 1, 2 still left out (fitted to the motion
+    // otherwise), the higher harmonics only as far as h4..h8 reach.
+    let files = Files::new(&text, None);
+    let stdout = files.run(&["--bank", "default"]);
+    let fixed = report(&files.report);
+    assert_eq!(fixed["bank"]["source"], "default", "{stdout}");
+    assert!(fixed.get("survey").is_none());
+    assert!(
+        band_rms(&fixed, "corrected", 3..=12) > 5.0 * cor3,
+        "{stdout}"
+    );
+}
+
+#[test]
+fn without_motion_the_rig_sensor_keeps_its_m_1_2_paths() {
+    // The same sensor on a shaft turning evenly: nothing flagged, the bank from the data
+    // with offset and C/D. Measured: m = 1, 2 4.52 → 0.002 mrad, m = 3..12 3.64 → 0.003.
+    let (rep, stdout) = replay_plain(&rig_recording_with(40.0, 0.0, 3.0e-4));
+    assert!(rep["motion"]["warning"].is_null(), "{stdout}");
+    assert_eq!(rep["motion"]["harmonics"][0]["flagged"], false);
+    let paths = rep["paths"].as_array().unwrap();
+    assert!(paths.iter().any(|p| p == "offset"), "{paths:?}");
+    assert_eq!(rep["input_scaling"]["source"], "estimated from min/max");
+    let (raw12, cor12) = (
+        band_rms(&rep, "raw", 1..=2),
+        band_rms(&rep, "corrected", 1..=2),
+    );
+    let (raw3, cor3) = (
+        band_rms(&rep, "raw", 3..=12),
+        band_rms(&rep, "corrected", 3..=12),
+    );
+    assert!(raw12 / cor12 > 100.0, "{stdout}");
+    assert!(raw3 / cor3 > 300.0, "{stdout}");
+}
+
+#[test]
+fn sensor_periods_are_read_from_the_reference_or_refused() {
+    // N = 2 (the extreme sensor) on a reference in degrees: 2π/360 the travel, refused
+    // with the figures named.
+    let mut sensor = SensorModel::extreme();
+    sensor.sensor_periods = 3;
+    let text = sensor_recording(&sensor, 20_000.0, 10.0, 4.0);
+    let (rep, stdout) = replay_plain(&text);
+    assert_eq!(rep["sensor_periods"], 3, "{stdout}");
+    assert!(stdout.contains("N = 3 (from theta_rad)"), "{stdout}");
+    // The flag overrides.
+    let files = Files::new(&text, None);
+    let _ = files.run(&["--sensor-periods", "2", "--bank", "default"]);
+    let rep = report(&files.report);
+    assert_eq!(rep["sensor_periods_source"]["source"], "--sensor-periods");
+    // A reference in degrees: refused, naming the column.
+    let mut deg = String::from("t_s,x,y,theta_rad\n");
+    for line in text.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let th: f64 = f[3].parse().unwrap();
+        writeln!(deg, "{},{},{},{}", f[0], f[1], f[2], th.to_degrees()).unwrap();
+    }
+    assert_refused(
+        &deg,
+        None,
+        &["IN.csv", "column `theta_rad`", "--sensor-periods"],
     );
 }
