@@ -127,6 +127,11 @@ pub const MOTION_HARMONICS: usize = 16;
 /// is below what the correction resolves anyway.
 pub const MOTION_SHARE: f64 = 0.01;
 
+/// Largest deviation of one revolution's duration from their mean for the motion check
+/// (fraction): a ripple of 10 mrad at 1x and 2x leaves it unchanged; a ramp or a speed
+/// step does not.
+const MAX_SPEED_SPREAD: f64 = 0.02;
+
 /// One sensor harmonic m = 1, 2 of θs (mechanical harmonic N·m) and the shaft's motion
 /// there.
 #[derive(Clone, Debug, Serialize)]
@@ -230,6 +235,41 @@ pub fn shaft_motion(
         .map_or(th.len(), |i| i + 1);
     th.truncate(len);
     let t: Vec<f64> = t_s[start..start + len].to_vec();
+    // One speed: the time each whole revolution takes (the motion at harmonics of the
+    // revolution leaves it unchanged) within MAX_SPEED_SPREAD of their mean. A shaft
+    // changing speed is not the case this check is for: its motion is not periodic in
+    // the angle, and its deviation from one constant speed is not a ripple.
+    let sign = travel.signum();
+    let mut rev_s = Vec::new();
+    let (mut next, mut last_t) = (1.0, t[0]);
+    for k in 1..len {
+        let level = th[0] + sign * next * TAU;
+        if (th[k] - level) * sign >= 0.0 {
+            // Linear interpolation of the crossing.
+            let f = (level - th[k - 1]) / (th[k] - th[k - 1]);
+            let tc = t[k - 1] + f * (t[k] - t[k - 1]);
+            rev_s.push(tc - last_t);
+            last_t = tc;
+            next += 1.0;
+        }
+    }
+    if rev_s.len() >= 2 {
+        let mean = rev_s.iter().sum::<f64>() / rev_s.len() as f64;
+        let spread = rev_s
+            .iter()
+            .map(|d| (d / mean - 1.0).abs())
+            .fold(0.0, f64::max);
+        if spread > MAX_SPEED_SPREAD {
+            return Some(MotionReport::not_measured(format!(
+                "the shaft's speed over the second half is not one speed (its revolutions \
+                 take {:.4}..{:.4} s, ±{:.1} % of their mean, more than ±{:.0} %): not checked",
+                rev_s.iter().copied().fold(f64::INFINITY, f64::min),
+                rev_s.iter().copied().fold(0.0, f64::max),
+                spread * 100.0,
+                MAX_SPEED_SPREAD * 100.0
+            )));
+        }
+    }
     // Least-squares line θ = a + b·t.
     let n = len as f64;
     let (tm, am) = (t.iter().sum::<f64>() / n, th.iter().sum::<f64>() / n);
@@ -339,6 +379,13 @@ mod tests {
             "{m:?}"
         );
         assert_eq!(rep.flagged(), [1, 2]);
+        // A shaft speeding up: not one speed, not checked.
+        let ramp: Vec<f64> = t.iter().map(|t| TAU * (t + 0.05 * t * t)).collect();
+        let rep = shaft_motion(&ramp, &t, 0..rows, 1, |_| 0.0).unwrap();
+        assert!(
+            rep.harmonics.is_empty() && rep.method.contains("not one speed"),
+            "{rep:?}"
+        );
         // N = 2: the sensor's m = 1, 2 are the shaft's 2x and 4x.
         let rep = shaft_motion(&theta, &t, 0..rows, 2, |k| 3e-3 * (4.0 * theta[k]).sin()).unwrap();
         assert_eq!(rep.flagged(), [1]);
