@@ -28,7 +28,8 @@ use std::path::{Path, PathBuf};
 pub struct Args {
     /// Recorded CSV with a header; columns by name, any order: t_s (strictly increasing,
     /// fixed period), x, y (raw sensor units), optional torque_nm (feedforward, 0 when
-    /// absent) and theta_rad (reference mechanical angle, for scoring). Others are ignored.
+    /// absent) and theta_rad (reference mechanical angle: for scoring, for N and for the
+    /// check of the shaft's motion at the sensor's m = 1, 2). Others are ignored.
     #[arg(long)]
     pub input: PathBuf,
     /// Estimates, one row per input row: t_s, theta_hat_rad (unwrapped),
@@ -48,8 +49,9 @@ pub struct Args {
     /// report say which.
     #[arg(long)]
     pub sensor_periods: Option<u16>,
-    /// Also write a JSON report: faults, final coefficients, convergence, input scaling,
-    /// the observer's eigenvalues and, with theta_rad, the raw and corrected spatial error.
+    /// Also write a JSON report: where N, the bank, the input scaling and the observer's
+    /// eigenvalues came from, the motion check, faults, final coefficients, convergence
+    /// and, with theta_rad, the raw and corrected spatial error and its harmonics.
     #[arg(long)]
     pub report: Option<PathBuf>,
     /// The path bank when --config gives no `paths` (which always win): `data` (the
@@ -761,9 +763,17 @@ fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<Setup> {
         "config"
     };
     let leave_m12 = !flagged.is_empty() && !from_config;
+    // Without the fit (a recording it cannot fit), m = 1, 2 are left to the min/max
+    // scaling, said so in the action.
+    let mut fit_note = String::new();
     if leave_m12 && estimated {
-        front = ellipse_front_end(r, &front)?;
-        scaling_source = "ellipse fit";
+        match ellipse_front_end(r, &front) {
+            Ok(f) => {
+                front = f;
+                scaling_source = "ellipse fit";
+            }
+            Err(e) => fit_note = format!(" (no ellipse fit: {e:#})"),
+        }
     }
 
     let (bank, survey) = if from_config {
@@ -877,21 +887,25 @@ fn build_config(a: &Args, r: &Recording, period_s: f64) -> Result<Setup> {
             // The eigenvalues again, for the bank's new lowest harmonic.
             cfg.observer = file.config.observer;
             observer = observer_eigenvalues(&file, &mut cfg, &front, r, period_s)?;
-            motion.action = Some(format!(
-                "m = {flagged:?} left out of the bank ({}): corrected there only by {}, \
+            motion.action = Some(
+                format!(
+                    "m = {flagged:?} left out of the bank ({}): corrected there only by {}, \
                  not fitted to the motion",
-                dropped
-                    .iter()
-                    .map(|p| path_toml_name(*p))
-                    .collect::<Vec<_>>()
-                    .join(", "),
-                if estimated {
-                    "the front end's ellipse fit (offsets, amplitude ratio, quadrature: the \
+                    dropped
+                        .iter()
+                        .map(|p| path_toml_name(*p))
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                    if scaling_source == "ellipse fit" {
+                        "the front end's ellipse fit (offsets, amplitude ratio, quadrature: the \
                      vector's shape, which the motion does not change)"
-                } else {
-                    "the [input] scaling"
-                }
-            ));
+                    } else if estimated {
+                        "the min/max scaling"
+                    } else {
+                        "the [input] scaling"
+                    },
+                ) + &fit_note,
+            );
         } else {
             motion.action = Some(
                 "none: `paths` in the config file are used as given (leave `offset` and \
