@@ -97,8 +97,9 @@ cargo xtask <command>
                 period, an interrupt, masked stretch or adaptation-task run over
                 budget)
   ripple-elf    the torque-ripple learner on the release firmware: cross-builds the
-                N = 1 sensor build with Run at 1 rev/s (features sensor-n1, slow-run)
-                with and without the learner (learn-ripple) into target/ripple-elf/,
+                N = 1 sensor build with Run at 1 rev/s and 5 rev/s (features
+                sensor-n1, slow-run or run-5rev) with and without the learner
+                (learn-ripple) into target/ripple-elf/,
                 commissions each on the emulator on ripple-1rev's rig and sensor and
                 scores its Run at the plant (θ̂ against the rotor by harmonic, the
                 rotor's motion); regenerates docs/figures/ripple-elf.md and the pages
@@ -477,9 +478,10 @@ fn perf(report: Option<&Path>) -> Result<()> {
     run(c)
 }
 
-/// The builds `ripple-elf` measures: (label, cargo features, ELF name). Both hold Run
-/// at 1 rev/s with an N = 1 sensor; the second with the torque-ripple learner on.
-const RIPPLE_ELF_BUILDS: [(&str, &[&str], &str); 2] = [
+/// The builds `ripple-elf` measures: (label, cargo features, ELF name). All with an
+/// N = 1 sensor, Run at 1 rev/s and at 5 rev/s (where the release observer shows the
+/// learner's harmonics), each without and with the torque-ripple learner.
+const RIPPLE_ELF_BUILDS: [(&str, &[&str], &str); 4] = [
     (
         "`sensor-n1`, `slow-run`",
         &["--features", "sensor-n1,slow-run"],
@@ -489,6 +491,16 @@ const RIPPLE_ELF_BUILDS: [(&str, &[&str], &str); 2] = [
         "`sensor-n1`, `slow-run`, `learn-ripple`",
         &["--features", "sensor-n1,slow-run,learn-ripple"],
         "drive-fw-n1-slow-learn",
+    ),
+    (
+        "`sensor-n1`, `run-5rev`",
+        &["--features", "sensor-n1,run-5rev"],
+        "drive-fw-n1-5rev",
+    ),
+    (
+        "`sensor-n1`, `run-5rev`, `learn-ripple`",
+        &["--features", "sensor-n1,run-5rev,learn-ripple"],
+        "drive-fw-n1-5rev-learn",
     ),
 ];
 

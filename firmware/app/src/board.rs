@@ -115,15 +115,31 @@ pub const CURRENT_BANDWIDTH_HZ: f32 = 1000.0;
 /// high-modulation test).
 /// With the feature `slow-run`, 1 rev/s: below half the commissioning speed, where the
 /// drive holds its coefficients and the torque-ripple learner (feature `learn-ripple`)
-/// may run while the speed is steady (`cargo xtask ripple-elf`).
-#[cfg(not(any(feature = "fast-run", feature = "slow-run")))]
+/// may run while the speed is steady (`cargo xtask ripple-elf`); with `run-5rev`,
+/// 5 rev/s: the same, where the observer shows the learner's harmonics above its floor.
+#[cfg(not(any(feature = "fast-run", feature = "slow-run", feature = "run-5rev")))]
 pub const APPLICATION_SPEED_RAD_S: f32 = 10.0 * core::f32::consts::TAU;
-#[cfg(feature = "fast-run")]
+#[cfg(all(
+    feature = "fast-run",
+    not(any(feature = "slow-run", feature = "run-5rev"))
+))]
 pub const APPLICATION_SPEED_RAD_S: f32 = 24.0 * core::f32::consts::TAU;
-#[cfg(all(feature = "slow-run", not(feature = "fast-run")))]
+#[cfg(all(
+    feature = "slow-run",
+    not(any(feature = "fast-run", feature = "run-5rev"))
+))]
 pub const APPLICATION_SPEED_RAD_S: f32 = core::f32::consts::TAU;
-#[cfg(all(feature = "slow-run", feature = "fast-run"))]
-compile_error!("features `slow-run` and `fast-run` each set the Run speed: choose one");
+#[cfg(all(
+    feature = "run-5rev",
+    not(any(feature = "fast-run", feature = "slow-run"))
+))]
+pub const APPLICATION_SPEED_RAD_S: f32 = 5.0 * core::f32::consts::TAU;
+#[cfg(any(
+    all(feature = "fast-run", feature = "slow-run"),
+    all(feature = "fast-run", feature = "run-5rev"),
+    all(feature = "slow-run", feature = "run-5rev")
+))]
+compile_error!("features `fast-run`, `slow-run` and `run-5rev` each set the Run speed: choose one");
 /// Speed loop used during commissioning (PI, double pole).
 pub const SPEED_BANDWIDTH_HZ: f32 = 10.0;
 

@@ -79,9 +79,10 @@ enum Cmd {
         report: Option<PathBuf>,
     },
     /// The torque-ripple learner on the ELF: each build (`LABEL=ELF`, built with
-    /// `sensor-n1` and `slow-run`, with or without `learn-ripple`) commissioned on
-    /// `ripple-1rev`'s rig and N = 1 sensor, then its Run at 1 rev/s scored at the
-    /// plant (ripple_elf.rs): θ̂ against the rotor by harmonic, the rotor's motion.
+    /// `sensor-n1` and a low Run speed, `slow-run` or `run-5rev`, with or without
+    /// `learn-ripple`) commissioned on `ripple-1rev`'s rig and N = 1 sensor, then its
+    /// Run scored at the plant (ripple_elf.rs): θ̂ against the rotor by harmonic, the
+    /// rotor's motion.
     Ripple {
         /// `LABEL=ELF`, once per build.
         #[arg(long = "build", required = true)]
@@ -89,9 +90,9 @@ enum Cmd {
         /// Emulated seconds of Run before the scored window.
         #[arg(long, default_value_t = drive_emu::ripple_elf::PLAN.settle_s)]
         settle_s: f64,
-        /// Whole revolutions scored.
-        #[arg(long, default_value_t = drive_emu::ripple_elf::PLAN.window_revs)]
-        window_revs: u32,
+        /// Emulated seconds scored (the whole revolutions in them).
+        #[arg(long, default_value_t = drive_emu::ripple_elf::PLAN.window_s)]
+        window_s: f64,
         /// Write the table here (docs/figures/ripple-elf.md).
         #[arg(long)]
         report: Option<PathBuf>,
@@ -137,14 +138,11 @@ fn main() -> Result<()> {
         Cmd::Ripple {
             builds,
             settle_s,
-            window_revs,
+            window_s,
             report,
         } => {
             use drive_emu::ripple_elf::{self, Plan};
-            let plan = Plan {
-                settle_s,
-                window_revs,
-            };
+            let plan = Plan { settle_s, window_s };
             let mut runs = Vec::new();
             for b in &builds {
                 let (label, path) = b
