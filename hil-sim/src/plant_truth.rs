@@ -157,6 +157,16 @@ pub struct EstimateScore {
 
 /// A spatial error fitted by harmonics of the rotor angle: (pk-pk, residual rms).
 fn fit_spatial(thetas: &[f64], errors: &[f64], harmonics: u32) -> Result<(f64, f64), ScoreError> {
+    let (pk_pk, rms, _) = fit_spatial_harmonics(thetas, errors, harmonics)?;
+    Ok((pk_pk, rms))
+}
+
+/// [`fit_spatial`] with the amplitude of each fitted harmonic 1..=`harmonics` (rad).
+fn fit_spatial_harmonics(
+    thetas: &[f64],
+    errors: &[f64],
+    harmonics: u32,
+) -> Result<(f64, f64, Vec<f64>), ScoreError> {
     let cols = 1 + 2 * harmonics as usize;
     let a = DMatrix::from_fn(thetas.len(), cols, |r, c| {
         if c == 0 {
@@ -204,7 +214,10 @@ fn fit_spatial(thetas: &[f64], errors: &[f64], harmonics: u32) -> Result<(f64, f
         lo = lo.min(v);
         hi = hi.max(v);
     }
-    Ok((hi - lo, rms))
+    let amplitudes = (1..=harmonics as usize)
+        .map(|m| x[2 * m - 1].hypot(x[2 * m]))
+        .collect();
+    Ok((hi - lo, rms, amplitudes))
 }
 
 /// Within ±π/N, with the constant offset (circular mean over N periods) removed.
@@ -236,6 +249,84 @@ pub fn score_estimates(
     records: &[(u32, f32)],
     harmonics: u32,
 ) -> Result<EstimateScore, ScoreError> {
+    let (thetas, raw, est, estimate_offset_rad) =
+        errors_at_records(log, pwm_hz, probe, records, harmonics)?;
+    let (raw_pk_pk_rad, raw_residual_rms_rad) = fit_spatial(&thetas, &raw, harmonics)?;
+    let (estimate_pk_pk_rad, estimate_residual_rms_rad) = fit_spatial(&thetas, &est, harmonics)?;
+    Ok(EstimateScore {
+        records: records.len(),
+        harmonics,
+        raw_pk_pk_rad,
+        estimate_pk_pk_rad,
+        raw_residual_rms_rad,
+        estimate_residual_rms_rad,
+        estimate_offset_rad,
+    })
+}
+
+/// [`score_estimates`] by harmonic: the amplitude (rad, mechanical) of each harmonic
+/// m = 1..=`harmonics` of the rotor angle in the same fit, for the raw sensor's error
+/// (`.0`) and the estimate's (`.1`), index m - 1. With N = 1 a torque ripple fixed to
+/// the shaft moves the rotor at the same m as the sensor's error harmonics: m = 1, 2
+/// are where the ripple is, m = 3.. where only the sensor's error is.
+pub fn estimate_harmonics_rad(
+    log: &[PeriodTruth],
+    pwm_hz: f64,
+    probe: &Probe,
+    records: &[(u32, f32)],
+    harmonics: u32,
+) -> Result<(Vec<f64>, Vec<f64>), ScoreError> {
+    let (thetas, raw, est, _) = errors_at_records(log, pwm_hz, probe, records, harmonics)?;
+    let (_, _, raw_h) = fit_spatial_harmonics(&thetas, &raw, harmonics)?;
+    let (_, _, est_h) = fit_spatial_harmonics(&thetas, &est, harmonics)?;
+    Ok((raw_h, est_h))
+}
+
+/// The rotor's motion over `periods`: its true angle less a constant-speed fit, binned
+/// over the rotor angle (360 bins): pk-pk of the bin means, and pk-pk (twice the
+/// amplitude) of its harmonics 1 and 2 (rad), as hil-sim's truth spectrum measures it
+/// (`truth_spectrum::TruthSpectrum::motion_*`). Meant for whole revolutions at a steady
+/// speed: the fit is the speed, what is left the ripple a torque ripple makes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MotionRipple {
+    pub pk_pk_rad: f64,
+    pub h1_pk_pk_rad: f64,
+    pub h2_pk_pk_rad: f64,
+    /// Mean speed of the fit (rad/s) and revolutions travelled.
+    pub speed_rad_s: f64,
+    pub revs: f64,
+}
+
+/// [`MotionRipple`] of `periods`; None without any.
+pub fn motion_ripple(periods: &[PeriodTruth]) -> Option<MotionRipple> {
+    let (first, last) = (periods.first()?, periods.last()?);
+    let points = periods.iter().map(|p| (p.truth.t_s, p.truth.theta_rad));
+    let (t_mean, th_mean, slope_rad_s) = crate::baselines::line_fit(points);
+    let mut bins = SpatialError::<360>::new();
+    for p in periods {
+        let motion = p.truth.theta_rad - th_mean - slope_rad_s * (p.truth.t_s - t_mean);
+        bins.add(p.truth.theta_rad, motion);
+    }
+    Some(MotionRipple {
+        pk_pk_rad: bins.pk_pk_rad(),
+        h1_pk_pk_rad: 2.0 * bins.harmonic_amplitude_rad(1),
+        h2_pk_pk_rad: 2.0 * bins.harmonic_amplitude_rad(2),
+        speed_rad_s: slope_rad_s,
+        revs: (last.truth.theta_rad - first.truth.theta_rad).abs() / TAU,
+    })
+}
+
+/// The rotor angle at each record's period and the raw sensor's and the estimate's
+/// error there (each centred), and the estimate's constant offset removed.
+type ErrorsAtRecords = (Vec<f64>, Vec<f64>, Vec<f64>, f64);
+
+fn errors_at_records(
+    log: &[PeriodTruth],
+    pwm_hz: f64,
+    probe: &Probe,
+    records: &[(u32, f32)],
+    harmonics: u32,
+) -> Result<ErrorsAtRecords, ScoreError> {
     let need = 2 * (1 + 2 * harmonics as usize);
     if records.len() < need {
         return Err(ScoreError::TooFew {
@@ -270,17 +361,7 @@ pub fn score_estimates(
     }
     centred(&mut raw, n);
     let estimate_offset_rad = centred(&mut est, n);
-    let (raw_pk_pk_rad, raw_residual_rms_rad) = fit_spatial(&thetas, &raw, harmonics)?;
-    let (estimate_pk_pk_rad, estimate_residual_rms_rad) = fit_spatial(&thetas, &est, harmonics)?;
-    Ok(EstimateScore {
-        records: records.len(),
-        harmonics,
-        raw_pk_pk_rad,
-        estimate_pk_pk_rad,
-        raw_residual_rms_rad,
-        estimate_residual_rms_rad,
-        estimate_offset_rad,
-    })
+    Ok((thetas, raw, est, estimate_offset_rad))
 }
 
 #[cfg(test)]
@@ -382,6 +463,69 @@ mod tests {
         assert!(s.raw_residual_rms_rad < 1e-5, "{s:?}");
         // The offset is 0.7 within ±π/2 (the half-revolution removed).
         assert!((s.estimate_offset_rad - 0.7).abs() < 1e-3, "{s:?}");
+    }
+
+    /// By harmonic: the raw sensor's 20 mrad at m = 2 and 10 mrad at m = 4, the
+    /// estimate's 0.6 mrad at m = 2 and 0.2 mrad at m = 6, nothing elsewhere.
+    #[test]
+    fn estimates_score_their_error_by_harmonic_of_the_rotor_angle() {
+        let mount = Mount {
+            offset_rad: 1.1,
+            reversed: true,
+        };
+        let log = log(3.37, 6.0, mount);
+        let recs = records(&log, 1.0, 0.0);
+        let (raw, est) = estimate_harmonics_rad(&log, PWM_HZ, &probe(mount), &recs, 16).unwrap();
+        assert_eq!((raw.len(), est.len()), (16, 16));
+        for m in 1..=16 {
+            let (want_raw, want_est) = match m {
+                2 => (0.02, 0.6e-3),
+                4 => (0.01, 0.0),
+                6 => (0.0, 0.2e-3),
+                _ => (0.0, 0.0),
+            };
+            let (r, e) = (raw[m - 1], est[m - 1]);
+            assert!(
+                (r - want_raw).abs() < 1e-4,
+                "raw m = {m}: {r} vs {want_raw}"
+            );
+            // θ̂ is stored as f32: 0.2 µrad steps at 2π.
+            assert!((e - want_est).abs() < 5e-6, "θ̂ m = {m}: {e} vs {want_est}");
+        }
+    }
+
+    /// A rotor at a steady speed moved 1 mrad at 1x and 2 mrad at 2x of its angle: 2 and
+    /// 4 mrad pk-pk, whatever the speed's own value.
+    #[test]
+    fn the_motion_ripple_is_the_angle_less_a_constant_speed_fit() {
+        let w = TAU * 1.3;
+        let periods: Vec<PeriodTruth> = (0..(4.0 / 1.3 * PWM_HZ) as usize)
+            .map(|k| {
+                let t = k as f64 / PWM_HZ;
+                let th = w * t + 1e-3 * (w * t).sin() + 2e-3 * (2.0 * w * t + 0.3).cos();
+                PeriodTruth {
+                    truth: Truth {
+                        t_s: t,
+                        theta_rad: th,
+                        omega_rad_s: w,
+                        x: 0.0,
+                        y: 0.0,
+                    },
+                    i_ab: [0.0; 2],
+                    torque_nm: 0.0,
+                    duties: None,
+                }
+            })
+            .collect();
+        let m = motion_ripple(&periods).unwrap();
+        // Over 4 revolutions the constant-speed fit takes a few % of the 1x ripple for
+        // speed (a sine correlates with time over a finite window; truth_spectrum's fit
+        // does the same): within 5 %.
+        assert!((m.h1_pk_pk_rad - 2e-3).abs() < 0.1e-3, "{m:?}");
+        assert!((m.h2_pk_pk_rad - 4e-3).abs() < 0.05e-3, "{m:?}");
+        assert!((m.speed_rad_s / w - 1.0).abs() < 1e-4, "{m:?}");
+        assert!((m.revs - 4.0).abs() < 0.01, "{m:?}");
+        assert!(motion_ripple(&[]).is_none());
     }
 
     #[test]

@@ -48,7 +48,7 @@ struct Generator {
     in_ci: InCi,
 }
 
-const GENERATORS: [Generator; 13] = [
+const GENERATORS: [Generator; 14] = [
     Generator {
         name: "size",
         command: "cargo xtask size",
@@ -140,6 +140,13 @@ const GENERATORS: [Generator; 13] = [
         data: &[],
         in_ci: InCi::No,
     },
+    Generator {
+        name: "ripple-elf",
+        command: "cargo xtask ripple-elf",
+        sections: &["ripple-elf"],
+        data: &[],
+        in_ci: InCi::No,
+    },
 ];
 
 /// The page generated whole, its template and its figure files (the second's names
@@ -212,6 +219,7 @@ fn run_generator(g: &Generator, out: &Path, check: bool) -> Result<()> {
             write(&file("size.md"), &text)
         }
         "perf" => crate::perf(Some(&file("perf.md"))),
+        "ripple-elf" => crate::ripple_elf(Some(&file("ripple-elf.md"))),
         "emu-report" => {
             let (report, details) = (file("emu-report.md"), file("emu-scenarios.md"));
             let report = report.to_str().context("a non-UTF-8 path")?;

@@ -69,7 +69,7 @@ cargo xtask <command>
   docs [GEN..]  every generated figure of the docs: runs the generators (all, or
                 those named: size perf emu-report cycles bench-accuracy scenarios
                 commissioning identification laws core ripple-ci ripple
-                identification-seeds; minutes for all) into
+                identification-seeds ripple-elf; minutes for all) into
                 docs/figures/, then splices them into README.md and docs/*.md
   docs --render splice the pages from the committed figure files only (after a
                 template or prose edit; seconds)
@@ -96,6 +96,14 @@ cargo xtask <command>
                 hil-sim/emu/src/budget.rs (a HardFault, a broken rule, a missed
                 period, an interrupt, masked stretch or adaptation-task run over
                 budget)
+  ripple-elf    the torque-ripple learner on the release firmware: cross-builds the
+                N = 1 sensor build with Run at 1 rev/s and 5 rev/s (features
+                sensor-n1, slow-run or run-5rev) with and without the learner
+                (learn-ripple) into target/ripple-elf/,
+                commissions each on the emulator on ripple-1rev's rig and sensor and
+                scores its Run at the plant (θ̂ against the rotor by harmonic, the
+                rotor's motion); regenerates docs/figures/ripple-elf.md and the pages
+                that show it (minutes; not in CI)
   mutants       deliberately broken firmware (the `mutant-*` features of drive-fw:
                 the correction's sign, the electrical offset, a control interrupt of
                 1.5 periods, a starved update queue), each run on the emulator test
@@ -129,6 +137,7 @@ fn main() -> ExitCode {
             .and_then(|_| mutants::check()),
         Some("emu-report") => docs::generate(&["emu-report"]),
         Some("perf") => docs::generate(&["perf"]),
+        Some("ripple-elf") => docs::generate(&["ripple-elf"]),
         Some("-h" | "--help" | "help") | None => {
             print!("{HELP}");
             Ok(())
@@ -463,6 +472,51 @@ fn perf(report: Option<&Path>) -> Result<()> {
     for (board, b) in &builds {
         c.arg(board).arg(b);
     }
+    if let Some(r) = report {
+        c.arg("--report").arg(r);
+    }
+    run(c)
+}
+
+/// The builds `ripple-elf` measures: (label, cargo features, ELF name). All with an
+/// N = 1 sensor, Run at 1 rev/s and at 5 rev/s (where the release observer shows the
+/// learner's harmonics), each without and with the torque-ripple learner.
+const RIPPLE_ELF_BUILDS: [(&str, &[&str], &str); 4] = [
+    (
+        "`sensor-n1`, `slow-run`",
+        &["--features", "sensor-n1,slow-run"],
+        "drive-fw-n1-slow",
+    ),
+    (
+        "`sensor-n1`, `slow-run`, `learn-ripple`",
+        &["--features", "sensor-n1,slow-run,learn-ripple"],
+        "drive-fw-n1-slow-learn",
+    ),
+    (
+        "`sensor-n1`, `run-5rev`",
+        &["--features", "sensor-n1,run-5rev"],
+        "drive-fw-n1-5rev",
+    ),
+    (
+        "`sensor-n1`, `run-5rev`, `learn-ripple`",
+        &["--features", "sensor-n1,run-5rev,learn-ripple"],
+        "drive-fw-n1-5rev-learn",
+    ),
+];
+
+/// Both builds cross-built aside (and scanned by `isr-check`), the default build
+/// rebuilt after them, then each measured on the emulator's ripple board; `report`
+/// regenerates that document's section.
+fn ripple_elf(report: Option<&Path>) -> Result<()> {
+    setup()?;
+    emu_setup()?;
+    let mut c = emulator("run");
+    c.args(["--", "ripple"]);
+    for (label, features, name) in RIPPLE_ELF_BUILDS {
+        let out = build_aside(features, "ripple-elf", name)?;
+        c.arg("--build").arg(format!("{label}={}", out.display()));
+    }
+    run(cross_build(FIRMWARE))?;
     if let Some(r) = report {
         c.arg("--report").arg(r);
     }

@@ -113,10 +113,33 @@ pub const CURRENT_BANDWIDTH_HZ: f32 = 1000.0;
 /// With the feature `fast-run`, 24 rev/s: a back-EMF of 12.1 V, with the load's current
 /// about 91 % of the linear voltage limit Vdc/√3 at 24 V (the emulator's
 /// high-modulation test).
-#[cfg(not(feature = "fast-run"))]
+/// With the feature `slow-run`, 1 rev/s: below half the commissioning speed, where the
+/// drive holds its coefficients and the torque-ripple learner (feature `learn-ripple`)
+/// may run while the speed is steady (`cargo xtask ripple-elf`); with `run-5rev`,
+/// 5 rev/s: the same, where the observer shows the learner's harmonics above its floor.
+#[cfg(not(any(feature = "fast-run", feature = "slow-run", feature = "run-5rev")))]
 pub const APPLICATION_SPEED_RAD_S: f32 = 10.0 * core::f32::consts::TAU;
-#[cfg(feature = "fast-run")]
+#[cfg(all(
+    feature = "fast-run",
+    not(any(feature = "slow-run", feature = "run-5rev"))
+))]
 pub const APPLICATION_SPEED_RAD_S: f32 = 24.0 * core::f32::consts::TAU;
+#[cfg(all(
+    feature = "slow-run",
+    not(any(feature = "fast-run", feature = "run-5rev"))
+))]
+pub const APPLICATION_SPEED_RAD_S: f32 = core::f32::consts::TAU;
+#[cfg(all(
+    feature = "run-5rev",
+    not(any(feature = "fast-run", feature = "slow-run"))
+))]
+pub const APPLICATION_SPEED_RAD_S: f32 = 5.0 * core::f32::consts::TAU;
+#[cfg(any(
+    all(feature = "fast-run", feature = "slow-run"),
+    all(feature = "fast-run", feature = "run-5rev"),
+    all(feature = "slow-run", feature = "run-5rev")
+))]
+compile_error!("features `fast-run`, `slow-run` and `run-5rev` each set the Run speed: choose one");
 /// Speed loop used during commissioning (PI, double pole).
 pub const SPEED_BANDWIDTH_HZ: f32 = 10.0;
 
@@ -189,6 +212,9 @@ pub fn drive_config() -> Option<drive::control::DriveConfig> {
 pub fn commissioning_params() -> drive::commissioning::Params {
     drive::commissioning::Params {
         align_current_a: 0.2 * I_MAX_A,
+        // The feature turns the learner on; without it the drive's default stands.
+        learn_torque_ripple: cfg!(feature = "learn-ripple")
+            || drive::commissioning::Params::default().learn_torque_ripple,
         ..drive::commissioning::Params::default()
     }
 }

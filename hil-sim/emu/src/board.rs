@@ -150,6 +150,20 @@ impl Board {
         Self::with_sensor_of("ripple-1rev", seed)
     }
 
+    /// `ripple-1rev`'s rig and sensor: its load (J 5x the firmware's nominal, bearing
+    /// friction, the once- and twice-per-revolution torque ripple fixed to the shaft) on
+    /// the `commissioning` motor's windings and this board's inverter, and its N = 1
+    /// sensor, for the firmware built with `sensor-n1` (`ripple_elf`).
+    pub fn ripple_n1(seed: u64) -> anyhow::Result<Self> {
+        let load = Scenario::load("ripple-1rev")?.file.motor.to_params()?;
+        Self::build("ripple-1rev", seed, |m| {
+            m.j_kg_m2 = load.j_kg_m2;
+            m.coulomb_nm = load.coulomb_nm;
+            m.viscous_nm_s_rad = load.viscous_nm_s_rad;
+            m.cogging = load.cogging;
+        })
+    }
+
     /// The `commissioning` scenario's sensor on another motor: the firmware's constants
     /// stay the nominal ones (`board_map::motor`), the plant is `adjust`'s.
     pub fn commissioning_with_motor(

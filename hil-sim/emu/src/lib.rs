@@ -17,6 +17,7 @@ pub mod periph;
 pub mod profile;
 pub mod regfile;
 pub mod regs_g474;
+pub mod ripple_elf;
 pub mod rtt;
 pub mod scenarios;
 pub mod stats;

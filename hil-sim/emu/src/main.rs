@@ -78,6 +78,25 @@ enum Cmd {
         #[arg(long)]
         report: Option<PathBuf>,
     },
+    /// The torque-ripple learner on the ELF: each build (`LABEL=ELF`, built with
+    /// `sensor-n1` and a low Run speed, `slow-run` or `run-5rev`, with or without
+    /// `learn-ripple`) commissioned on `ripple-1rev`'s rig and N = 1 sensor, then its
+    /// Run scored at the plant (ripple_elf.rs): θ̂ against the rotor by harmonic, the
+    /// rotor's motion.
+    Ripple {
+        /// `LABEL=ELF`, once per build.
+        #[arg(long = "build", required = true)]
+        builds: Vec<String>,
+        /// Emulated seconds of Run before the scored window.
+        #[arg(long, default_value_t = drive_emu::ripple_elf::PLAN.settle_s)]
+        settle_s: f64,
+        /// Emulated seconds scored (the whole revolutions in them).
+        #[arg(long, default_value_t = drive_emu::ripple_elf::PLAN.window_s)]
+        window_s: f64,
+        /// Write the table here (docs/figures/ripple-elf.md).
+        #[arg(long)]
+        report: Option<PathBuf>,
+    },
 }
 
 fn read_elf(elf: Option<PathBuf>) -> Result<(PathBuf, Vec<u8>)> {
@@ -116,6 +135,35 @@ fn main() -> Result<()> {
             Ok(())
         }
         Cmd::PowerUp { elf, out } => power_up(elf, out),
+        Cmd::Ripple {
+            builds,
+            settle_s,
+            window_s,
+            report,
+        } => {
+            use drive_emu::ripple_elf::{self, Plan};
+            let plan = Plan { settle_s, window_s };
+            let mut runs = Vec::new();
+            for b in &builds {
+                let (label, path) = b
+                    .rsplit_once('=')
+                    .with_context(|| format!("`--build {b}`: expected LABEL=ELF"))?;
+                let (path, bytes) = read_elf(Some(PathBuf::from(path)))?;
+                eprintln!("drive-emu: ripple {label} ({}) ...", path.display());
+                let r = ripple_elf::run(label, &bytes, plan).with_context(|| label.to_string())?;
+                eprintln!(
+                    "  θ̂ at m = 1, 2: {:.4} / {:.4} mrad; motion 1x / 2x {:.3} / {:.3} mrad pk-pk; {:.1} emulated s in {:.1} s wall",
+                    r.estimate_rad[0] * 1e3,
+                    r.estimate_rad[1] * 1e3,
+                    r.motion.h1_pk_pk_rad * 1e3,
+                    r.motion.h2_pk_pk_rad * 1e3,
+                    r.outcome.emulated_s,
+                    r.outcome.wall_s
+                );
+                runs.push(r);
+            }
+            publish(report, &ripple_elf::report(&runs, plan)?)
+        }
         Cmd::Perf {
             builds,
             n1_builds,

@@ -427,7 +427,7 @@ pub fn violations_of(m: &Machine) -> Vec<String> {
     v
 }
 
-fn finish(
+pub(crate) fn finish(
     name: &str,
     emu: &Emu,
     t0: std::time::Instant,
@@ -519,7 +519,7 @@ fn run_until(
 }
 
 /// Run until the stream shows `state` entered in the current boot.
-fn run_until_state(emu: &mut Emu, state: &str, limit_s: f64) -> Result<f64> {
+pub(crate) fn run_until_state(emu: &mut Emu, state: &str, limit_s: f64) -> Result<f64> {
     run_until(emu, &format!("state `{state}`"), limit_s, |o, b| {
         o.entered(b, state).is_some()
     })
