@@ -21,7 +21,7 @@ use anyhow::anyhow;
 use calib_record::{FlashSlots, RamFlash, RamFlashError, Slot};
 use drive::adaptation::{AdaptReport, AdaptationTask};
 use drive::control::{ControlPeriod, DriveConfig, MotorConfig, Output};
-use drive::handoff::{Queue, HANDOFF_DEPTH, UPDATE_DEPTH};
+use drive::handoff::{PlanQueue, Queue, HANDOFF_DEPTH, UPDATE_DEPTH};
 use drive::motion::{Angle, LoopMode, MotionRef};
 use drive::supervisor::{NamedError, Supervisor};
 use drive::telemetry::{Command, Fault, Install, Line, TelemetrySlot};
@@ -262,6 +262,7 @@ pub struct Rig<T: Trig = F32Trig, const H: usize = HANDOFF_DEPTH, const U: usize
     adaptation: AdaptationTask,
     handoff: Queue<AdaptSample, H>,
     updates: Queue<InjectionUpdate, U>,
+    plans: PlanQueue,
     report: AdaptReport,
     /// The task is pended (a sample was handed over since it last ran).
     adapt_pended: bool,
@@ -290,6 +291,7 @@ impl<T: Trig> Rig<T> {
                 .expect("the control period validated this configuration"),
             handoff: Queue::new(),
             updates: Queue::new(),
+            plans: Queue::new(),
             report: AdaptReport::EMPTY,
             adapt_pended: false,
             adapt_every: 1,
@@ -321,6 +323,7 @@ impl<T: Trig, const H: usize, const U: usize> Rig<T, H, U> {
             adaptation: self.adaptation,
             handoff: Queue::new(),
             updates: Queue::new(),
+            plans: Queue::new(),
             report: self.report,
             adapt_pended: false,
             adapt_every: self.adapt_every,
@@ -407,7 +410,7 @@ impl<T: Trig, const H: usize, const U: usize> Rig<T, H, U> {
                 ..self.last_output
             }
         } else {
-            self.period.apply_due(&mut self.updates);
+            self.period.apply_due(&mut self.updates, &mut self.plans);
             let out = self.period.step(&sample, &self.command);
             self.adapt_pended |= self.period.hand_over(&mut self.handoff);
             if out.supervisor_due {
@@ -420,6 +423,7 @@ impl<T: Trig, const H: usize, const U: usize> Rig<T, H, U> {
                 self.adaptation.run(
                     &mut self.handoff,
                     &mut self.updates,
+                    &mut self.plans,
                     self.mailbox.take(),
                     |r| *report = *r,
                 );

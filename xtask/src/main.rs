@@ -422,7 +422,7 @@ pub(crate) fn other_configs_aside() -> Result<()> {
 /// The firmware builds `perf` measures: (label, cargo features, ELF name, the
 /// `drive-emu perf` option that names the board it runs on: `--n1-build` for the
 /// N = 1 sensor).
-const PERF_BUILDS: [(&str, &[&str], &str, &str); 3] = [
+const PERF_BUILDS: [(&str, &[&str], &str, &str); 4] = [
     ("20 kHz", &[], "drive-fw-20k", "--build"),
     (
         "40 kHz",
@@ -434,6 +434,12 @@ const PERF_BUILDS: [(&str, &[&str], &str, &str); 3] = [
         "20 kHz, N = 1 sensor, bank from the data",
         &["--features", "sensor-n1"],
         "drive-fw-n1",
+        "--n1-build",
+    ),
+    (
+        "40 kHz, N = 1 sensor, bank from the data",
+        &["--features", "sensor-n1,pwm-40khz"],
+        "drive-fw-n1-40k",
         "--n1-build",
     ),
 ];

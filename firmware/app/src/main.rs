@@ -49,12 +49,12 @@ mod app {
     use drive::adaptation::{AdaptReport, AdaptationTask};
     use drive::commissioning::Cause;
     use drive::control::ControlPeriod;
-    use drive::handoff::{HandoffQueue, HANDOFF_DEPTH};
+    use drive::handoff::{HandoffQueue, PlanQueue, HANDOFF_DEPTH, PLAN_DEPTH};
     use drive::motion::MotionRef;
     use drive::supervisor::Supervisor;
     use drive::telemetry::{self, Command, Install, TelemetrySlot};
     use heapless::spsc::{Consumer, Producer, Queue};
-    use mras::{AdaptSample, Front, InjectionUpdate};
+    use mras::{AdaptSample, BankPlan, Front, InjectionUpdate};
     use stm32g4xx_hal::independent_watchdog::IndependentWatchdog;
     use stm32g4xx_hal::stm32::Interrupt;
 
@@ -77,12 +77,14 @@ mod app {
         adcs: Adcs,
         pwm: Pwm,
         period: ControlPeriod<CoreTrig>,
-        /// Accepted samples to `adapt`, and its updates back.
+        /// Accepted samples to `adapt`, and its updates and bank plans back.
         handoff_tx: Producer<'static, AdaptSample, HANDOFF_DEPTH>,
         updates_rx: Consumer<'static, InjectionUpdate, UPDATES>,
+        plans_rx: Consumer<'static, BankPlan, PLAN_DEPTH>,
         adaptation: AdaptationTask,
         handoff_rx: Consumer<'static, AdaptSample, HANDOFF_DEPTH>,
         updates_tx: Producer<'static, InjectionUpdate, UPDATES>,
+        plans_tx: Producer<'static, BankPlan, PLAN_DEPTH>,
         /// The previous control interrupt's cycle count (DWT CYCCNT).
         last_cycles: u32,
         supervisor: Supervisor,
@@ -102,6 +104,7 @@ mod app {
     #[init(local = [
         handoff: HandoffQueue = Queue::new(),
         updates: Queue<InjectionUpdate, UPDATES> = Queue::new(),
+        plans: PlanQueue = Queue::new(),
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
         let mut cp = cx.core;
@@ -119,6 +122,7 @@ mod app {
         };
         let (handoff_tx, handoff_rx) = cx.local.handoff.split();
         let (updates_tx, updates_rx) = cx.local.updates.split();
+        let (plans_tx, plans_rx) = cx.local.plans.split();
         let Some(drive_cfg) = board::drive_config() else {
             defmt::panic!("board sensor scaling out of range (board.rs)")
         };
@@ -183,9 +187,11 @@ mod app {
                 period,
                 handoff_tx,
                 updates_rx,
+                plans_rx,
                 adaptation,
                 handoff_rx,
                 updates_tx,
+                plans_tx,
                 last_cycles: 0,
                 supervisor,
                 flash: hw.flash,
@@ -207,7 +213,7 @@ mod app {
 
     /// The control period: highest priority, bound to the end of the injected sequence.
     #[task(binds = ADC1_2, priority = 3,
-           local = [adcs, pwm, period, last_cycles, handoff_tx, updates_rx],
+           local = [adcs, pwm, period, last_cycles, handoff_tx, updates_rx, plans_rx],
            shared = [command, telemetry])]
     fn control(mut cx: control::Context) {
         let t0 = DWT::cycle_count();
@@ -216,7 +222,7 @@ mod app {
         sample.overcurrent = l.pwm.break_active();
         sample.cycles = *l.last_cycles;
         let command = cx.shared.command.lock(|c| *c);
-        l.period.apply_due(l.updates_rx);
+        l.period.apply_due(l.updates_rx, l.plans_rx);
         let out = l.period.step(&sample, &command);
         l.pwm.apply(&out);
         if l.period.hand_over(l.handoff_tx) {
@@ -238,15 +244,16 @@ mod app {
 
     /// The MRAS adaptation on every sample `control` handed over (USART3's vector, which
     /// no peripheral raises here, pended by `control`).
-    #[task(binds = USART3, priority = 2, local = [adaptation, handoff_rx, updates_tx],
+    #[task(binds = USART3, priority = 2, local = [adaptation, handoff_rx, updates_tx, plans_tx],
            shared = [mailbox, report])]
     fn adapt(mut cx: adapt::Context) {
         let l = cx.local;
         let install = cx.shared.mailbox.lock(Option::take);
         let mut report = cx.shared.report;
-        l.adaptation.run(l.handoff_rx, l.updates_tx, install, |r| {
-            report.lock(|x| *x = *r)
-        });
+        l.adaptation
+            .run(l.handoff_rx, l.updates_tx, l.plans_tx, install, |r| {
+                report.lock(|x| *x = *r)
+            });
     }
 
     /// Commissioning, calibration flash, watchdog and the stream (1 kHz).

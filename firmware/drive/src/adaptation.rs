@@ -21,7 +21,7 @@
 use crate::handoff::Sender;
 use crate::telemetry::{Install, InstallAck, Snapshot, Telemetry};
 use mras::{
-    AdaptSample, Adapter, Bank, Change, Coefficients, ConfigError, Cplx, InjectionUpdate,
+    AdaptSample, Adapter, Bank, BankPlan, Change, Coefficients, ConfigError, Cplx, InjectionUpdate,
     MAX_PATHS, UPDATE_LATENCY_PERIODS,
 };
 
@@ -107,11 +107,20 @@ impl AdaptationTask {
         Ok(a)
     }
 
-    /// One handed-over sample; its update, if one is due, goes to `updates`.
-    pub fn step(&mut self, s: &AdaptSample, updates: &mut impl Sender<InjectionUpdate>) {
+    /// One handed-over sample; its update, if one is due, goes to `updates`, and a new
+    /// bank's plan to `plans` ahead of it.
+    pub fn step(
+        &mut self,
+        s: &AdaptSample,
+        updates: &mut impl Sender<InjectionUpdate>,
+        plans: &mut impl Sender<BankPlan>,
+    ) {
         self.last_index = s.index;
         let (_, update) = self.adapter.step(s);
         if let Some(u) = update {
+            if matches!(u.change, Change::Bank(_)) {
+                self.send_plan(plans);
+            }
             self.send(u, updates);
         }
         if s.has(AdaptSample::REPORT) {
@@ -123,7 +132,12 @@ impl AdaptationTask {
     /// every path's term go to the control period through `updates`, in force with the
     /// update of the last sample adapted on (after every update already queued, whose
     /// order is their due order; on time if the task is).
-    pub fn install(&mut self, i: &Install, updates: &mut impl Sender<InjectionUpdate>) {
+    pub fn install(
+        &mut self,
+        i: &Install,
+        updates: &mut impl Sender<InjectionUpdate>,
+        plans: &mut impl Sender<BankPlan>,
+    ) {
         let before = Bank::new(self.adapter.config().paths());
         let accepted = self.adapter.set_coefficients(&i.coefficients).is_ok();
         if accepted {
@@ -132,6 +146,7 @@ impl AdaptationTask {
             // bank first (the front follows the adapter's every change), then every term.
             let bank = Bank::new(self.adapter.config().paths());
             if bank != before {
+                self.send_plan(plans);
                 let change = Change::Bank(bank.into());
                 self.send(InjectionUpdate { apply_at, change }, updates);
             }
@@ -148,6 +163,14 @@ impl AdaptationTask {
             accepted,
         });
         self.measure();
+    }
+
+    /// The plan of the bank the adapter just changed to, if it made one. A plan the
+    /// queue cannot take is dropped: the control period then works the bank out itself.
+    fn send_plan(&mut self, plans: &mut impl Sender<BankPlan>) {
+        if let Some(p) = self.adapter.take_plan() {
+            let _ = plans.send(p);
+        }
     }
 
     /// Queue `u` behind whatever is owed, or owe it.

@@ -25,7 +25,7 @@ use crate::ident::{IdentConfig, IdentStatus, Identifier};
 use crate::motion::{Angle, LoopMode, MotionLoop, MotionRef};
 use crate::ripple::{LearnSample, RippleLearner, RIPPLE_GAIN, RIPPLE_HARMONICS};
 use crate::telemetry::{Command, CycleStats, Fault, MotionConstants, Snapshot};
-use mras::{AdaptSample, ConfigError, Cplx, Estimate, Front, InjectionUpdate, Trig};
+use mras::{AdaptSample, BankPlan, ConfigError, Cplx, Estimate, Front, InjectionUpdate, Trig};
 
 /// The motor as the controller knows it.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -451,9 +451,15 @@ impl<T: Trig> ControlPeriod<T> {
     /// ([`Snapshot::updates_late`]).
     #[inline(always)]
     pub fn apply(&mut self, u: &InjectionUpdate) -> bool {
+        self.apply_planned(u, None)
+    }
+
+    /// [`Self::apply`] with a new bank's plan ([`mras::Front::apply_planned`]).
+    #[inline(always)]
+    pub fn apply_planned(&mut self, u: &InjectionUpdate, plan: Option<&BankPlan>) -> bool {
         // The front's own test (`due_in(coming) <= 0`), strict.
         let late = u.due_in(self.tracker.index().wrapping_add(1)) < 0;
-        let applied = self.tracker.apply(u);
+        let applied = self.tracker.apply_planned(u, plan);
         self.updates_late = self.updates_late.saturating_add((applied && late) as u32);
         applied
     }

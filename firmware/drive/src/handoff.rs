@@ -6,6 +6,10 @@
 //! - Samples, control period → task ([`HandoffQueue`]): [`ControlPeriod::hand_over`]. A
 //!   full queue drops the sample and counts it (`Snapshot::handoffs_dropped`): the task
 //!   starved, its coefficients lag, nothing else.
+//! - Bank plans, task → control period ([`PlanQueue`]): a new bank worked out in the task
+//!   against the one in force ([`mras::BankPlan`]), which the control period takes when
+//!   the bank's update is due, so that putting it in force only moves terms. Without
+//!   its plan the control period works the bank out itself (slower, same result).
 //! - Updates, task → control period ([`UpdateQueue`]): [`ControlPeriod::apply_due`] puts
 //!   them in force when due and counts those applied after the period they were due in
 //!   (`Snapshot::updates_late`: the task missed its deadline). An update the queue cannot
@@ -19,7 +23,7 @@ use crate::adaptation::{AdaptReport, AdaptationTask};
 use crate::control::ControlPeriod;
 use crate::telemetry::Install;
 use heapless::spsc::{Consumer, Producer};
-use mras::{AdaptSample, InjectionUpdate, Trig};
+use mras::{AdaptSample, BankPlan, Change, InjectionUpdate, Trig};
 
 /// The queue type of both directions (re-exported: a host harness uses this one).
 pub use heapless::spsc::Queue;
@@ -32,10 +36,15 @@ pub const HANDOFF_DEPTH: usize = 16;
 /// bank (1 + `MAX_PATHS`), plus the free slot.
 pub const UPDATE_DEPTH: usize = 2 * mras::MAX_PATHS;
 
+/// Bank plans in flight: banks change seconds apart, one at a time (plus the free slot).
+pub const PLAN_DEPTH: usize = 2;
+
 /// Control period → adaptation task.
 pub type HandoffQueue = Queue<AdaptSample, HANDOFF_DEPTH>;
 /// Adaptation task → control period.
 pub type UpdateQueue = Queue<InjectionUpdate, UPDATE_DEPTH>;
+/// Adaptation task → control period: the plan of each new bank.
+pub type PlanQueue = Queue<BankPlan, PLAN_DEPTH>;
 
 /// The producing end of a queue: the firmware's split [`Producer`], or a whole
 /// [`Queue`] where one thread runs both sides (hil-sim).
@@ -88,15 +97,36 @@ impl<T, const N: usize> Receiver<T> for Queue<T, N> {
 
 impl<T: Trig> ControlPeriod<T> {
     /// Before [`ControlPeriod::step`]: put in force, in order, the adaptation's updates
-    /// due by the coming period; the rest stay queued.
+    /// due by the coming period (a new bank with the plan the task sent for it); the
+    /// rest stay queued.
     #[inline(always)]
-    pub fn apply_due(&mut self, updates: &mut impl Receiver<InjectionUpdate>) {
+    pub fn apply_due(
+        &mut self,
+        updates: &mut impl Receiver<InjectionUpdate>,
+        plans: &mut impl Receiver<BankPlan>,
+    ) {
         while let Some(u) = updates.peek() {
-            if !self.apply(u) {
+            let applied = match u.change {
+                Change::Term { .. } => self.apply(u),
+                Change::Bank(_) => self.apply_bank(u, plans),
+            };
+            if !applied {
                 break;
             }
             updates.receive();
         }
+    }
+
+    /// A bank's update: its plan is taken when it is due (a few times per
+    /// commissioning: out of the common path).
+    #[cold]
+    #[inline(never)]
+    fn apply_bank(&mut self, u: &InjectionUpdate, plans: &mut impl Receiver<BankPlan>) -> bool {
+        if u.due_in(self.tracker().index().wrapping_add(1)) > 0 {
+            return false;
+        }
+        let plan = plans.receive();
+        self.apply_planned(u, plan.as_ref())
     }
 
     /// After [`ControlPeriod::step`]: hand this period's sample to the adaptation task,
@@ -117,24 +147,33 @@ impl<T: Trig> ControlPeriod<T> {
 impl AdaptationTask {
     /// One run of the adaptation task: the updates still owed first, then the
     /// coefficients `install` (from the supervisor's mailbox) if any, then every
-    /// handed-over sample in order. `publish` gets the report after an install and after
+    /// handed-over sample in order (during a survey's end, only up to the first of its
+    /// samples). `publish` gets the report after an install and after
     /// each snapshot sample ([`AdaptSample::REPORT`]).
     pub fn run(
         &mut self,
         handoff: &mut impl Receiver<AdaptSample>,
         updates: &mut impl Sender<InjectionUpdate>,
+        plans: &mut impl Sender<BankPlan>,
         install: Option<Install>,
         mut publish: impl FnMut(&AdaptReport),
     ) {
         self.send_owed(updates);
         if let Some(i) = install {
-            self.install(&i, updates);
+            self.install(&i, updates, plans);
             publish(self.report());
         }
         while let Some(s) = handoff.receive() {
-            self.step(&s, updates);
+            let ending_round = self.adapter().ending_round();
+            self.step(&s, updates, plans);
             if s.has(AdaptSample::REPORT) {
                 publish(self.report());
+            }
+            // A survey's end works one step a sample, and one such sample a run: the
+            // samples behind it wait for the next period's run, so that no run spans a
+            // control period (their updates are due a fixed latency after them).
+            if ending_round {
+                break;
             }
         }
     }

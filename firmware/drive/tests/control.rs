@@ -8,11 +8,12 @@ use drive::adaptation::AdaptationTask;
 use drive::adc::ChannelScaling;
 use drive::commissioning::{Adaptation, Setpoint};
 use drive::control::{ControlPeriod, CurrentSensing, DriveConfig, MotorConfig, Sample};
-use drive::handoff::{Queue, Receiver, HANDOFF_DEPTH, UPDATE_DEPTH};
+use drive::handoff::{PlanQueue, Queue, Receiver, HANDOFF_DEPTH, UPDATE_DEPTH};
 use drive::motion::LoopMode;
 use drive::telemetry::{Command, Fault, Install};
 use mras::{
-    AdaptSample, Bank, Change, Coefficients, Config, Cplx, Front, InjectionUpdate, PathKind,
+    AdaptSample, Bank, BankPlan, Change, Coefficients, Config, Cplx, Front, InjectionUpdate,
+    PackedBank, PathKind,
 };
 
 const T: f32 = 50e-6;
@@ -311,6 +312,7 @@ fn installs_are_acknowledged_with_their_generation() {
             coefficients: good,
         },
         &mut queue,
+        &mut PlanQueue::new(),
     );
     let sent = drain(&mut queue);
     let ack = task.report().install.unwrap();
@@ -339,6 +341,7 @@ fn installs_are_acknowledged_with_their_generation() {
             coefficients: other,
         },
         &mut queue,
+        &mut PlanQueue::new(),
     );
     let sent = drain(&mut queue);
     let ack = task.report().install.unwrap();
@@ -375,6 +378,7 @@ fn an_installed_bank_from_the_data_goes_to_the_control_period_first() {
             coefficients: record,
         },
         &mut queue,
+        &mut PlanQueue::new(),
     );
     let sent = drain(&mut queue);
     assert!(task.report().install.unwrap().accepted);
@@ -513,6 +517,7 @@ fn a_late_adaptation_task_shows_as_late_updates_and_dropped_samples() {
         let mut task = AdaptationTask::new(&core).unwrap();
         let mut handoff = Queue::<AdaptSample, HANDOFF_DEPTH>::new();
         let mut updates = Queue::<InjectionUpdate, UPDATE_DEPTH>::new();
+        let mut plans = PlanQueue::new();
         let mut taken = 0usize;
         let periods = 4000u32;
         for k in 1..=periods {
@@ -520,12 +525,12 @@ fn a_late_adaptation_task_shows_as_late_updates_and_dropped_samples() {
                 inner: &mut updates,
                 taken: Vec::new(),
             };
-            p.apply_due(&mut counted);
+            p.apply_due(&mut counted, &mut plans);
             taken += counted.taken.len();
             p.step(&sample(0.05 * k as f32), &running());
             p.hand_over(&mut handoff);
             if k % every == 0 {
-                task.run(&mut handoff, &mut updates, None, |_| {});
+                task.run(&mut handoff, &mut updates, &mut plans, None, |_| {});
             }
         }
         let s = p.snapshot();
@@ -580,6 +585,7 @@ fn a_bank_change_the_queue_cannot_take_goes_first_once_there_is_room() {
     // updates (one per stride, 8 samples with this bank) come late, and at times two at
     // once, which the queue cannot take.
     let mut updates = Queue::<InjectionUpdate, 2>::new();
+    let mut plans = PlanQueue::new();
     let mut taken = Vec::new();
     let (mut installed_at, mut owing) = (None, false);
     for k in 1..=600u32 {
@@ -587,7 +593,7 @@ fn a_bank_change_the_queue_cannot_take_goes_first_once_there_is_room() {
             inner: &mut updates,
             taken: Vec::new(),
         };
-        p.apply_due(&mut counted);
+        p.apply_due(&mut counted, &mut plans);
         taken.extend(counted.taken.iter().map(|u| (k, *u)));
         p.step(&sample(0.05 * k as f32), &Command::OFF);
         p.hand_over(&mut handoff);
@@ -599,7 +605,7 @@ fn a_bank_change_the_queue_cannot_take_goes_first_once_there_is_room() {
                 installed_at = Some(k);
             }
             let before = task.updates_dropped();
-            task.run(&mut handoff, &mut updates, now, |_| {});
+            task.run(&mut handoff, &mut updates, &mut plans, now, |_| {});
             owing = task.updates_dropped() > before;
         }
     }
@@ -712,5 +718,84 @@ fn a_phase_at_high_duty_is_reconstructed_from_the_other_two() {
     assert!(
         (ia - 2.0).abs() < tol && (ib + 1.5).abs() < tol,
         "{ia} {ib} (phase {skip} unread)"
+    );
+}
+
+/// A plan queue that counts what the control period takes from it.
+struct CountedPlans {
+    inner: PlanQueue,
+    taken: Vec<BankPlan>,
+}
+
+impl Receiver<BankPlan> for CountedPlans {
+    fn peek(&self) -> Option<&BankPlan> {
+        self.inner.peek()
+    }
+    fn receive(&mut self) -> Option<BankPlan> {
+        let p = self.inner.receive();
+        self.taken.extend(p);
+        p
+    }
+}
+
+/// A bank from the data, over the firmware's queues: every bank a survey round puts in
+/// force reaches the control period with the plan the task made for it (its bank, made
+/// from the bank then in force), none is left over, and the last is the adapter's.
+#[test]
+fn every_survey_bank_comes_with_its_plan() {
+    let mut core = Config {
+        sample_period_s: T,
+        paths_from_data: true,
+        ..Config::default()
+    };
+    core.set_paths(&mras::survey::FIRST_STAGE).unwrap();
+    let mut p = ControlPeriod::new(config(), Front::new(core).unwrap()).unwrap();
+    let mut task = AdaptationTask::new(&core).unwrap();
+    let mut handoff = Queue::<AdaptSample, HANDOFF_DEPTH>::new();
+    let mut updates = Queue::<InjectionUpdate, UPDATE_DEPTH>::new();
+    let mut plans = CountedPlans {
+        inner: PlanQueue::new(),
+        taken: Vec::new(),
+    };
+    let cmd = Command {
+        adaptation: Adaptation::Commissioning,
+        ..running()
+    };
+    let mut banks = Vec::new();
+    // A sensor with an offset and a third harmonic, for the survey to find.
+    let x = |th: f32| (th + 0.02 * libm::sinf(3.0 * th), 0.03);
+    for k in 1..=40_000u32 {
+        let mut counted = Counted {
+            inner: &mut updates,
+            taken: Vec::new(),
+        };
+        p.apply_due(&mut counted, &mut plans);
+        banks.extend(counted.taken.iter().filter_map(|u| match u.change {
+            Change::Bank(b) => Some(b),
+            _ => None,
+        }));
+        let (th, off) = x(0.05 * k as f32);
+        let mut s = sample(th);
+        s.x = (s.x as f32 + off * AMPLITUDE).round() as u16;
+        p.step(&s, &cmd);
+        p.hand_over(&mut handoff);
+        task.run(&mut handoff, &mut updates, &mut plans.inner, None, |_| {});
+        if !task.adapter().surveying() && !banks.is_empty() && updates.is_empty() {
+            break;
+        }
+    }
+    assert!(
+        !banks.is_empty(),
+        "no survey round grew the bank: {:?} {:?}",
+        task.adapter().convergence(),
+        p.snapshot()
+    );
+    assert!(!task.adapter().surveying());
+    let taken: Vec<_> = plans.taken.iter().map(|p| p.bank()).collect();
+    assert_eq!(taken, banks);
+    assert!(plans.inner.is_empty());
+    assert_eq!(
+        PackedBank::from(Bank::new(task.adapter().config().paths())),
+        *banks.last().unwrap()
     );
 }

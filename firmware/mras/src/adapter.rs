@@ -5,7 +5,7 @@
 
 use crate::coefficients::{CoefficientsError, Convergence};
 use crate::config::{Bank, Config, ConfigError, PathKind};
-use crate::decoupler::{AdaptSample, Change, InjectionUpdate, PathBank};
+use crate::decoupler::{AdaptSample, BankPlan, Change, InjectionUpdate, PackedBank, PathBank};
 use crate::observer::ObserverGains;
 use crate::survey::{
     min_rad_of, next_round, ErrorSpectrum, ErrorSurvey, SurveyOutcome, FIRST_STAGE_MAX_REVS,
@@ -23,6 +23,10 @@ pub struct Adapter {
     first: Bank,
     stage: Stage,
     survey: Option<SurveyOutcome>,
+    /// The last bank change worked out against the bank before it, for the front.
+    plan: Option<BankPlan>,
+    /// A survey round's new bank, built a sample before it is put in force.
+    next: PathBank,
 }
 
 /// Where a bank from the data is ([`Config::paths_from_data`]): rounds of adapting the
@@ -36,6 +40,36 @@ enum Stage {
     Adapt,
     /// Adaptation paused while the spectrum of what is left is measured.
     Survey(ErrorSurvey),
+    /// A survey's end, a step a sample (all at once it took several control periods of
+    /// the task's time), adaptation still paused.
+    EndRound(EndRound),
+}
+
+/// The steps of a survey's end.
+#[derive(Clone, Debug)]
+enum EndRound {
+    /// The spectrum is measured: the next sample chooses the paths.
+    Measured(ErrorSpectrum),
+    /// The bank is chosen (`grown`: it differs from the one in use): the next sample
+    /// makes its plan.
+    Chosen {
+        bank: Bank,
+        complete: bool,
+        grown: bool,
+    },
+    /// The plan is made: the next sample builds the new bank's adaptation.
+    Planned {
+        bank: Bank,
+        complete: bool,
+        grown: bool,
+    },
+    /// The new bank's adaptation is built: the next sample free for an update puts the
+    /// bank in force.
+    Built {
+        bank: Bank,
+        complete: bool,
+        grown: bool,
+    },
 }
 
 impl Adapter {
@@ -45,8 +79,10 @@ impl Adapter {
             cfg.observer.eigenvalues_hz,
             cfg.observer.inertia_kg_m2,
         );
+        let bank = PathBank::new(cfg, &gains);
         Ok(Self {
-            bank: PathBank::new(cfg, &gains),
+            next: bank,
+            bank,
             cfg: *cfg,
             gains,
             first: Bank::new(cfg.paths()),
@@ -56,6 +92,7 @@ impl Adapter {
                 Stage::Complete
             },
             survey: None,
+            plan: None,
         })
     }
 
@@ -85,14 +122,19 @@ impl Adapter {
     fn step_choosing(&mut self, s: &AdaptSample) -> (bool, Option<InjectionUpdate>) {
         let revs = self.bank.revs_adapted;
         // While surveying, residuals are still measured but nothing adapts.
-        let surveying = matches!(self.stage, Stage::Survey(_));
+        let surveying = matches!(self.stage, Stage::Survey(_) | Stage::EndRound(_));
         let flags = s.flags | if surveying { AdaptSample::FROZEN } else { 0 };
         let out = self.bank.step(&AdaptSample { flags, ..*s });
-        if surveying {
-            // At a sample without a term update: one update per sample.
-            if let Some(u) = self.survey_sample(s, out.1.is_none()) {
-                return (false, Some(u));
+        // At a sample without a term update: one update per sample.
+        let free = out.1.is_none();
+        match &self.stage {
+            Stage::Survey(_) => self.survey_sample(s),
+            Stage::EndRound(_) => {
+                if let Some(u) = self.end_round_step(s.index, free) {
+                    return (false, Some(u));
+                }
             }
+            _ => {}
         }
         // Once a revolution: a converged bank ends the round's adaptation.
         if self.bank.revs_adapted != revs
@@ -105,11 +147,11 @@ impl Adapter {
     }
 
     /// One sample of a survey (out of the common path: a few seconds at commissioning);
-    /// the new bank when the survey completes on a sample free for an update.
+    /// at its end the spectrum, the first step of [`EndRound`].
     #[inline(never)]
-    fn survey_sample(&mut self, s: &AdaptSample, free: bool) -> Option<InjectionUpdate> {
+    fn survey_sample(&mut self, s: &AdaptSample) {
         let Stage::Survey(survey) = &mut self.stage else {
-            return None;
+            return;
         };
         if s.has(AdaptSample::LOCKED) && !s.has(AdaptSample::RESTART) {
             let n = self.cfg.sensor_periods as f32;
@@ -118,56 +160,158 @@ impl Adapter {
             // Whole periods of one lock only.
             *survey = ErrorSurvey::default();
         }
-        if !(free && survey.periods() >= SURVEY_PERIODS) {
-            return None;
+        if survey.periods() < SURVEY_PERIODS {
+            return;
         }
-        let spectrum = survey.spectrum(&self.gains)?;
-        self.end_round(&spectrum, s.index)
+        if let Some(spectrum) = survey.spectrum(&self.gains) {
+            self.stage = Stage::EndRound(EndRound::Measured(spectrum));
+        }
     }
 
-    /// A survey is complete: the bank grows by what it found, in force like a path's
-    /// term, and adapts again; or nothing was found (or the bank is full) and the bank is
-    /// complete.
+    /// The next step of a survey's end: the bank grows by what the spectrum shows (its
+    /// plan made), then, on a sample free for an update, it is in force like a path's
+    /// term and adapts again; or nothing was found (or the bank is full) and the bank
+    /// is complete.
     #[inline(never)]
-    fn end_round(&mut self, spectrum: &ErrorSpectrum, index: u32) -> Option<InjectionUpdate> {
-        let outcome = self.survey.get_or_insert(SurveyOutcome {
-            spectrum: *spectrum,
-            min_rad: min_rad_of(spectrum),
-            bank: self.first,
-            unobserved: heapless::Vec::new(),
-            rounds: 0,
-        });
-        let (bank, complete, unobserved) = next_round(spectrum, self.cfg.paths(), outcome.min_rad);
-        outcome.rounds = outcome.rounds.saturating_add(1);
-        outcome.bank = bank;
-        outcome.unobserved = unobserved;
-        let grown = bank.as_slice() != self.cfg.paths();
-        if grown {
-            self.rebank(bank);
-        }
-        self.stage = if complete {
-            Stage::Complete
-        } else {
-            Stage::Adapt
+    fn end_round_step(&mut self, index: u32, free: bool) -> Option<InjectionUpdate> {
+        let Stage::EndRound(step) = &self.stage else {
+            return None;
         };
-        grown.then(|| InjectionUpdate {
-            apply_at: index.wrapping_add(UPDATE_LATENCY_PERIODS),
-            change: Change::Bank(bank.into()),
-        })
+        match step {
+            EndRound::Measured(spectrum) => {
+                let spectrum = *spectrum;
+                let outcome = self.survey.get_or_insert(SurveyOutcome {
+                    spectrum,
+                    min_rad: min_rad_of(&spectrum),
+                    bank: self.first,
+                    unobserved: heapless::Vec::new(),
+                    rounds: 0,
+                });
+                let (bank, complete, unobserved) =
+                    next_round(&spectrum, self.cfg.paths(), outcome.min_rad);
+                outcome.rounds = outcome.rounds.saturating_add(1);
+                outcome.bank = bank;
+                outcome.unobserved = unobserved;
+                let grown = bank.as_slice() != self.cfg.paths();
+                self.stage = Stage::EndRound(EndRound::Chosen {
+                    bank,
+                    complete,
+                    grown,
+                });
+                None
+            }
+            &EndRound::Chosen {
+                bank,
+                complete,
+                grown,
+            } => {
+                if grown {
+                    self.plan = Some(BankPlan::new(self.cfg.paths(), bank.as_slice()));
+                }
+                self.stage = Stage::EndRound(EndRound::Planned {
+                    bank,
+                    complete,
+                    grown,
+                });
+                None
+            }
+            &EndRound::Planned {
+                bank,
+                complete,
+                grown,
+            } => {
+                if grown {
+                    let mut cfg = self.cfg;
+                    // `bank` holds at most MAX_PATHS kinds, so this cannot fail.
+                    let _ = cfg.set_paths(bank.as_slice());
+                    self.next = PathBank::new(&cfg, &self.gains);
+                }
+                self.stage = Stage::EndRound(EndRound::Built {
+                    bank,
+                    complete,
+                    grown,
+                });
+                None
+            }
+            &EndRound::Built {
+                bank,
+                complete,
+                grown,
+            } => {
+                if !free {
+                    return None;
+                }
+                let packed: PackedBank = bank.into();
+                if grown {
+                    self.put_built(bank, packed);
+                }
+                self.stage = if complete {
+                    Stage::Complete
+                } else {
+                    Stage::Adapt
+                };
+                grown.then_some(InjectionUpdate {
+                    apply_at: index.wrapping_add(UPDATE_LATENCY_PERIODS),
+                    change: Change::Bank(packed),
+                })
+            }
+        }
     }
 
     /// Run `bank` from now on (validated by the caller).
     #[inline(never)]
     fn rebank(&mut self, bank: Bank) {
+        self.plan = Some(BankPlan::new(self.cfg.paths(), bank.as_slice()));
+        self.rebank_planned(bank);
+    }
+
+    /// [`Self::rebank`] with its plan made.
+    #[inline(never)]
+    fn rebank_planned(&mut self, bank: Bank) {
+        self.plan_for(bank, bank.into());
         // `bank` holds at most MAX_PATHS kinds, so this cannot fail.
         let _ = self.cfg.set_paths(bank.as_slice());
-        self.bank.rebank(&self.cfg, &self.gains);
+        if let Some(plan) = &self.plan {
+            self.bank.rebank(&self.cfg, &self.gains, plan);
+        }
+    }
+
+    /// A survey round's bank (`packed`, the same) in force: the one built in
+    /// [`Self::next`] takes over what the bank in use carries.
+    #[inline(never)]
+    fn put_built(&mut self, bank: Bank, packed: PackedBank) {
+        self.plan_for(bank, packed);
+        let _ = self.cfg.set_paths(bank.as_slice());
+        if let Some(plan) = &self.plan {
+            self.next.carry_from(&self.bank, plan);
+        }
+        self.bank = self.next;
+    }
+
+    /// [`Self::plan`] made for `bank` (`packed`, the same), unless it is.
+    fn plan_for(&mut self, bank: Bank, packed: PackedBank) {
+        if !self.plan.as_ref().is_some_and(|p| p.bank() == packed) {
+            self.plan = Some(BankPlan::new(self.cfg.paths(), bank.as_slice()));
+        }
+    }
+
+    /// The plan of the last bank change this adapter made (a survey's round, or
+    /// coefficients of another bank), for the front that follows it
+    /// ([`crate::Front::apply_planned`]); taken once.
+    pub fn take_plan(&mut self) -> Option<BankPlan> {
+        self.plan.take()
     }
 
     /// What the surveys chose so far (`None` with a fixed bank, before the first survey,
     /// or when the bank came from flash).
     pub fn survey(&self) -> Option<&SurveyOutcome> {
         self.survey.as_ref()
+    }
+
+    /// Whether a survey's end is under way: each of its samples works one of its steps
+    /// (see [`EndRound`]).
+    pub fn ending_round(&self) -> bool {
+        matches!(self.stage, Stage::EndRound(_))
     }
 
     /// Whether a bank from the data is still being chosen.

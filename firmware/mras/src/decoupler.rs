@@ -100,51 +100,51 @@ pub(crate) fn coef_delta(kind: PathKind, g: Cplx, scale: f32) -> Cplx {
 /// one complex multiply-add per order, no table of powers. Each path's term goes to its
 /// order: the offset to `pos[0]`, d_h to `pos[h]` or `neg[|h|]`, and the X-only
 /// `C·cos θ + D·sin θ` to `pos[1] = (C - jD)/2` and `neg[1] = (C + jD)/2`.
+/// Orders above both degrees hold zero.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Injection {
-    kinds: [PathKind; MAX_PATHS],
-    len: usize,
+    layout: Layout,
     /// `coef + coef_p` of each path, as last set.
     coef: [Cplx; MAX_PATHS],
-    /// The path's polynomial coefficients are its alone (the usual case): an update
-    /// writes them instead of summing over the paths (it runs in the control interrupt).
-    alone: [bool; MAX_PATHS],
     pos: Powers,
     neg: Powers,
+}
+
+/// A bank's paths as the polynomials see them: kinds, degrees, and where each path's
+/// term goes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Layout {
+    kinds: [PathKind; MAX_PATHS],
+    len: usize,
+    /// The bank, packed: what a [`BankPlan`] is checked against.
+    packed: PackedBank,
+    /// Where path i's term goes when its polynomial coefficients are its alone (the
+    /// usual case): `pos[s]` for s < 32, `neg[s - 32]` for s < 64, C/D's two for
+    /// [`SLOT_CD`]; [`SLOT_SHARED`] where paths share an order and are summed.
+    slot: [u8; MAX_PATHS],
     pos_degree: usize,
     neg_degree: usize,
 }
 
-impl Injection {
-    pub(crate) fn new(paths: &[PathKind]) -> Self {
-        let mut inj = Self {
+/// [`Layout::slot`] of a C/D path alone at order 1.
+const SLOT_CD: u8 = 64;
+/// [`Layout::slot`] of a path sharing an order with another.
+const SLOT_SHARED: u8 = u8::MAX;
+
+impl Layout {
+    /// Kinds, orders and degrees of `paths`, linear in the paths.
+    fn of(paths: &[PathKind]) -> Self {
+        let mut l = Self {
             kinds: [PathKind::Offset; MAX_PATHS],
-            len: 0,
-            coef: [Cplx::ZERO; MAX_PATHS],
-            alone: [true; MAX_PATHS],
-            pos: [Cplx::ZERO; 32],
-            neg: [Cplx::ZERO; 32],
+            len: paths.len().min(MAX_PATHS),
+            packed: Bank::new(paths).into(),
+            slot: [SLOT_SHARED; MAX_PATHS],
             pos_degree: 0,
             neg_degree: 0,
         };
-        inj.derive(paths);
-        inj
-    }
-
-    /// Kinds, orders and degrees of `paths`, all terms zero. Linear in the paths: a new
-    /// bank is put in force inside the control interrupt (a pairwise comparison of the
-    /// paths' orders, as this once was, took ~4 000 instructions there).
-    fn derive(&mut self, paths: &[PathKind]) {
-        self.len = paths.len().min(MAX_PATHS);
-        self.kinds = [PathKind::Offset; MAX_PATHS];
-        for (k, p) in self.kinds.iter_mut().zip(paths) {
+        for (k, p) in l.kinds.iter_mut().zip(paths) {
             *k = *p;
         }
-        self.coef = [Cplx::ZERO; MAX_PATHS];
-        self.pos = [Cplx::ZERO; 32];
-        self.neg = [Cplx::ZERO; 32];
-        self.pos_degree = 0;
-        self.neg_degree = 0;
         // The orders a path feeds, as indices into `uses`: positive orders 0..32,
         // negative ones 32..64; C/D feeds both of order 1, any other path one order.
         let feeds = |p: PathKind| -> [usize; 2] {
@@ -159,7 +159,7 @@ impl Injection {
         // counts back: each path's orders are derived once.
         let mut uses = [0u8; 64];
         let mut fed = [[0usize; 2]; MAX_PATHS];
-        for (&p, f) in self.kinds.iter().zip(fed.iter_mut()).take(self.len) {
+        for (&p, f) in l.kinds.iter().zip(fed.iter_mut()).take(l.len) {
             let [a, b] = feeds(p);
             *f = [a, b];
             if let Some(u) = uses.get_mut(a) {
@@ -172,64 +172,160 @@ impl Injection {
             }
             // Orders 32.. are the negative ones; C/D feeds order 1 of both.
             if a < 32 {
-                self.pos_degree = self.pos_degree.max(a);
+                l.pos_degree = l.pos_degree.max(a);
             }
             if b >= 32 {
-                self.neg_degree = self.neg_degree.max(b - 32);
+                l.neg_degree = l.neg_degree.max(b - 32);
             }
         }
-        for (alone, [a, b]) in self.alone.iter_mut().zip(fed).take(self.len) {
+        for (slot, [a, b]) in l.slot.iter_mut().zip(fed).take(l.len) {
             let once = |o: usize| uses.get(o).is_some_and(|&u| u == 1);
-            *alone = once(a) && once(b);
+            if once(a) && once(b) {
+                *slot = if a == b { a as u8 } else { SLOT_CD };
+            }
         }
+        l
     }
 
-    /// Another bank: the terms of kinds in both are kept, the others start at zero. It
-    /// runs in the control interrupt: the old terms are found through a table by kind
-    /// (one pass over each bank; a search per path cost ~2 300 instructions at 16 paths).
-    #[inline(never)]
-    pub(crate) fn rebank(&mut self, paths: &[PathKind]) {
-        let (coef, len) = (self.coef, self.len);
+    fn kinds(&self) -> &[PathKind] {
+        self.kinds.get(..self.len).unwrap_or(&self.kinds)
+    }
+
+    fn top(&self) -> usize {
+        self.pos_degree.max(self.neg_degree) & POWER_MASK
+    }
+}
+
+/// Another bank for the decoupling vector, worked out against the bank in force where
+/// there is time (the adaptation task, [`crate::Adapter::take_plan`]): its layout and
+/// which of the old terms each new path keeps. Putting it in force
+/// ([`crate::Front::apply_planned`]) then moves terms only, in the control interrupt.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BankPlan {
+    /// The bank it was worked out from: a plan for another is refused.
+    from: PackedBank,
+    layout: Layout,
+    /// New path i starts at old path `keep[i]`'s term (`u8::MAX`: at zero).
+    keep: [u8; MAX_PATHS],
+}
+
+impl BankPlan {
+    /// From bank `from` to bank `to`: the terms of kinds in both are kept, the others
+    /// start at zero.
+    pub fn new(from: &[PathKind], to: &[PathKind]) -> Self {
         let mut old_at = [u8::MAX; 32];
-        for (i, &k) in self.kinds.iter().enumerate().take(len) {
+        for (i, &k) in from.iter().enumerate().take(MAX_PATHS) {
             if let Some(slot) = old_at.get_mut(PackedBank::code(k) as usize) {
                 if *slot == u8::MAX {
                     *slot = i as u8;
                 }
             }
         }
-        self.derive(paths);
-        for (i, &kind) in paths.iter().enumerate().take(self.len) {
-            let j = old_at.get(PackedBank::code(kind) as usize).copied();
-            if let Some(&c) = j.and_then(|j| coef.get(j as usize)) {
-                self.set(i, c);
-            }
+        let layout = Layout::of(to);
+        let mut keep = [u8::MAX; MAX_PATHS];
+        for (k, &kind) in keep.iter_mut().zip(layout.kinds()) {
+            *k = old_at
+                .get(PackedBank::code(kind) as usize)
+                .copied()
+                .unwrap_or(u8::MAX);
+        }
+        Self {
+            from: Bank::new(from).into(),
+            layout,
+            keep,
         }
     }
 
+    /// The bank this plan puts in force.
+    pub fn bank(&self) -> PackedBank {
+        self.layout.packed
+    }
+}
+
+impl Injection {
+    pub(crate) fn new(paths: &[PathKind]) -> Self {
+        Self {
+            layout: Layout::of(paths),
+            coef: [Cplx::ZERO; MAX_PATHS],
+            pos: [Cplx::ZERO; 32],
+            neg: [Cplx::ZERO; 32],
+        }
+    }
+
+    /// Another bank: the terms of kinds in both are kept, the others start at zero.
+    pub(crate) fn rebank(&mut self, paths: &[PathKind]) {
+        let plan = BankPlan::new(self.kinds(), paths);
+        self.install(&plan);
+    }
+
+    /// Put `plan` in force (`false`, nothing changed: it was worked out from another
+    /// bank). Only moves terms: it runs in the control interrupt.
+    #[inline(never)]
+    pub(crate) fn install(&mut self, plan: &BankPlan) -> bool {
+        if plan.from != self.layout.packed {
+            return false;
+        }
+        let old = self.coef;
+        // Orders above both degrees hold zero: clear up to the larger bank's.
+        let top = self.layout.top().max(plan.layout.top());
+        for (p, n) in self.pos.iter_mut().zip(self.neg.iter_mut()).take(top + 1) {
+            *p = Cplx::ZERO;
+            *n = Cplx::ZERO;
+        }
+        self.layout = plan.layout;
+        self.coef = [Cplx::ZERO; MAX_PATHS];
+        let mut shared = false;
+        for (i, &j) in plan.keep.iter().enumerate().take(self.layout.len) {
+            if let Some(&c) = old.get(j as usize) {
+                shared |= !self.place(i, c);
+            }
+        }
+        // Paths sharing an order are summed once every term is in place.
+        if shared {
+            for i in 0..self.layout.len {
+                if let Some(&c) = self.coef.get(i) {
+                    self.set(i, c);
+                }
+            }
+        }
+        true
+    }
+
+    /// Path `path`'s term where it goes alone (`false`: it shares its order, and only
+    /// the term was stored).
+    #[inline(always)]
+    fn place(&mut self, path: usize, coef: Cplx) -> bool {
+        let (Some(term), Some(&s)) = (self.coef.get_mut(path), self.layout.slot.get(path)) else {
+            return true;
+        };
+        *term = coef;
+        let s = s as usize;
+        match s {
+            0..32 => self.pos[s & POWER_MASK] = coef,
+            32..64 => self.neg[s & POWER_MASK] = coef,
+            64 => {
+                self.pos[1] = coef.conj().scale(0.5);
+                self.neg[1] = coef.scale(0.5);
+            }
+            _ => return false,
+        }
+        true
+    }
+
     pub(crate) fn kinds(&self) -> &[PathKind] {
-        self.kinds.get(..self.len).unwrap_or(&self.kinds)
+        self.layout.kinds()
     }
 
     /// Path `path`'s new term: the polynomial coefficients it feeds are summed again over
     /// the paths sharing them (no running sums: nothing drifts over millions of updates).
     pub(crate) fn set(&mut self, path: usize, coef: Cplx) {
-        let (Some(slot), Some(&kind)) = (self.coef.get_mut(path), self.kinds.get(path)) else {
-            return;
-        };
-        *slot = coef;
-        let order = kind.sequence().unsigned_abs() as usize & POWER_MASK;
-        if self.alone.get(path).copied().unwrap_or(false) {
-            match kind {
-                PathKind::AmplitudeQuadrature => {
-                    self.pos[1] = coef.conj().scale(0.5);
-                    self.neg[1] = coef.scale(0.5);
-                }
-                _ if kind.sequence() >= 0 => self.pos[order] = coef,
-                _ => self.neg[order] = coef,
-            }
+        if self.place(path, coef) {
             return;
         }
+        let Some(&kind) = self.layout.kinds.get(path) else {
+            return;
+        };
+        let order = kind.sequence().unsigned_abs() as usize & POWER_MASK;
         match kind {
             PathKind::AmplitudeQuadrature => {
                 self.pos[1] = self.sum_at(1, true);
@@ -243,7 +339,13 @@ impl Injection {
     /// Σ of the paths' contributions to `pos[order]` (or `neg[order]`).
     fn sum_at(&self, order: usize, positive: bool) -> Cplx {
         let mut sum = Cplx::ZERO;
-        for (&kind, &c) in self.kinds.iter().zip(&self.coef).take(self.len) {
+        for (&kind, &c) in self
+            .layout
+            .kinds
+            .iter()
+            .zip(&self.coef)
+            .take(self.layout.len)
+        {
             let k = kind.sequence();
             sum += match kind {
                 PathKind::AmplitudeQuadrature if order == 1 => {
@@ -261,36 +363,18 @@ impl Injection {
         sum
     }
 
-    /// `D(θ)` as [`Self::vector`] (not bit for bit), as a plain power series: compact
-    /// code for the rare callers (lock acquisition), not another copy of the fast form.
-    #[inline(never)]
-    pub(crate) fn vector_compact(&self, u: Cplx) -> Cplx {
-        let v = u.conj();
-        let (mut d, mut p, mut q) = (self.pos[0], u, v);
-        let top = self.pos_degree.max(self.neg_degree) & POWER_MASK;
-        let mut k = 1;
-        // An opaque bound: no unrolling (code size over speed here).
-        while k <= core::hint::black_box(top) {
-            d = d + self.pos[k & POWER_MASK] * p + self.neg[k & POWER_MASK] * q;
-            p = p * u;
-            q = q * v;
-            k += 1;
-        }
-        d
-    }
-
     /// `D(θ)` for `u = e^{jθ}`.
     #[inline(always)]
     pub(crate) fn vector(&self, u: Cplx) -> Cplx {
         // Plain countdowns with masked indices: an iterator's bounds arithmetic would
         // double the loop's cost.
-        let mut k = self.pos_degree & POWER_MASK;
+        let mut k = self.layout.pos_degree & POWER_MASK;
         let mut d = self.pos[k];
         while k > 0 {
             k -= 1;
             d = d * u + self.pos[k & POWER_MASK];
         }
-        let mut k = self.neg_degree & POWER_MASK;
+        let mut k = self.layout.neg_degree & POWER_MASK;
         if k > 0 {
             let v = u.conj();
             let mut n = self.neg[k];
@@ -374,7 +458,7 @@ pub enum Change {
 /// A [`Bank`] in 11 bytes, 5 bits per kind: it keeps an update at 16 bytes, moved in
 /// registers. At 24 bytes every move of an update was a `memcpy` call (~150
 /// instructions per adaptation step, measured with `cargo xtask cycles`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Eq)]
 pub struct PackedBank {
     /// Path i's code in bits 5i..5i+5, little-endian ([`PackedBank::code`]).
     bits: [u8; PACKED_BYTES],
@@ -388,9 +472,25 @@ const PACKED_BYTES: usize = (MAX_PATHS * CODE_BITS).div_ceil(8);
 /// Marks a kind that no valid bank holds; unpacking ends the bank there.
 const NO_KIND: u8 = 31;
 
+const _: () = assert!(PACKED_BYTES == 10, "PackedBank::eq compares ten bytes");
+
+/// Two words, not a `memcmp` call: the control interrupt checks a bank plan with it.
+impl PartialEq for PackedBank {
+    fn eq(&self, o: &Self) -> bool {
+        let words = |b: &[u8; PACKED_BYTES]| {
+            let [b0, b1, b2, b3, b4, b5, b6, b7, b8, b9] = *b;
+            (
+                u64::from_le_bytes([b0, b1, b2, b3, b4, b5, b6, b7]),
+                u16::from_le_bytes([b8, b9]),
+            )
+        };
+        self.len == o.len && words(&self.bits) == words(&o.bits)
+    }
+}
+
 impl PackedBank {
     /// Offset 0, C/D 1, h = -1..=-15 as 2..=16, h = 4..=15 as 17..=28.
-    fn code(k: PathKind) -> u8 {
+    pub(crate) fn code(k: PathKind) -> u8 {
         match k {
             PathKind::Offset => 0,
             PathKind::AmplitudeQuadrature => 1,
@@ -705,13 +805,18 @@ impl PathBank {
     /// Another bank (`cfg`'s paths): the states of kinds in both are kept, the others
     /// start at zero; the smoothing carries on; the revolution count and the transient
     /// gate start again, as the new paths have yet to converge.
-    pub fn rebank(&mut self, cfg: &Config, gains: &ObserverGains) {
-        let old = *self;
-        *self = Self::new(cfg, gains);
-        for (kind, state) in self.kinds.iter().zip(self.state.iter_mut()).take(self.len) {
-            let kept = old.kinds.iter().take(old.len).position(|k| k == kind);
-            if let Some(s) = kept.and_then(|j| old.state.get(j)) {
-                *state = *s;
+    pub fn rebank(&mut self, cfg: &Config, gains: &ObserverGains, plan: &BankPlan) {
+        let mut next = Self::new(cfg, gains);
+        next.carry_from(self, plan);
+        *self = next;
+    }
+
+    /// What a new bank `self` (fresh from [`Self::new`]) keeps of the bank `old` it
+    /// replaces by `plan`: the kept paths' states, the smoothing and the gates.
+    pub fn carry_from(&mut self, old: &Self, plan: &BankPlan) {
+        for (s, &j) in self.state.iter_mut().zip(&plan.keep).take(self.len) {
+            if let Some(o) = old.state.get(j as usize) {
+                *s = *o;
             }
         }
         self.smooth = old.smooth;
@@ -1071,6 +1176,55 @@ mod tests {
         assert!((inj.vector(u) - expect(&last, u)).abs() < 1e-6);
     }
 
+    /// A plan made from the bank in force puts in force what a new injection of the
+    /// new bank with the kept terms holds, bit for bit (also where paths share an
+    /// order); a plan made from another bank is refused and changes nothing.
+    #[test]
+    fn a_bank_plan_installs_the_kept_terms_and_only_on_its_bank() {
+        let coef = |k: PathKind| Cplx::new(1e-3 * k.sequence() as f32 + 5e-4, -2e-3);
+        let a = [
+            PathKind::Offset,
+            PathKind::AmplitudeQuadrature,
+            PathKind::Harmonic(5),
+            PathKind::Harmonic(-2),
+        ];
+        let b = [
+            PathKind::Harmonic(-2),
+            PathKind::Offset,
+            PathKind::Harmonic(-1),
+            PathKind::AmplitudeQuadrature,
+            PathKind::Harmonic(9),
+            PathKind::Harmonic(-15),
+        ];
+        let mut inj = Injection::new(&a);
+        for (i, &k) in a.iter().enumerate() {
+            inj.set(i, coef(k));
+        }
+        let mut want = Injection::new(&b);
+        for (i, &k) in b.iter().enumerate() {
+            if a.contains(&k) {
+                want.set(i, coef(k));
+            }
+        }
+        let before = inj;
+        assert!(!inj.install(&BankPlan::new(&b, &a)));
+        assert_eq!(inj, before);
+        let plan = BankPlan::new(&a, &b);
+        assert_eq!(plan.bank(), Bank::new(&b).into());
+        assert!(inj.install(&plan));
+        assert_eq!(inj, want);
+        // Back to the first bank (h = 5 starts at zero): the orders only the larger one
+        // used are zero again.
+        let mut back = Injection::new(&a);
+        for (i, &k) in a.iter().enumerate() {
+            if b.contains(&k) {
+                back.set(i, coef(k));
+            }
+        }
+        assert!(inj.install(&BankPlan::new(&b, &a)));
+        assert_eq!(inj, back);
+    }
+
     /// Every kind a bank can hold survives packing for the update queue, and an update
     /// stays 16 bytes.
     #[test]
@@ -1118,7 +1272,10 @@ mod tests {
             PathKind::Harmonic(5),
         ];
         let mut inj = Injection::new(&kinds);
-        assert_eq!(inj.alone[..5], [false, false, false, false, true]);
+        assert_eq!(
+            inj.layout.slot[..5],
+            [SLOT_SHARED, SLOT_SHARED, SLOT_SHARED, SLOT_SHARED, 5]
+        );
         let coefs: [Cplx; 5] = core::array::from_fn(|i| Cplx::new(0.02 * i as f32 + 0.01, 0.005));
         for (i, c) in coefs.iter().enumerate() {
             inj.set(i, *c);

@@ -33,7 +33,9 @@ pub use config::{
     AdaptationLaw, Bank, Config, ConfigError, ConvergenceConfig, Gates, HealthConfig,
     ObserverConfig, PathKind, MAX_PATHS,
 };
-pub use decoupler::{AdaptSample, Change, InjectionUpdate, PackedBank, UPDATE_LATENCY_PERIODS};
+pub use decoupler::{
+    AdaptSample, BankPlan, Change, InjectionUpdate, PackedBank, UPDATE_LATENCY_PERIODS,
+};
 pub use health::{Fault, Faults};
 pub use tracker::{Estimate, Front, Tracker};
 pub use trig::{inv_sqrt_f32, max_f32, min_f32, sin_cos_f32, sqrt_f32, F32Trig, LibmTrig, Trig};

@@ -11,6 +11,7 @@
 
 use crate::complex::Cplx;
 use crate::config::{Bank, PathKind, MAX_PATHS};
+use crate::decoupler::PackedBank;
 use crate::observer::ObserverGains;
 use crate::trig::sqrt_f32;
 
@@ -163,11 +164,9 @@ pub struct Allocation {
 #[inline(never)]
 pub fn allocate(spectrum: &ErrorSpectrum, max_paths: usize, min_rad: f32) -> Allocation {
     let mut order: [u8; SURVEY_HARMONICS] = core::array::from_fn(|m| m as u8 + 1);
-    // (`get`: no panic path in the adaptation task.)
-    let amp = |m: u8| {
-        let i = (m as usize).wrapping_sub(1);
-        spectrum.amplitude_rad.get(i).copied().unwrap_or(0.0)
-    };
+    // Masked, not checked: no panic path in the adaptation task, and m is 1..=16.
+    const _: () = assert!(SURVEY_HARMONICS.is_power_of_two());
+    let amp = |m: u8| spectrum.amplitude_rad[(m as usize).wrapping_sub(1) & (SURVEY_HARMONICS - 1)];
     // Largest first.
     insertion_sort_by(&mut order, |a, b| amp(a) > amp(b));
     let mut chosen: heapless::Vec<u8, MAX_PATHS> = heapless::Vec::new();
@@ -243,9 +242,15 @@ pub fn next_round(
     let complete = chosen.paths.is_empty() || kinds.len() >= MAX_PATHS;
     let mut unobserved = heapless::Vec::new();
     if complete {
+        // The kinds in the bank as a set of their codes (a search per harmonic took a
+        // control period's worth of the task's time).
+        let in_bank = kinds
+            .iter()
+            .fold(0u32, |set, &k| set | 1 << (PackedBank::code(k) & 31));
         for (i, &a) in rest.amplitude_rad.iter().enumerate() {
             let m = i as u8 + 1;
-            let pathed = path_for(m).is_some_and(|k| kinds.contains(&k));
+            let pathed =
+                path_for(m).is_some_and(|k| in_bank & 1 << (PackedBank::code(k) & 31) != 0);
             if a > spectrum.floor_rad && a > min_rad && !pathed {
                 let _ = unobserved.push(m);
             }
@@ -259,20 +264,55 @@ pub fn min_rad_of(spectrum: &ErrorSpectrum) -> f32 {
     MIN_SHARE * spectrum.amplitude_rad.iter().fold(0.0f32, |a, &b| a.max(b))
 }
 
-/// Sort `v` so that `before(v[i], v[j])` holds for i < j where it decides: a few
-/// entries, no allocation, no panic path (adjacent pairs through `get_mut`).
+/// Sort `v` (at most [`SURVEY_HARMONICS`] entries are sorted) so that
+/// `before(v[i], v[j])` holds for i < j where it decides, keeping the order of the
+/// others (insertion sort): a few entries, no allocation, no panic path (masked
+/// indices into a copy).
 fn insertion_sort_by(v: &mut [u8], before: impl Fn(u8, u8) -> bool) {
-    for end in 2..=v.len() {
-        // Bubble the new entry down `v[..end]`.
-        for j in (0..end - 1).rev() {
-            let Some(pair) = v.get_mut(j..j + 2) else {
-                break;
-            };
-            if let [a, b] = pair {
-                if !before(*b, *a) {
-                    break;
-                }
-                core::mem::swap(a, b);
+    const MASK: usize = SURVEY_HARMONICS - 1;
+    let n = v.len().min(SURVEY_HARMONICS);
+    let mut a = [0u8; SURVEY_HARMONICS];
+    for (d, s) in a.iter_mut().zip(v.iter()) {
+        *d = *s;
+    }
+    for end in 1..n {
+        let x = a[end & MASK];
+        let mut j = end;
+        while j > 0 && before(x, a[(j - 1) & MASK]) {
+            a[j & MASK] = a[(j - 1) & MASK];
+            j -= 1;
+        }
+        a[j & MASK] = x;
+    }
+    for (d, s) in v.iter_mut().zip(a.iter()) {
+        *d = *s;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use std::vec::Vec;
+
+    /// The insertion sort is the standard library's stable sort, on every length up to
+    /// the harmonics' and on orders with ties.
+    #[test]
+    fn the_sort_is_a_stable_sort() {
+        let mut seed = 12345u32;
+        for len in 0..=SURVEY_HARMONICS {
+            for _ in 0..200 {
+                let v: Vec<u8> = (0..len)
+                    .map(|_| {
+                        seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                        (seed >> 24) as u8 % 7
+                    })
+                    .collect();
+                let mut got = v.clone();
+                insertion_sort_by(&mut got, |a, b| a > b);
+                let mut want = v.clone();
+                want.sort_by(|a, b| b.cmp(a));
+                assert_eq!(got, want, "{v:?}");
             }
         }
     }

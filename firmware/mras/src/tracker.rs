@@ -6,7 +6,7 @@ use crate::adapter::Adapter;
 use crate::coefficients::{CoefficientsError, Convergence};
 use crate::complex::Cplx;
 use crate::config::{Config, ConfigError};
-use crate::decoupler::{AdaptSample, Change, Injection, InjectionUpdate};
+use crate::decoupler::{AdaptSample, BankPlan, Change, Injection, InjectionUpdate};
 use crate::health::{Fault, Faults};
 use crate::observer::{DiscreteGains, ObserverGains, ObserverState};
 use crate::trig::{inv_sqrt_f32, sin_cos_f32, F32Trig, Trig};
@@ -389,11 +389,16 @@ impl<T: Trig> Front<T> {
     /// sample `z` (`ZERO`: from the next accepted one); `reseed` forces a restart of the
     /// observer at its end.
     fn start_window(&mut self, z: Cplx, reseed: bool) {
-        self.acq_left = 1;
-        self.acq.prev = Cplx::ZERO;
+        self.open_window(reseed);
         if z != Cplx::ZERO {
             self.measure_from(z);
         }
+    }
+
+    /// [`Self::start_window`] without a first sample.
+    fn open_window(&mut self, reseed: bool) {
+        self.acq_left = 1;
+        self.acq.prev = Cplx::ZERO;
         self.acq.reseed = reseed;
         self.acq.speed_check = false;
     }
@@ -422,12 +427,13 @@ impl<T: Trig> Front<T> {
 
     /// One fixed-point step from the correction `c`: the angle of `z + D(raw + c)` less
     /// `raw`, by the small angle it is turned from `raw + c` (no atan2: it is small).
-    /// Out of line: code size.
+    /// Out of line: code size; D by the control path's Horner form (a power series took
+    /// a third of the first control interrupt).
     #[inline(never)]
     fn decoupled_step(&self, z: Cplx, raw: f32, c: f32) -> f32 {
         let (s, co) = self.trig.sin_cos(raw + c);
         let u = Cplx::new(co, s);
-        let w = (z + self.inject.vector_compact(u)) * u.conj();
+        let w = (z + self.inject.vector(u)) * u.conj();
         c + atan_series(w.im / w.re)
     }
 
@@ -490,8 +496,9 @@ impl<T: Trig> Front<T> {
     #[cold]
     #[inline(never)]
     fn acquire(&mut self, z: Cplx) {
+        let raw = angle_of(z);
         self.obs = ObserverState {
-            theta_e_rad: angle_of(z),
+            theta_e_rad: raw,
             ..Default::default()
         };
         self.mech = (0, 0);
@@ -499,7 +506,9 @@ impl<T: Trig> Front<T> {
         self.restart = true;
         self.restart_amplitude = z.abs();
         self.acquired = true;
-        self.start_window(z, false);
+        // `start_window(z, false)`, the raw angle measured once.
+        self.open_window(false);
+        self.measure_from_corrected(z, self.decoupled_correction(z, raw));
         self.acq.speed_check = true;
     }
 
@@ -632,11 +641,19 @@ impl<T: Trig> Front<T> {
     /// it). A late one (its task missed the deadline) is applied at once.
     #[inline(always)]
     pub fn apply(&mut self, u: &InjectionUpdate) -> bool {
+        self.apply_planned(u, None)
+    }
+
+    /// [`Self::apply`], with the plan of a new bank if the adaptation worked one out
+    /// ([`crate::Adapter::take_plan`]): then putting the bank in force only moves terms.
+    /// Without one, or with one for another bank, the bank is worked out here.
+    #[inline(always)]
+    pub fn apply_planned(&mut self, u: &InjectionUpdate, plan: Option<&BankPlan>) -> bool {
         let due = u.due_in(self.index.wrapping_add(1)) <= 0;
         if due {
             match u.change {
                 Change::Term { path, value } => self.inject.set(path as usize, value),
-                Change::Bank(b) => self.apply_bank(&b),
+                Change::Bank(b) => self.apply_bank(&b, plan),
             }
         }
         due
@@ -645,8 +662,11 @@ impl<T: Trig> Front<T> {
     /// A new bank (a few times per commissioning): kept out of the common path.
     #[cold]
     #[inline(never)]
-    fn apply_bank(&mut self, b: &crate::PackedBank) {
-        self.inject.rebank(b.unpack().as_slice());
+    fn apply_bank(&mut self, b: &crate::PackedBank, plan: Option<&BankPlan>) {
+        let planned = plan.is_some_and(|p| p.bank() == *b && self.inject.install(p));
+        if !planned {
+            self.inject.rebank(b.unpack().as_slice());
+        }
     }
 
     /// Put in force, in order, the updates at the front of `pending` that are due at the

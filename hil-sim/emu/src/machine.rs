@@ -264,7 +264,10 @@ impl Machine {
             ppb_plain: BTreeMap::new(),
             board,
             rtt,
-            stats: Stats::default(),
+            stats: Stats {
+                trace_blocks: std::env::var_os("DRIVE_EMU_ISR_BLOCKS").is_some(),
+                ..Stats::default()
+            },
             unmodelled: Unmodelled::default(),
             adc_irq_high: false,
             stuck_control_irq: false,
@@ -403,6 +406,16 @@ impl Machine {
                     st.isr_cycles_sum += c;
                     st.charge(Stage::EntryExit, 0, cost);
                     st.isr_cycles_max = st.isr_cycles_max.max(c);
+                    if st.trace_blocks {
+                        if c > st.blocks_window_cycles {
+                            st.blocks_window_cycles = c;
+                            st.blocks_window = st.blocks_now.clone();
+                        }
+                        if c > st.isr_longest.cycles {
+                            st.blocks_longest = st.blocks_now.clone();
+                        }
+                        st.blocks_now.clear();
+                    }
                     if c > st.isr_longest.cycles {
                         st.isr_longest = crate::stats::Longest {
                             cycles: c,
@@ -427,6 +440,13 @@ impl Machine {
                 if c > st.task_cycles_max {
                     st.task_cycles_max = c;
                     st.task_max_at = self.now;
+                }
+                if st.trace_blocks {
+                    if c > st.task_blocks_cycles {
+                        st.task_blocks_cycles = c;
+                        st.task_blocks_longest = std::mem::take(&mut st.task_blocks_now);
+                    }
+                    st.task_blocks_now.clear();
                 }
             }
             if let Some(k) = st.task_serving.take() {
@@ -521,6 +541,14 @@ impl Machine {
             }
         }
         self.cycles += (b.cycles - credit) as u64;
+        if self.stats.trace_blocks {
+            let c = (b.cycles - credit) as u64;
+            if in_isr {
+                self.stats.blocks_now.push((addr, c));
+            } else if self.stats.task_entered_at.is_some() {
+                self.stats.task_blocks_now.push((addr, c));
+            }
+        }
         if in_isr {
             let caller = self.call_stack.last().map(|c| c.1);
             for s in Stage::ALL {

@@ -90,7 +90,12 @@ pub fn report(builds: &[Built]) -> String {
     let checks: Vec<(budget::Check, String)> =
         verdicts.iter().flatten().fold(Vec::new(), |mut acc, v| {
             if !acc.iter().any(|(c, _)| *c == v.check) {
-                acc.push((v.check, v.limit_text()));
+                // A period's cycles differ by build: the label names it.
+                let limit = match v.check {
+                    budget::Check::TaskRunSpan => "each build's".to_string(),
+                    _ => v.limit_text(),
+                };
+                acc.push((v.check, limit));
             }
             acc
         });

@@ -119,6 +119,8 @@ impl Outcome {
             rules_broken: self.violations.len(),
             missed_periods: self.missed_periods as usize,
             run_isr_cycles_max: None,
+            power_up_isr_cycles_max: None,
+            task_run_cycles_max: None,
             isr_longest_cycles: self.isr_longest_cycles,
             period_cycles: self.period_cycles,
             masked_max_instrs: self.masked_max_instrs,
@@ -1401,6 +1403,8 @@ impl Perf {
             rules_broken: self.violations.len(),
             missed_periods: self.missed_control as usize,
             run_isr_cycles_max: Some(self.isr_cycles_max),
+            power_up_isr_cycles_max: Some(self.powerup_isr_max.1),
+            task_run_cycles_max: Some(self.powerup_task_max.0.max(self.task_max.0)),
             isr_longest_cycles: self.longest_isr.0,
             period_cycles: self.period_cycles,
             masked_max_instrs: self.masked_max_run,
@@ -1454,6 +1458,8 @@ pub fn perf_run(elf: &[u8], window_s: f64, sensor: SensorBoard) -> Result<Perf> 
     emu.m_mut().stats.restart_window();
     emu.run_for(window_s)?;
     let out = finish("perf", &emu, t0, Vec::new())?;
+    let tag = format!("{sensor:?}-{:.0}hz", 1.0 / emu.m().board.period_s());
+    dump_isr_blocks(elf, &emu.m().stats, &tag)?;
     let m = emu.m();
     let st = &m.stats;
     let n = st.isr_count.max(1) as f64;
@@ -1636,4 +1642,46 @@ pub fn perf_table(p: &Perf, title: &str) -> String {
         &p.budget_measures(),
     )));
     s
+}
+
+/// Diagnostics (`DRIVE_EMU_ISR_BLOCKS=DIR`): the run's longest control interrupt and the
+/// window's, cycles by function (innermost inlined frame, under its two callers), into
+/// `DIR/<tag>-{longest,window}.txt`.
+pub fn dump_isr_blocks(elf: &[u8], st: &crate::stats::Stats, tag: &str) -> Result<()> {
+    let Some(dir) = std::env::var_os("DRIVE_EMU_ISR_BLOCKS") else {
+        return Ok(());
+    };
+    let dir = std::path::PathBuf::from(dir);
+    std::fs::create_dir_all(&dir)?;
+    for (name, blocks) in [
+        ("longest", &st.blocks_longest),
+        ("window", &st.blocks_window),
+        ("task", &st.task_blocks_longest),
+    ] {
+        let pcs: Vec<u32> = blocks.iter().map(|b| b.0).collect();
+        let chains = m4_cycles::chains_of_elf(elf, &pcs)?;
+        let mut by: std::collections::BTreeMap<String, u64> = Default::default();
+        for (pc, c) in blocks {
+            let key = chains
+                .get(pc)
+                .map(|ch| {
+                    ch.iter()
+                        .take(3)
+                        .map(|f| f.function.as_str())
+                        .collect::<Vec<_>>()
+                        .join(" < ")
+                })
+                .unwrap_or_else(|| format!("{pc:#x}"));
+            *by.entry(key).or_default() += c;
+        }
+        let mut v: Vec<_> = by.into_iter().collect();
+        v.sort_by_key(|x| std::cmp::Reverse(x.1));
+        let total: u64 = v.iter().map(|x| x.1).sum();
+        let mut text = format!("{total} est. cycles (entry/exit excluded)\n");
+        for (k, c) in v {
+            text.push_str(&format!("{c:6} {k}\n"));
+        }
+        std::fs::write(dir.join(format!("{tag}-{name}.txt")), text)?;
+    }
+    Ok(())
 }

@@ -141,6 +141,18 @@ pub struct Stats {
     /// and breaks they latched through a break filter shorter than the glitch.
     pub comparator_glitches: u64,
     pub glitch_breaks: u64,
+    /// Diagnostics (`DRIVE_EMU_ISR_BLOCKS`): the control interrupt's translated blocks
+    /// and their est. cycles, for the interrupt under way, the run's longest and the
+    /// window's longest (`blocks_window_cycles` its length).
+    pub trace_blocks: bool,
+    pub blocks_now: Vec<(u32, u64)>,
+    pub blocks_longest: Vec<(u32, u64)>,
+    pub blocks_window: Vec<(u32, u64)>,
+    pub blocks_window_cycles: u64,
+    /// The same for the adaptation task's longest run (its own blocks only).
+    pub task_blocks_now: Vec<(u32, u64)>,
+    pub task_blocks_longest: Vec<(u32, u64)>,
+    pub task_blocks_cycles: u64,
 }
 
 impl Stats {
@@ -152,6 +164,7 @@ impl Stats {
         self.isr_instrs_max = 0;
         self.isr_cycles_sum = 0;
         self.isr_cycles_max = 0;
+        self.blocks_window_cycles = 0;
         self.stage_sum = Default::default();
         self.stage_max = Default::default();
         self.latency_max = 0;
