@@ -414,7 +414,8 @@ impl<T: Trig, const H: usize, const U: usize> Rig<T, H, U> {
             let out = self.period.step(&sample, &self.command);
             self.adapt_pended |= self.period.hand_over(&mut self.handoff);
             if out.supervisor_due {
-                self.telemetry.publish(self.period.snapshot());
+                let period = &mut self.period;
+                self.telemetry.publish_with(|s| period.write_snapshot(s));
             }
             self.periods += 1;
             if self.adapt_pended && self.periods.is_multiple_of(u64::from(self.adapt_every)) {

@@ -229,8 +229,10 @@ mod app {
             rtic::pend(Interrupt::USART3);
         }
         if out.supervisor_due {
-            let snapshot = l.period.snapshot();
-            cx.shared.telemetry.lock(|t| t.publish(snapshot));
+            let period = &mut *l.period;
+            cx.shared
+                .telemetry
+                .lock(|t| t.publish_with(|s| period.write_snapshot(s)));
             // Still running (a flash operation): this tick is skipped, the snapshot waits.
             supervisor::spawn().ok();
         }
@@ -248,7 +250,12 @@ mod app {
            shared = [mailbox, report])]
     fn adapt(mut cx: adapt::Context) {
         let l = cx.local;
-        let install = cx.shared.mailbox.lock(Option::take);
+        // Taken only when there is one: taking an empty mailbox copied the whole of it
+        // (168 bytes, misaligned) on every run.
+        let install = cx
+            .shared
+            .mailbox
+            .lock(|m| if m.is_some() { m.take() } else { None });
         let mut report = cx.shared.report;
         l.adaptation
             .run(l.handoff_rx, l.updates_tx, l.plans_tx, install, |r| {

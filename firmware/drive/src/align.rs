@@ -210,6 +210,28 @@ impl ShiftMeter {
     }
 }
 
+/// A [`ShiftMeter`]'s sums with the alignment they move: the corrected offset, worked
+/// out by whoever reads it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ShiftReading {
+    /// The offset in force (electrical).
+    pub offset_e_rad: f32,
+    /// Electrical radians per sensor electrical radian, with the alignment's direction.
+    pub electrical_per_sensor: f32,
+    pub meter: ShiftMeter,
+}
+
+impl ShiftReading {
+    /// `θe = dir·k·(θs_raw) + offset = dir·k·(θs_corrected - shift) + offset`: the offset
+    /// for the corrected angle, once the shift is measured over enough samples.
+    pub fn corrected_offset_e_rad(&self) -> Option<f32> {
+        let shift = self.meter.shift_rad()?;
+        Some(wrap_pi(
+            self.offset_e_rad - self.electrical_per_sensor * shift,
+        ))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -18,7 +18,7 @@
 //! target), so the FOC angle and the observer use the same sine and cosine.
 
 use crate::adc::{record_scaling, scale_pair, ChannelScaling, SampleError};
-use crate::align::{electrical_angle, wrap_pi, ShiftMeter, Sweep};
+use crate::align::{electrical_angle, ShiftMeter, ShiftReading, Sweep};
 use crate::commissioning::{Adaptation, Setpoint};
 use crate::foc::{clarke, inverse_park, park, svpwm, CurrentLoop, CurrentLoopParams};
 use crate::ident::{IdentConfig, IdentStatus, Identifier};
@@ -934,8 +934,17 @@ impl<T: Trig> ControlPeriod<T> {
     /// The snapshot the supervisor works on; restarts the per-snapshot statistics. The
     /// adaptation's figures are the adaptation's to add ([`Snapshot::merged`]).
     pub fn snapshot(&mut self) -> Snapshot {
+        let mut t = Snapshot::EMPTY;
+        self.write_snapshot(&mut t);
+        t
+    }
+
+    /// [`ControlPeriod::snapshot`] written in place (the telemetry slot's), every field
+    /// set: the control interrupt copies, the reader works out figures.
+    #[inline(always)]
+    pub fn write_snapshot(&mut self, t: &mut Snapshot) {
         let est = self.estimate_in_use();
-        let t = Snapshot {
+        *t = Snapshot {
             ticks: self.ticks,
             fault: self.latched,
             release: self.release,
@@ -947,7 +956,15 @@ impl<T: Trig> ControlPeriod<T> {
             amplitude: est.amplitude,
             sweep: self.sweep.result(),
             ident: self.ident.status(),
-            corrected_offset_e_rad: self.corrected_offset(),
+            shift: self.shift_base.map(|base| ShiftReading {
+                offset_e_rad: base.offset_e_rad,
+                electrical_per_sensor: if base.reversed {
+                    -self.electrical_per_sensor
+                } else {
+                    self.electrical_per_sensor
+                },
+                meter: self.shift,
+            }),
             iq_integral_a_s: self.iq_integral_a_s,
             flux_angle_wb_rad: self.flux_angle_wb_rad,
             currents_ready: self.currents_ready,
@@ -958,7 +975,6 @@ impl<T: Trig> ControlPeriod<T> {
         };
         self.cycles = CycleStats::EMPTY;
         self.unlocked = false;
-        t
     }
 
     /// The estimate the drive commutes with and streams: the core's, except in the
@@ -970,17 +986,6 @@ impl<T: Trig> ControlPeriod<T> {
             self.last_xy,
             self.sensor_periods,
         )
-    }
-
-    /// The offset in force moved onto the corrected angle by the measured shift:
-    /// `θe = dir·k·(θs_raw) + offset = dir·k·(θs_corrected - shift) + offset`.
-    fn corrected_offset(&self) -> Option<f32> {
-        let base = self.shift_base?;
-        let shift = self.shift.shift_rad()?;
-        let dir = if base.reversed { -1.0 } else { 1.0 };
-        Some(wrap_pi(
-            base.offset_e_rad - dir * self.electrical_per_sensor * shift,
-        ))
     }
 
     pub fn tracker(&self) -> &Front<T> {

@@ -122,7 +122,8 @@ impl<T: Trig> ControlPeriod<T> {
     #[cold]
     #[inline(never)]
     fn apply_bank(&mut self, u: &InjectionUpdate, plans: &mut impl Receiver<BankPlan>) -> bool {
-        if u.due_in(self.tracker().index().wrapping_add(1)) > 0 {
+        // Not due: its plan stays queued with it.
+        if !self.tracker().is_due(u) {
             return false;
         }
         let plan = plans.receive();
@@ -148,7 +149,7 @@ impl AdaptationTask {
     /// One run of the adaptation task: the updates still owed first, then the
     /// coefficients `install` (from the supervisor's mailbox) if any, then every
     /// handed-over sample in order (during a survey's end, only up to the first of its
-    /// samples). `publish` gets the report after an install and after
+    /// samples, the survey's last sample among them). `publish` gets the report after an install and after
     /// each snapshot sample ([`AdaptSample::REPORT`]).
     pub fn run(
         &mut self,
@@ -169,10 +170,11 @@ impl AdaptationTask {
             if s.has(AdaptSample::REPORT) {
                 publish(self.report());
             }
-            // A survey's end works one step a sample, and one such sample a run: the
-            // samples behind it wait for the next period's run, so that no run spans a
-            // control period (their updates are due a fixed latency after them).
-            if ending_round {
+            // A survey's end works one step a sample, and one such sample a run (the
+            // spectrum, on the survey's last sample, among them): the samples behind it
+            // wait for the next period's run, so that no run spans a control period
+            // (their updates are due a fixed latency after them).
+            if ending_round || self.adapter().ending_round() {
                 break;
             }
         }

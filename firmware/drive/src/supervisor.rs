@@ -515,7 +515,7 @@ impl<const E: usize> Supervisor<E> {
         });
         let state = self.sm.state();
         if before == State::Verify && matches!(state, State::Motion | State::Store) {
-            if let Some(offset_e_rad) = tm.snapshot.corrected_offset_e_rad {
+            if let Some(offset_e_rad) = tm.snapshot.corrected_offset_e_rad() {
                 self.alignment.offset_e_rad = offset_e_rad;
                 events.push(Event::OffsetCorrected { t_ms, offset_e_rad });
             }

@@ -217,10 +217,9 @@ pub struct Snapshot {
     pub sweep: Option<SweepResult>,
     /// The motor's identification (Pending until one ran).
     pub ident: crate::ident::IdentStatus,
-    /// The offset in force moved by the measured mean shift of the corrected angle
-    /// against the raw one: the alignment for the corrected angle (once measured over
-    /// enough samples).
-    pub corrected_offset_e_rad: Option<f32>,
+    /// The mean shift of the corrected angle against the raw one as measured so far,
+    /// with the alignment it moves ([`Snapshot::corrected_offset_e_rad`]).
+    pub shift: Option<crate::align::ShiftReading>,
     /// The running integrals the motion's identification takes differences of
     /// ([`crate::spin`]): `∫iq dt` over the periods at the speed setpoint (A·s), and the back-EMF's d and q parts, `∫(vd − R·id + ωe·L·iq)/p dt` and
     /// `∫(vq − R·iq − ωe·L·id)/p dt`, over the periods coasting (Wb·rad).
@@ -242,6 +241,36 @@ pub struct Snapshot {
 }
 
 impl Snapshot {
+    /// The offset in force moved by the measured mean shift of the corrected angle
+    /// against the raw one: the alignment for the corrected angle (once measured over
+    /// enough samples). Worked out here, where it is read, not in the control interrupt.
+    pub fn corrected_offset_e_rad(&self) -> Option<f32> {
+        self.shift.and_then(|s| s.corrected_offset_e_rad())
+    }
+
+    /// Nothing measured yet: what the slot holds before the first snapshot.
+    pub const EMPTY: Self = Self {
+        ticks: 0,
+        fault: None,
+        release: 0,
+        core_faults: 0,
+        unlocked: false,
+        theta_rad: 0.0,
+        epsilon_rad: 0.0,
+        omega_rad_s: 0.0,
+        amplitude: 0.0,
+        sweep: None,
+        ident: crate::ident::IdentStatus::Pending,
+        shift: None,
+        iq_integral_a_s: 0.0,
+        flux_angle_wb_rad: [0.0; 2],
+        currents_ready: false,
+        currents_implausible: false,
+        cycles: CycleStats::EMPTY,
+        handoffs_dropped: 0,
+        updates_late: 0,
+    };
+
     /// The sensor vector's own angle (mechanical, motor frame, not wrapped: within ε of
     /// `theta_rad`).
     pub fn sensor_theta_rad(&self) -> f32 {
@@ -267,23 +296,44 @@ pub struct Telemetry {
 /// Where the control period leaves its snapshots for the supervisor (an RTIC shared
 /// resource in the firmware). A snapshot published while the supervisor is busy (a
 /// flash erase) replaces the unread one, keeping its cycle statistics.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+///
+/// The control period writes its snapshot in place ([`TelemetrySlot::publish_with`]):
+/// built aside and moved in, it cost the control interrupt a second copy.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TelemetrySlot {
-    unread: Option<Snapshot>,
+    unread: bool,
+    snapshot: Snapshot,
+}
+
+impl Default for TelemetrySlot {
+    fn default() -> Self {
+        Self::EMPTY
+    }
 }
 
 impl TelemetrySlot {
-    pub const EMPTY: Self = Self { unread: None };
+    pub const EMPTY: Self = Self {
+        unread: false,
+        snapshot: Snapshot::EMPTY,
+    };
 
-    pub fn publish(&mut self, mut t: Snapshot) {
-        if let Some(old) = &self.unread {
-            t.cycles.merge(&old.cycles);
+    /// A snapshot written by `write`, which sets every field.
+    #[inline(always)]
+    pub fn publish_with(&mut self, write: impl FnOnce(&mut Snapshot)) {
+        let unread = self.unread.then_some(self.snapshot.cycles);
+        write(&mut self.snapshot);
+        if let Some(old) = unread {
+            self.snapshot.cycles.merge(&old);
         }
-        self.unread = Some(t);
+        self.unread = true;
+    }
+
+    pub fn publish(&mut self, t: Snapshot) {
+        self.publish_with(|s| *s = t);
     }
 
     pub fn take(&mut self) -> Option<Snapshot> {
-        self.unread.take()
+        core::mem::take(&mut self.unread).then_some(self.snapshot)
     }
 }
 

@@ -104,7 +104,7 @@ fn telemetry(ticks: u32) -> Telemetry {
             sweep: None,
             // Done at once: the identification's own tests are `ident.rs`.
             ident: drive::ident::IdentStatus::Done(IDENTIFIED),
-            corrected_offset_e_rad: None,
+            shift: None,
             iq_integral_a_s: 0.0,
             flux_angle_wb_rad: [0.0; 2],
             currents_ready: true,

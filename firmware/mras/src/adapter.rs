@@ -15,7 +15,10 @@ use crate::{Coefficients, MAX_PATHS, UPDATE_LATENCY_PERIODS};
 
 #[derive(Clone, Debug)]
 pub struct Adapter {
-    bank: PathBank,
+    /// The bank in use (`active`) and the one a survey round builds aside: putting the
+    /// new one in force flips `active`, where moving it over copied 1.6 kB in the task.
+    banks: [PathBank; 2],
+    active: usize,
     /// The configuration, its paths the bank in use.
     cfg: Config,
     gains: ObserverGains,
@@ -25,8 +28,6 @@ pub struct Adapter {
     survey: Option<SurveyOutcome>,
     /// The last bank change worked out against the bank before it, for the front.
     plan: Option<BankPlan>,
-    /// A survey round's new bank, built a sample before it is put in force.
-    next: PathBank,
 }
 
 /// Where a bank from the data is ([`Config::paths_from_data`]): rounds of adapting the
@@ -50,26 +51,29 @@ enum Stage {
 enum EndRound {
     /// The spectrum is measured: the next sample chooses the paths.
     Measured(ErrorSpectrum),
-    /// The bank is chosen (`grown`: it differs from the one in use): the next sample
-    /// makes its plan.
-    Chosen {
-        bank: Bank,
-        complete: bool,
-        grown: bool,
-    },
-    /// The plan is made: the next sample builds the new bank's adaptation.
-    Planned {
-        bank: Bank,
-        complete: bool,
-        grown: bool,
-    },
-    /// The new bank's adaptation is built: the next sample free for an update puts the
-    /// bank in force.
-    Built {
-        bank: Bank,
-        complete: bool,
-        grown: bool,
-    },
+    /// The paths are chosen; the next samples work the bank's steps.
+    Chosen(RoundChoice, Next),
+}
+
+/// What a survey round chose.
+#[derive(Clone, Copy, Debug)]
+struct RoundChoice {
+    bank: Bank,
+    /// The surveys are over.
+    complete: bool,
+    /// The bank differs from the one in use.
+    grown: bool,
+}
+
+/// The next step of a chosen bank.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Next {
+    /// Its plan against the bank in use.
+    Plan,
+    /// Its adaptation, built aside.
+    Build,
+    /// In force, on the next sample free for an update.
+    PutInForce,
 }
 
 impl Adapter {
@@ -81,8 +85,8 @@ impl Adapter {
         );
         let bank = PathBank::new(cfg, &gains);
         Ok(Self {
-            next: bank,
-            bank,
+            banks: [bank; 2],
+            active: 0,
             cfg: *cfg,
             gains,
             first: Bank::new(cfg.paths()),
@@ -104,14 +108,14 @@ impl Adapter {
         if !matches!(self.stage, Stage::Complete) {
             return self.step_choosing(s);
         }
-        let revs = self.bank.revs_adapted;
-        let out = self.bank.step(s);
+        let revs = self.bank().revs_adapted;
+        let out = self.bank_mut().step(s);
         // Once a revolution until armed: a converged bank arms the transient gate.
-        if self.bank.revs_adapted != revs
-            && !self.bank.transient_gate_armed()
+        if self.bank().revs_adapted != revs
+            && !self.bank().transient_gate_armed()
             && self.judge().converged
         {
-            self.bank.arm_transient_gate();
+            self.bank_mut().arm_transient_gate();
         }
         out
     }
@@ -120,11 +124,11 @@ impl Adapter {
     /// path (its own copy of the bank step keeps the complete bank's step as it was).
     #[inline(never)]
     fn step_choosing(&mut self, s: &AdaptSample) -> (bool, Option<InjectionUpdate>) {
-        let revs = self.bank.revs_adapted;
+        let revs = self.bank().revs_adapted;
         // While surveying, residuals are still measured but nothing adapts.
         let surveying = matches!(self.stage, Stage::Survey(_) | Stage::EndRound(_));
         let flags = s.flags | if surveying { AdaptSample::FROZEN } else { 0 };
-        let out = self.bank.step(&AdaptSample { flags, ..*s });
+        let out = self.bank_mut().step(&AdaptSample { flags, ..*s });
         // At a sample without a term update: one update per sample.
         let free = out.1.is_none();
         match &self.stage {
@@ -137,9 +141,9 @@ impl Adapter {
             _ => {}
         }
         // Once a revolution: a converged bank ends the round's adaptation.
-        if self.bank.revs_adapted != revs
+        if self.bank().revs_adapted != revs
             && matches!(self.stage, Stage::Adapt)
-            && (self.judge().converged || self.bank.revs_adapted >= FIRST_STAGE_MAX_REVS)
+            && (self.judge().converged || self.bank().revs_adapted >= FIRST_STAGE_MAX_REVS)
         {
             self.stage = Stage::Survey(ErrorSurvey::default());
         }
@@ -177,7 +181,7 @@ impl Adapter {
         let Stage::EndRound(step) = &self.stage else {
             return None;
         };
-        match step {
+        let (choice, next) = match step {
             EndRound::Measured(spectrum) => {
                 let spectrum = *spectrum;
                 let outcome = self.survey.get_or_insert(SurveyOutcome {
@@ -193,51 +197,40 @@ impl Adapter {
                 outcome.bank = bank;
                 outcome.unobserved = unobserved;
                 let grown = bank.as_slice() != self.cfg.paths();
-                self.stage = Stage::EndRound(EndRound::Chosen {
+                let choice = RoundChoice {
                     bank,
                     complete,
                     grown,
-                });
-                None
+                };
+                self.stage = Stage::EndRound(EndRound::Chosen(choice, Next::Plan));
+                return None;
             }
-            &EndRound::Chosen {
-                bank,
-                complete,
-                grown,
-            } => {
+            &EndRound::Chosen(choice, next) => (choice, next),
+        };
+        let RoundChoice {
+            bank,
+            complete,
+            grown,
+        } = choice;
+        let after = match next {
+            Next::Plan => {
                 if grown {
                     self.plan = Some(BankPlan::new(self.cfg.paths(), bank.as_slice()));
                 }
-                self.stage = Stage::EndRound(EndRound::Planned {
-                    bank,
-                    complete,
-                    grown,
-                });
-                None
+                Next::Build
             }
-            &EndRound::Planned {
-                bank,
-                complete,
-                grown,
-            } => {
+            Next::Build => {
                 if grown {
                     let mut cfg = self.cfg;
                     // `bank` holds at most MAX_PATHS kinds, so this cannot fail.
                     let _ = cfg.set_paths(bank.as_slice());
-                    self.next = PathBank::new(&cfg, &self.gains);
+                    let [a, b] = &mut self.banks;
+                    let spare = if self.active & 1 == 0 { b } else { a };
+                    spare.renew(&cfg, &self.gains);
                 }
-                self.stage = Stage::EndRound(EndRound::Built {
-                    bank,
-                    complete,
-                    grown,
-                });
-                None
+                Next::PutInForce
             }
-            &EndRound::Built {
-                bank,
-                complete,
-                grown,
-            } => {
+            Next::PutInForce => {
                 if !free {
                     return None;
                 }
@@ -250,12 +243,25 @@ impl Adapter {
                 } else {
                     Stage::Adapt
                 };
-                grown.then_some(InjectionUpdate {
+                return grown.then_some(InjectionUpdate {
                     apply_at: index.wrapping_add(UPDATE_LATENCY_PERIODS),
                     change: Change::Bank(packed),
-                })
+                });
             }
-        }
+        };
+        self.stage = Stage::EndRound(EndRound::Chosen(choice, after));
+        None
+    }
+
+    /// The bank in use.
+    #[inline(always)]
+    fn bank(&self) -> &PathBank {
+        &self.banks[self.active & 1]
+    }
+
+    #[inline(always)]
+    fn bank_mut(&mut self) -> &mut PathBank {
+        &mut self.banks[self.active & 1]
     }
 
     /// Run `bank` from now on (validated by the caller).
@@ -272,7 +278,7 @@ impl Adapter {
         // `bank` holds at most MAX_PATHS kinds, so this cannot fail.
         let _ = self.cfg.set_paths(bank.as_slice());
         if let Some(plan) = &self.plan {
-            self.bank.rebank(&self.cfg, &self.gains, plan);
+            self.banks[self.active & 1].rebank(&self.cfg, &self.gains, plan);
         }
     }
 
@@ -283,9 +289,11 @@ impl Adapter {
         self.plan_for(bank, packed);
         let _ = self.cfg.set_paths(bank.as_slice());
         if let Some(plan) = &self.plan {
-            self.next.carry_from(&self.bank, plan);
+            let [a, b] = &mut self.banks;
+            let (old, new) = if self.active & 1 == 0 { (a, b) } else { (b, a) };
+            new.carry_from(old, plan);
         }
-        self.bank = self.next;
+        self.active ^= 1;
     }
 
     /// [`Self::plan`] made for `bank` (`packed`, the same), unless it is.
@@ -326,7 +334,7 @@ impl Adapter {
         for (v, s) in c
             .values
             .iter_mut()
-            .zip(self.bank.state.iter().take(self.bank.len))
+            .zip(self.bank().state.iter().take(self.bank().len))
         {
             *v = s.coef;
         }
@@ -351,7 +359,7 @@ impl Adapter {
         if !same {
             self.rebank(Bank::new(kinds));
         }
-        self.bank.load(c.iter().map(|(_, v)| v));
+        self.bank_mut().load(c.iter().map(|(_, v)| v));
         self.stage = Stage::Complete;
         Ok(())
     }
@@ -382,8 +390,8 @@ impl Adapter {
         let mut out = Convergence {
             residual_rad: [0.0; MAX_PATHS],
             change_per_rev: [0.0; MAX_PATHS],
-            len: self.bank.len as u8,
-            revs_adapted: self.bank.revs_adapted,
+            len: self.bank().len as u8,
+            revs_adapted: self.bank().revs_adapted,
             unseen_paths: 0,
             converged: false,
         };
@@ -392,8 +400,8 @@ impl Adapter {
             .residual_rad
             .iter_mut()
             .zip(out.change_per_rev.iter_mut());
-        let revs = self.bank.revs_adapted;
-        let states = self.bank.state.iter().take(self.bank.len);
+        let revs = self.bank().revs_adapted;
+        let states = self.bank().state.iter().take(self.bank().len);
         for (i, (s, (residual, change))) in states.zip(per_path).enumerate() {
             *residual = s.residual.abs();
             *change = s.change_last_rev;
@@ -403,7 +411,7 @@ impl Adapter {
             }
         }
         out.converged =
-            all_small && out.unseen_paths == 0 && self.bank.revs_adapted >= cc.min_revs as u32;
+            all_small && out.unseen_paths == 0 && self.bank().revs_adapted >= cc.min_revs as u32;
         out
     }
 

@@ -124,6 +124,10 @@ struct Layout {
     slot: [u8; MAX_PATHS],
     pos_degree: usize,
     neg_degree: usize,
+    /// The negative orders fed, bit k for order k, when they are few beside the degree
+    /// (the N = 1 bank: 1, 14 and 15): `D` then steps between them by powers of `ū`
+    /// instead of through every order. 0: Horner's scheme through all of them.
+    neg_sparse: u32,
 }
 
 /// [`Layout::slot`] of a C/D path alone at order 1.
@@ -141,6 +145,7 @@ impl Layout {
             slot: [SLOT_SHARED; MAX_PATHS],
             pos_degree: 0,
             neg_degree: 0,
+            neg_sparse: 0,
         };
         for (k, p) in l.kinds.iter_mut().zip(paths) {
             *k = *p;
@@ -176,7 +181,13 @@ impl Layout {
             }
             if b >= 32 {
                 l.neg_degree = l.neg_degree.max(b - 32);
+                l.neg_sparse |= 1 << ((b - 32) & POWER_MASK);
             }
+        }
+        // A power of ū by squaring costs about what two orders of Horner's scheme do:
+        // worth it where each used order skips more than three on average.
+        if 3 * l.neg_sparse.count_ones() as usize >= l.neg_degree {
+            l.neg_sparse = 0;
         }
         for (slot, [a, b]) in l.slot.iter_mut().zip(fed).take(l.len) {
             let once = |o: usize| uses.get(o).is_some_and(|&u| u == 1);
@@ -374,6 +385,9 @@ impl Injection {
             k -= 1;
             d = d * u + self.pos[k & POWER_MASK];
         }
+        if self.layout.neg_sparse != 0 {
+            return d + self.sparse_negative(u.conj());
+        }
         let mut k = self.layout.neg_degree & POWER_MASK;
         if k > 0 {
             let v = u.conj();
@@ -386,6 +400,43 @@ impl Injection {
         }
         d
     }
+}
+
+impl Injection {
+    /// `Σ_k neg[k]·v^k` over the orders of [`Layout::neg_sparse`] (order 0 is never
+    /// negative): Horner's scheme from order to order, a power of `v` for each gap.
+    #[inline(always)]
+    fn sparse_negative(&self, v: Cplx) -> Cplx {
+        let mut orders = self.layout.neg_sparse;
+        let mut k = 31 - orders.leading_zeros();
+        let mut n = self.neg[k as usize & POWER_MASK];
+        orders &= !(1 << k);
+        while orders != 0 {
+            let j = 31 - orders.leading_zeros();
+            n = n * power(v, k - j) + self.neg[j as usize & POWER_MASK];
+            orders &= !(1 << j);
+            k = j;
+        }
+        n * power(v, k)
+    }
+}
+
+/// `b^e` for e ≥ 1, by squaring.
+#[inline(always)]
+fn power(b: Cplx, e: u32) -> Cplx {
+    // r = b·b^(e-1): p runs through b^(2^i) for the bits i of e - 1.
+    let (mut r, mut p) = (b, b);
+    let mut e = e.saturating_sub(1);
+    while e != 0 {
+        if e & 1 != 0 {
+            r = r * p;
+        }
+        e >>= 1;
+        if e != 0 {
+            p = p * p;
+        }
+    }
+    r
 }
 
 /// One accepted control period as the adaptation needs it: what the control interrupt
@@ -529,13 +580,24 @@ impl PackedBank {
 
 impl From<Bank> for PackedBank {
     fn from(b: Bank) -> Self {
+        // Codes into a bit buffer, whole bytes out as they fill (byte by byte with a
+        // shifted pair per code it cost the plan's step about 600 cycles).
         let mut bits = [0; PACKED_BYTES];
-        for (i, &k) in b.as_slice().iter().enumerate() {
-            let bit = i * CODE_BITS;
-            let word = (Self::code(k) as u16) << (bit % 8);
-            for (byte, part) in bits.iter_mut().skip(bit / 8).zip(word.to_le_bytes()) {
-                *byte |= part;
+        let (mut acc, mut held) = (0u32, 0);
+        let mut out = bits.iter_mut();
+        for &k in b.as_slice() {
+            acc |= (Self::code(k) as u32) << held;
+            held += CODE_BITS;
+            if held >= 8 {
+                if let Some(byte) = out.next() {
+                    *byte = acc as u8;
+                }
+                acc >>= 8;
+                held -= 8;
             }
+        }
+        if let Some(byte) = out.next() {
+            *byte = acc as u8;
         }
         Self {
             bits,
@@ -735,9 +797,24 @@ pub(crate) struct PathBank {
 }
 
 impl PathBank {
-    /// (Not inlined: built at init and at a rebank only, one copy in flash.)
+    /// [`Self::new`] in place: built aside and copied over, a survey round's new bank
+    /// cost the adaptation task about 2 300 cycles more (1.6 kB). The price is a second
+    /// copy of the builder in flash (1.7 kB): the rustc of today does not build a
+    /// returned bank straight into `*self`.
+    #[inline(never)]
+    pub fn renew(&mut self, cfg: &Config, gains: &ObserverGains) {
+        *self = Self::build(cfg, gains);
+    }
+
+    /// (Not inlined: built at init and at a record's rebank; [`Self::renew`] holds the
+    /// other copy of the builder.)
     #[inline(never)]
     pub fn new(cfg: &Config, gains: &ObserverGains) -> Self {
+        Self::build(cfg, gains)
+    }
+
+    #[inline(always)]
+    fn build(cfg: &Config, gains: &ObserverGains) -> Self {
         let paths = cfg.paths();
         let mut m = [0; MAX_PATHS];
         let max_m = paths
@@ -1136,6 +1213,54 @@ mod tests {
         }
         let got = inj.vector(u);
         assert!((got - expect).abs() < 1e-7, "{got:?} vs {expect:?}");
+    }
+
+    /// Negative orders few beside their degree are stepped between by powers of ū, many
+    /// go through Horner's scheme: both equal the sum of the paths' terms at every angle.
+    #[test]
+    fn sparse_and_dense_negative_orders_agree_with_the_sum() {
+        let sparse = [
+            PathKind::Offset,
+            PathKind::AmplitudeQuadrature,
+            PathKind::Harmonic(4),
+            PathKind::Harmonic(-14),
+            PathKind::Harmonic(-15),
+            PathKind::Harmonic(-6),
+        ];
+        let dense = [
+            PathKind::AmplitudeQuadrature,
+            PathKind::Harmonic(-2),
+            PathKind::Harmonic(-3),
+            PathKind::Harmonic(-5),
+            PathKind::Harmonic(7),
+        ];
+        for (kinds, is_sparse) in [(&sparse[..], true), (&dense[..], false)] {
+            let mut inj = Injection::new(kinds);
+            assert_eq!(inj.layout.neg_sparse != 0, is_sparse, "{kinds:?}");
+            let coef = |i: usize| Cplx::new(0.02 / (i as f32 + 1.0), 0.011 * i as f32 - 0.02);
+            for i in 0..kinds.len() {
+                inj.set(i, coef(i));
+            }
+            for a in 0..360 {
+                let th = a as f32 * 0.0175 - 3.1;
+                let u = Cplx::new(libm::cosf(th), libm::sinf(th));
+                let pw = powers_of(u);
+                let expect = kinds
+                    .iter()
+                    .enumerate()
+                    .fold(Cplx::ZERO, |s, (i, &k)| s + injection(k, coef(i), &pw));
+                let got = inj.vector(u);
+                assert!(
+                    (got - expect).abs() < 2e-7,
+                    "{kinds:?} at {th}: {got:?} vs {expect:?}"
+                );
+            }
+        }
+        for e in 1..32 {
+            let u = Cplx::new(libm::cosf(0.3), libm::sinf(0.3));
+            let expect = powers_of(u)[e as usize];
+            assert!((super::power(u, e) - expect).abs() < 1e-6, "u^{e}");
+        }
     }
 
     /// A bank grown to the full 16 paths of an N = 1 survey and shrunk again: each path

@@ -163,19 +163,22 @@ pub struct Allocation {
 /// `min_rad` (rad, sensor electrical), each given its path.
 #[inline(never)]
 pub fn allocate(spectrum: &ErrorSpectrum, max_paths: usize, min_rad: f32) -> Allocation {
-    let mut order: [u8; SURVEY_HARMONICS] = core::array::from_fn(|m| m as u8 + 1);
     // Masked, not checked: no panic path in the adaptation task, and m is 1..=16.
     const _: () = assert!(SURVEY_HARMONICS.is_power_of_two());
     let amp = |m: u8| spectrum.amplitude_rad[(m as usize).wrapping_sub(1) & (SURVEY_HARMONICS - 1)];
-    // Largest first.
+    // The harmonics that clear both floors, largest first: sorted after the others are
+    // dropped (a stable sort keeps their order as among all sixteen).
+    let mut order: heapless::Vec<u8, SURVEY_HARMONICS> = heapless::Vec::new();
+    for m in 1..=SURVEY_HARMONICS as u8 {
+        if amp(m) > spectrum.floor_rad && amp(m) > min_rad {
+            // Sixteen at most, room for each.
+            let _ = order.push(m);
+        }
+    }
     insertion_sort_by(&mut order, |a, b| amp(a) > amp(b));
     let mut chosen: heapless::Vec<u8, MAX_PATHS> = heapless::Vec::new();
     let mut unobserved = heapless::Vec::new();
     for m in order {
-        let a = amp(m);
-        if !(a > spectrum.floor_rad && a > min_rad) {
-            continue;
-        }
         if chosen.len() < max_paths.min(MAX_PATHS) {
             let _ = chosen.push(m);
         } else {

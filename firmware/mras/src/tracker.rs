@@ -644,12 +644,18 @@ impl<T: Trig> Front<T> {
         self.apply_planned(u, None)
     }
 
+    /// Whether `u` is in force from the coming period (or was due earlier: late).
+    #[inline(always)]
+    pub fn is_due(&self, u: &InjectionUpdate) -> bool {
+        u.due_in(self.index.wrapping_add(1)) <= 0
+    }
+
     /// [`Self::apply`], with the plan of a new bank if the adaptation worked one out
     /// ([`crate::Adapter::take_plan`]): then putting the bank in force only moves terms.
     /// Without one, or with one for another bank, the bank is worked out here.
     #[inline(always)]
     pub fn apply_planned(&mut self, u: &InjectionUpdate, plan: Option<&BankPlan>) -> bool {
-        let due = u.due_in(self.index.wrapping_add(1)) <= 0;
+        let due = self.is_due(u);
         if due {
             match u.change {
                 Change::Term { path, value } => self.inject.set(path as usize, value),

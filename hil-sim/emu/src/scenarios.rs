@@ -1661,6 +1661,22 @@ pub fn dump_isr_blocks(elf: &[u8], st: &crate::stats::Stats, tag: &str) -> Resul
         let pcs: Vec<u32> = blocks.iter().map(|b| b.0).collect();
         let chains = m4_cycles::chains_of_elf(elf, &pcs)?;
         let mut by: std::collections::BTreeMap<String, u64> = Default::default();
+        // Each block at its address with its first instruction's source line: where
+        // a function's share above is spent.
+        let mut at: std::collections::BTreeMap<u32, u64> = Default::default();
+        for (pc, c) in blocks {
+            *at.entry(*pc).or_default() += c;
+        }
+        let mut lines = String::new();
+        for (pc, c) in &at {
+            let loc = chains
+                .get(pc)
+                .and_then(|ch| ch.first())
+                .map(|f| format!("{} {}", f.location, f.function))
+                .unwrap_or_default();
+            lines.push_str(&format!("{pc:#010x} {c:6} {loc}\n"));
+        }
+        std::fs::write(dir.join(format!("{tag}-{name}-blocks.txt")), lines)?;
         for (pc, c) in blocks {
             let key = chains
                 .get(pc)
