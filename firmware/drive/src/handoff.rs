@@ -126,8 +126,11 @@ impl<T: Trig> ControlPeriod<T> {
         if !self.tracker().is_due(u) {
             return false;
         }
-        let plan = plans.receive();
-        self.apply_planned(u, plan.as_ref())
+        // Read where it lies in its queue, then dropped: copied out of the queue first,
+        // its hundred bytes cost the control interrupt about 460 cycles.
+        let applied = self.apply_planned(u, plans.peek());
+        let _ = plans.receive();
+        applied
     }
 
     /// After [`ControlPeriod::step`]: hand this period's sample to the adaptation task,
