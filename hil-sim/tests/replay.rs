@@ -668,14 +668,7 @@ fn a_rig_recording_with_motion_at_once_and_twice_per_revolution_replays_without_
     assert_eq!(rep["sensor_periods"], 1, "{stdout}");
     assert_eq!(rep["sensor_periods_source"]["source"], "from theta_rad");
     assert_eq!(rep["bank"]["source"], "data", "{stdout}");
-    let (raw12, cor12) = (
-        band_rms(&rep, "raw", 1..=2),
-        band_rms(&rep, "corrected", 1..=2),
-    );
-    let (raw3, cor3) = (
-        band_rms(&rep, "raw", 3..=12),
-        band_rms(&rep, "corrected", 3..=12),
-    );
+    let [raw12, cor12, raw3, cor3] = motion_and_sensor_bands(&rep);
     eprintln!("m = 1, 2: {raw12:.3} -> {cor12:.3} mrad; m = 3..12: {raw3:.3} -> {cor3:.4} mrad");
     assert!(raw3 / cor3 >= 30.0, "m = 3..12: {raw3} -> {cor3} mrad");
     assert!(cor12 <= raw12, "m = 1, 2: {raw12} -> {cor12} mrad");
@@ -714,6 +707,17 @@ fn a_rig_recording_with_motion_at_once_and_twice_per_revolution_replays_without_
     );
 }
 
+/// RMS (mrad) of the raw and the corrected angle at m = 1, 2 (where the rig's motion
+/// is) and at m = 3..12 (the sensor's error).
+fn motion_and_sensor_bands(rep: &serde_json::Value) -> [f64; 4] {
+    [
+        band_rms(rep, "raw", 1..=2),
+        band_rms(rep, "corrected", 1..=2),
+        band_rms(rep, "raw", 3..=12),
+        band_rms(rep, "corrected", 3..=12),
+    ]
+}
+
 #[test]
 fn without_motion_the_rig_sensor_keeps_its_m_1_2_paths() {
     // The same sensor on a shaft turning evenly: nothing flagged, the bank from the data
@@ -724,14 +728,7 @@ fn without_motion_the_rig_sensor_keeps_its_m_1_2_paths() {
     let paths = rep["paths"].as_array().unwrap();
     assert!(paths.iter().any(|p| p == "offset"), "{paths:?}");
     assert_eq!(rep["input_scaling"]["source"], "estimated from min/max");
-    let (raw12, cor12) = (
-        band_rms(&rep, "raw", 1..=2),
-        band_rms(&rep, "corrected", 1..=2),
-    );
-    let (raw3, cor3) = (
-        band_rms(&rep, "raw", 3..=12),
-        band_rms(&rep, "corrected", 3..=12),
-    );
+    let [raw12, cor12, raw3, cor3] = motion_and_sensor_bands(&rep);
     assert!(raw12 / cor12 > 100.0, "{stdout}");
     assert!(raw3 / cor3 > 300.0, "{stdout}");
 }

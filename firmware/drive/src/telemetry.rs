@@ -328,10 +328,6 @@ impl TelemetrySlot {
         self.unread = true;
     }
 
-    pub fn publish(&mut self, t: Snapshot) {
-        self.publish_with(|s| *s = t);
-    }
-
     pub fn take(&mut self) -> Option<Snapshot> {
         core::mem::take(&mut self.unread).then_some(self.snapshot)
     }

@@ -1644,9 +1644,10 @@ pub fn perf_table(p: &Perf, title: &str) -> String {
     s
 }
 
-/// Diagnostics (`DRIVE_EMU_ISR_BLOCKS=DIR`): the run's longest control interrupt and the
-/// window's, cycles by function (innermost inlined frame, under its two callers), into
-/// `DIR/<tag>-{longest,window}.txt`.
+/// Diagnostics (`DRIVE_EMU_ISR_BLOCKS=DIR`): the run's longest control interrupt, the
+/// window's and the adaptation task's longest run, cycles by function (innermost inlined
+/// frame, under its two callers) into `DIR/<tag>-{longest,window,task}.txt`, and by block
+/// with its first source line into `DIR/<tag>-<same>-blocks.txt`.
 pub fn dump_isr_blocks(elf: &[u8], st: &crate::stats::Stats, tag: &str) -> Result<()> {
     let Some(dir) = std::env::var_os("DRIVE_EMU_ISR_BLOCKS") else {
         return Ok(());
@@ -1677,7 +1678,7 @@ pub fn dump_isr_blocks(elf: &[u8], st: &crate::stats::Stats, tag: &str) -> Resul
             lines.push_str(&format!("{pc:#010x} {c:6} {loc}\n"));
         }
         std::fs::write(dir.join(format!("{tag}-{name}-blocks.txt")), lines)?;
-        for (pc, c) in blocks {
+        for (pc, c) in &at {
             let key = chains
                 .get(pc)
                 .map(|ch| {
