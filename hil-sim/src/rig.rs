@@ -11,8 +11,9 @@
 //!
 //! The supervisor's flash is [`SimFlash`]: the calibration pages with the chip's erase
 //! and programming times. While a flash operation runs the supervisor is blocked (its
-//! command and events come out when it finishes, its ticks in between are lost, as
-//! RTIC drops the spawn of a running task) and the control period keeps running, as it
+//! command and events come out when it finishes, its ticks in between are lost, as the
+//! firmware's control interrupt skips the tick of a supervisor still running) and the
+//! control period keeps running, as it
 //! does with the pages in the other flash bank; [`SimFlash::stall_cpu`] models pages in
 //! the bank the code runs from, where the erase stalls everything.
 
@@ -24,7 +25,7 @@ use drive::control::{ControlPeriod, DriveConfig, MotorConfig, Output};
 use drive::handoff::{PlanQueue, Queue, HANDOFF_DEPTH, UPDATE_DEPTH};
 use drive::motion::{Angle, LoopMode, MotionRef};
 use drive::supervisor::{NamedError, Supervisor};
-use drive::telemetry::{Command, Fault, Install, Line, TelemetrySlot};
+use drive::telemetry::{Command, Fault, Install, Line, Snapshot, TelemetrySlot};
 use mras::{AdaptSample, Estimate, F32Trig, InjectionUpdate, Trig};
 use std::f64::consts::TAU;
 
@@ -410,12 +411,16 @@ impl<T: Trig, const H: usize, const U: usize> Rig<T, H, U> {
                 ..self.last_output
             }
         } else {
+            // As the control interrupt: a snapshot the supervisor did not take since
+            // the period that owed it is written first.
+            let period = &mut self.period;
+            self.telemetry.settle_with(|s| period.write_snapshot(s));
             self.period.apply_due(&mut self.updates, &mut self.plans);
             let out = self.period.step(&sample, &self.command);
             self.adapt_pended |= self.period.hand_over(&mut self.handoff);
-            if out.supervisor_due {
-                let period = &mut self.period;
-                self.telemetry.publish_with(|s| period.write_snapshot(s));
+            // As the firmware's control interrupt: a supervisor still busy skips the tick.
+            if out.supervisor_due && self.task.as_ref().is_some_and(|k| t >= k.busy_until_s) {
+                self.telemetry.owe();
             }
             self.periods += 1;
             if self.adapt_pended && self.periods.is_multiple_of(u64::from(self.adapt_every)) {
@@ -472,9 +477,14 @@ impl<T: Trig, const H: usize, const U: usize> Rig<T, H, U> {
         if t < task.busy_until_s {
             return;
         }
-        let Some(snapshot) = self.telemetry.take() else {
+        let period = &mut self.period;
+        let mut snapshot = Snapshot::EMPTY;
+        if !self
+            .telemetry
+            .take_into(&mut snapshot, |s| period.write_snapshot(s))
+        {
             return;
-        };
+        }
         let tm = snapshot.merged(&self.report);
         let out = task.sup.step(&tm, &mut task.flash);
         let busy = task.flash.take_busy_s();

@@ -199,7 +199,8 @@ pub fn generate(names: &[&str]) -> Result<()> {
     let mut walls = Vec::new();
     for g in chosen {
         let started = std::time::Instant::now();
-        run_generator(g, &dir, false).with_context(|| format!("docs generator {}", g.name))?;
+        run_generator(g, &dir, false, None)
+            .with_context(|| format!("docs generator {}", g.name))?;
         walls.push((g.name, started.elapsed().as_secs_f64()));
     }
     render_pages()?;
@@ -209,8 +210,10 @@ pub fn generate(names: &[&str]) -> Result<()> {
     Ok(())
 }
 
-/// Run `g` with its figure files written into `out`; `check`: the variant CI runs.
-fn run_generator(g: &Generator, out: &Path, check: bool) -> Result<()> {
+/// Run `g` with its figure files written into `out`; `check`: the variant CI runs;
+/// `pieces`: where the emulator's tests left the scenarios they ran (`emu-report`
+/// takes those of the same ELFs instead of running them again).
+fn run_generator(g: &Generator, out: &Path, check: bool, pieces: Option<&Path>) -> Result<()> {
     let file = |name: &str| out.join(name);
     match g.name {
         "size" => {
@@ -226,6 +229,11 @@ fn run_generator(g: &Generator, out: &Path, check: bool) -> Result<()> {
             let details = details.to_str().context("a non-UTF-8 path")?;
             let fast = crate::fast_run_aside()?;
             let fast = fast.to_str().context("a non-UTF-8 path")?;
+            let mut reuse = Vec::new();
+            if let Some(dir) = pieces {
+                reuse.push("--reuse".to_string());
+                reuse.push(dir.to_str().context("a non-UTF-8 path")?.to_string());
+            }
             crate::emu(
                 &[
                     "scenarios",
@@ -236,7 +244,7 @@ fn run_generator(g: &Generator, out: &Path, check: bool) -> Result<()> {
                     "--fast-elf",
                     fast,
                 ],
-                &[],
+                &reuse,
             )
         }
         "cycles" => {
@@ -486,6 +494,12 @@ fn difference(page: &Path, is: &str, want: &str) -> String {
 /// The CI check: the pages, then every generator CI can afford rerun and compared
 /// (`names`: only those).
 pub fn check(names: &[&str]) -> Result<()> {
+    check_reusing(names, None)
+}
+
+/// [`check`], with the scenarios the emulator's tests ran on the same ELFs taken from
+/// `pieces` (`cargo xtask ci`, which has just run them).
+pub fn check_reusing(names: &[&str], pieces: Option<&Path>) -> Result<()> {
     let pages = check_pages();
     let chosen: Vec<&Generator> = match names {
         [] => GENERATORS.iter().filter(|g| g.in_ci != InCi::No).collect(),
@@ -499,7 +513,8 @@ pub fn check(names: &[&str]) -> Result<()> {
         }
         std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
         let started = std::time::Instant::now();
-        run_generator(g, &dir, true).with_context(|| format!("docs generator {}", g.name))?;
+        run_generator(g, &dir, true, pieces)
+            .with_context(|| format!("docs generator {}", g.name))?;
         eprintln!(
             "xtask docs: {} regenerated in {:.0} s wall",
             g.name,

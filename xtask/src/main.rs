@@ -570,13 +570,22 @@ fn ci() -> Result<()> {
     // configuration over a commissioned drive (the second's boot refuses the record:
     // ConfigMismatch).
     other_configs_aside()?;
-    run(emulator("test"))?;
+    // The scenarios the tests run are the report's: they leave their rows and sections
+    // behind, and the docs check below assembles the report from them (same ELFs).
+    let pieces = root().join("target").join("emu-pieces");
+    if pieces.exists() {
+        std::fs::remove_dir_all(&pieces).with_context(|| pieces.display().to_string())?;
+    }
+    let mut c = emulator("test");
+    // drive_emu::scenarios::pieces::ENV (xtask does not link the GPL emulator).
+    c.env("DRIVE_EMU_PIECES", &pieces);
+    run(c)?;
     // The same tests fail on firmware broken on purpose: the checks can fail.
     mutants::check()?;
     // Every generated figure of the docs: the pages against the committed figure
     // files, then the generators CI can afford rerun and compared, `perf` among them
     // (every build commissions to Run without a missed control period).
-    docs::check(&[])?;
+    docs::check_reusing(&[], Some(&pieces))?;
     eprintln!("\nxtask ci: all checks passed");
     Ok(())
 }

@@ -4,16 +4,17 @@
 //! 3. `control`, bound to ADC1_2 (end of the injected sequence triggered by TIM1 TRGO2):
 //!    read the ADCs → `drive::control::ControlPeriod::step` → compare registers and MOE.
 //!    It hands the accepted sample to `adapt` and, at the supervisor's divider ticks,
-//!    publishes a telemetry snapshot.
+//!    owes the supervisor a telemetry snapshot of its state (`TelemetrySlot`).
 //! 2. `adapt` (every period, pended by `control`): the MRAS adaptation
 //!    (`drive::adaptation::AdaptationTask::run`) on the handed-over samples; its updates
 //!    go back to `control`, in force a fixed latency later (`mras::UPDATE_LATENCY_PERIODS`),
 //!    so the result does not depend on when in between it ran. Both directions are
 //!    lock-free queues (`drive::handoff`, with their drop rules): neither side ever masks
 //!    the other.
-//! 1. `supervisor` (1 kHz, spawned by `control`): `drive::supervisor::Supervisor::step`
+//! 1. `supervisor` (1 kHz, pended by `control`): `drive::supervisor::Supervisor::step`
 //!    on the snapshot and the adaptation's report, the calibration flash, the watchdog,
-//!    and the RTT stream. It is the only runtime context that logs; defmt-rtt neither
+//!    and the RTT stream. It copies the snapshot it is owed from the control period's
+//!    state, masking `control` for the copy. It is the only runtime context that logs; defmt-rtt neither
 //!    blocks nor masks interrupts (firmware/app/Cargo.toml), so the control interrupt is
 //!    never held up by RTT.
 #![no_std]
@@ -40,11 +41,12 @@ fn panic(_: &core::panic::PanicInfo) -> ! {
     cortex_m::peripheral::SCB::sys_reset();
 }
 
-#[rtic::app(device = stm32g4xx_hal::stm32, dispatchers = [USART1, USART2])]
+#[rtic::app(device = stm32g4xx_hal::stm32)]
 mod app {
     use crate::adc::{self, Adcs};
     use crate::pwm::Pwm;
     use crate::{board, calibration, fault_record};
+    use core::sync::atomic::{AtomicBool, Ordering};
     use cortex_m::peripheral::DWT;
     use drive::adaptation::{AdaptReport, AdaptationTask};
     use drive::commissioning::Cause;
@@ -66,6 +68,9 @@ mod app {
         command: Command,
         /// Control → supervisor, at the divider ticks.
         telemetry: TelemetrySlot,
+        /// The control period: `control`'s, read by `supervisor` for the snapshot a
+        /// supervisor's period owes (a copy, with `control` masked).
+        period: ControlPeriod<CoreTrig>,
         /// Coefficients loaded from flash, for `adapt` to install.
         mailbox: Option<Install>,
         /// Adaptation → supervisor, after each snapshot period.
@@ -76,7 +81,6 @@ mod app {
     struct Local {
         adcs: Adcs,
         pwm: Pwm,
-        period: ControlPeriod<CoreTrig>,
         /// Accepted samples to `adapt`, and its updates and bank plans back.
         handoff_tx: Producer<'static, AdaptSample, HANDOFF_DEPTH>,
         updates_rx: Consumer<'static, InjectionUpdate, UPDATES>,
@@ -178,13 +182,13 @@ mod app {
             Shared {
                 command: Command::OFF,
                 telemetry: TelemetrySlot::EMPTY,
+                period,
                 mailbox: None,
                 report: AdaptReport::EMPTY,
             },
             Local {
                 adcs,
                 pwm,
-                period,
                 handoff_tx,
                 updates_rx,
                 plans_rx,
@@ -213,29 +217,38 @@ mod app {
 
     /// The control period: highest priority, bound to the end of the injected sequence.
     #[task(binds = ADC1_2, priority = 3,
-           local = [adcs, pwm, period, last_cycles, handoff_tx, updates_rx, plans_rx],
-           shared = [command, telemetry])]
-    fn control(mut cx: control::Context) {
+           local = [adcs, pwm, last_cycles, handoff_tx, updates_rx, plans_rx],
+           shared = [command, telemetry, period])]
+    fn control(cx: control::Context) {
         let t0 = DWT::cycle_count();
         let l = cx.local;
         let mut sample = l.adcs.read();
         sample.overcurrent = l.pwm.break_active();
         sample.cycles = *l.last_cycles;
-        let command = cx.shared.command.lock(|c| *c);
-        l.period.apply_due(l.updates_rx, l.plans_rx);
-        let out = l.period.step(&sample, &command);
-        l.pwm.apply(&out);
-        if l.period.hand_over(l.handoff_tx) {
-            rtic::pend(Interrupt::USART3);
-        }
-        if out.supervisor_due {
-            let period = &mut *l.period;
-            cx.shared
-                .telemetry
-                .lock(|t| t.publish_with(|s| period.write_snapshot(s)));
-            // Still running (a flash operation): this tick is skipped, the snapshot waits.
-            supervisor::spawn().ok();
-        }
+        let (mut command, mut telemetry) = (cx.shared.command, cx.shared.telemetry);
+        // At the ceiling of `period`: no other task takes it while this one runs.
+        let mut period = cx.shared.period;
+        period.lock(|period| {
+            // The snapshot of a supervisor's period the supervisor did not take (busy,
+            // or preempted past it): written before anything changes that state.
+            telemetry.lock(|t| t.settle_with(|s| period.write_snapshot(s)));
+            let command = command.lock(|c| *c);
+            period.apply_due(l.updates_rx, l.plans_rx);
+            let out = period.step(&sample, &command);
+            l.pwm.apply(&out);
+            if period.hand_over(l.handoff_tx) {
+                rtic::pend(Interrupt::USART3);
+            }
+            // The supervisor copies the snapshot (TelemetrySlot::take_into). Still
+            // pended or running (a flash operation): this tick is skipped, and what its
+            // snapshot would have restarted (the cycle statistics, the loss of lock)
+            // runs on into the next.
+            if out.supervisor_due && !SUPERVISOR_BUSY.load(Ordering::Relaxed) {
+                SUPERVISOR_BUSY.store(true, Ordering::Relaxed);
+                telemetry.lock(TelemetrySlot::owe);
+                rtic::pend(Interrupt::USART1);
+            }
+        });
         if cfg!(feature = "mutant-slow-control") {
             // The deliberately broken build: busy until 1.5 control periods after entry.
             let busy = 3 * (board::SYSCLK_HZ / board::PWM_HZ) / 2;
@@ -263,14 +276,34 @@ mod app {
             });
     }
 
-    /// Commissioning, calibration flash, watchdog and the stream (1 kHz).
-    #[task(priority = 1, local = [supervisor, flash, watchdog],
-           shared = [command, telemetry, mailbox, report])]
-    async fn supervisor(mut cx: supervisor::Context) {
+    /// From `control`'s supervisor tick to the supervisor's return: a tick meanwhile is
+    /// skipped. Set only by `control`, cleared only by `supervisor`.
+    static SUPERVISOR_BUSY: AtomicBool = AtomicBool::new(false);
+
+    /// Commissioning, calibration flash, watchdog and the stream (1 kHz; USART1's
+    /// vector, which no peripheral raises here, pended by `control`: a pend where a
+    /// spawn of a software task cost the control interrupt about 35 cycles more).
+    #[task(binds = USART1, priority = 1, local = [supervisor, flash, watchdog],
+           shared = [command, telemetry, mailbox, report, period])]
+    fn supervisor(cx: supervisor::Context) {
+        supervise(cx);
+        SUPERVISOR_BUSY.store(false, Ordering::Relaxed);
+    }
+
+    fn supervise(mut cx: supervisor::Context) {
+        use rtic::Mutex as _;
         let l = cx.local;
-        let Some(snapshot) = cx.shared.telemetry.lock(TelemetrySlot::take) else {
+        // The snapshot copied with `control` masked: its period's state, which only
+        // the next control period changes.
+        let telemetry = &mut cx.shared.telemetry;
+        let mut snapshot = telemetry::Snapshot::EMPTY;
+        let fresh = cx
+            .shared
+            .period
+            .lock(|p| telemetry.lock(|t| t.take_into(&mut snapshot, |s| p.write_snapshot(s))));
+        if !fresh {
             return;
-        };
+        }
         let tm = snapshot.merged(&cx.shared.report.lock(|r| *r));
         let out = l.supervisor.step(&tm, l.flash);
         cx.shared.command.lock(|c| *c = out.command);

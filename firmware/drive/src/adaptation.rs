@@ -274,7 +274,10 @@ impl AdaptationTask {
 impl Snapshot {
     /// The control period's snapshot with the adaptation's figures: what the supervisor
     /// works on.
-    pub fn merged(self, r: &AdaptReport) -> Telemetry {
+    pub fn merged(mut self, r: &AdaptReport) -> Telemetry {
+        if self.sweep.is_none() {
+            self.sweep = self.sweep_fit.map(|f| f.result());
+        }
         Telemetry {
             snapshot: self,
             converged: r.converged,

@@ -54,6 +54,26 @@ pub fn wrap_pi(x: f32) -> f32 {
     x - n as f32 * TAU
 }
 
+/// `libm::roundf` (half away from zero), bit for bit, through an integer where `x` has a
+/// fraction: the generic `roundf` cost the sweep's last control period about 35 cycles
+/// a call.
+#[inline]
+pub fn round_f32(x: f32) -> f32 {
+    // NaN, infinities and |x| >= 2^23 (integers already) as they are.
+    if x.is_nan() || libm::fabsf(x) >= 8_388_608.0 {
+        return x;
+    }
+    let t = x as i32 as f32;
+    // Exact: x and its truncation share their sign and exponent range.
+    let r = if libm::fabsf(x - t) >= 0.5 {
+        t + libm::copysignf(1.0, x)
+    } else {
+        t
+    };
+    // -0.4 rounds to -0.0, as `roundf`.
+    libm::copysignf(r, x)
+}
+
 /// The electrical angle of the rotor from the sensor-electrical estimate.
 #[inline]
 pub fn electrical_angle(a: &Alignment, electrical_per_sensor: f32, theta_s_rad: f32) -> f32 {
@@ -80,13 +100,36 @@ pub struct Sweep {
     sum_w_s: f32,
     sum_w_cc: f32,
     sum_w_cs: f32,
-    result: Option<SweepResult>,
+    /// Set when both directions are done: the sums, which stop there, and what the fit
+    /// needs besides. The fit itself is worked out by whoever reads it
+    /// ([`SweepFit::result`]): in the control period that ended the sweep it was that
+    /// period's longest part, and the supervisor reads its snapshot with the control
+    /// interrupt masked.
+    ended: Option<SweepFit>,
+}
+
+/// A finished sweep's sums and constants: [`SweepFit::result`] fits them.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SweepFit {
+    sum_w: f32,
+    sum_w_c: f32,
+    sum_w_s: f32,
+    sum_w_cc: f32,
+    sum_w_cs: f32,
+    k: f32,
+    sensor_periods: f32,
+    s0_abs: f32,
 }
 
 impl Sweep {
+    /// The finished sweep's fit, once both directions are done.
+    pub fn fit(&self) -> Option<SweepFit> {
+        self.ended
+    }
+
     /// The result, once both directions are done.
     pub fn result(&self) -> Option<SweepResult> {
-        self.result
+        self.ended.map(|f| f.result())
     }
 
     /// Commanded electrical angle at this period, and the measurement of the sensor's
@@ -122,6 +165,9 @@ impl Sweep {
         } else {
             0.0
         };
+        if self.ended.is_some() {
+            return cmd;
+        }
         let w = libm::fabsf(cmd - self.last_cmd_rad);
         self.last_cmd_rad = cmd;
         let c = cmd - 0.5 * span;
@@ -130,21 +176,35 @@ impl Sweep {
         self.sum_w_s += w * s_rel;
         self.sum_w_cc += w * c * c;
         self.sum_w_cs += w * c * s_rel;
-        if t >= back_start + duration_s + hold && self.result.is_none() {
-            self.result = Some(self.finish(k, sensor_periods, s0_abs));
+        if t >= back_start + duration_s + hold {
+            self.ended = Some(SweepFit {
+                sum_w: self.sum_w,
+                sum_w_c: self.sum_w_c,
+                sum_w_s: self.sum_w_s,
+                sum_w_cc: self.sum_w_cc,
+                sum_w_cs: self.sum_w_cs,
+                k,
+                sensor_periods,
+                s0_abs,
+            });
         }
         cmd
     }
+}
 
-    fn finish(&self, k: f32, sensor_periods: f32, s0_abs: f32) -> SweepResult {
+impl SweepFit {
+    /// The sweep's result: ratio, pole pairs, alignment.
+    pub fn result(&self) -> SweepResult {
+        let (k, sensor_periods, s0_abs) = (self.k, self.sensor_periods, self.s0_abs);
         // The sensor's travel against the command, least squares over both directions:
         // the rotor's lag behind the field is opposite in each and cancels, and a
         // rotor ringing on the field's stiffness averages out (one reading at the
         // hold's end would take its swing for travel).
-        let n = mras::max_f32(self.sum_w, f32::MIN_POSITIVE);
-        let (mean_c, mean_s) = (self.sum_w_c / n, self.sum_w_s / n);
-        let var = self.sum_w_cc / n - mean_c * mean_c;
-        let cov = self.sum_w_cs / n - mean_c * mean_s;
+        // One division: the sweep ends inside a control period.
+        let inv_n = 1.0 / mras::max_f32(self.sum_w, f32::MIN_POSITIVE);
+        let (mean_c, mean_s) = (self.sum_w_c * inv_n, self.sum_w_s * inv_n);
+        let var = self.sum_w_cc * inv_n - mean_c * mean_c;
+        let cov = self.sum_w_cs * inv_n - mean_c * mean_s;
         // Sensor radians per electrical radian: ±1/k when p and N are right.
         let slope = if var > 0.0 { cov / var } else { 0.0 };
         let reversed = slope < 0.0;
@@ -156,7 +216,7 @@ impl Sweep {
         let pole_pairs = in_force / mras::max_f32(ratio, 1e-6);
         // The nearest count whose electrical turns a sensor period holds whole (N | p).
         let whole = mras::min_f32(
-            mras::max_f32(libm::roundf(pole_pairs / sensor_periods), 1.0) * sensor_periods,
+            mras::max_f32(round_f32(pole_pairs / sensor_periods), 1.0) * sensor_periods,
             u16::MAX as f32,
         );
         let offset_e_rad = if self.sum_w > 0.0 && ratio > 0.0 {
@@ -170,11 +230,11 @@ impl Sweep {
             ratio,
             pole_pairs,
             whole_pole_pairs: whole as u16,
-            sensor_periods: libm::roundf(sensor_periods) as u16,
+            sensor_periods: round_f32(sensor_periods) as u16,
             alignment: Alignment {
                 offset_e_rad,
                 reversed,
-                pole_pairs: libm::roundf(in_force) as u16,
+                pole_pairs: round_f32(in_force) as u16,
             },
         }
     }
@@ -235,6 +295,42 @@ impl ShiftReading {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn round_is_roundf_bit_for_bit() {
+        let same = |x: f32| {
+            assert_eq!(round_f32(x).to_bits(), libm::roundf(x).to_bits(), "{x}");
+        };
+        for x in [
+            0.0f32,
+            -0.0,
+            0.5,
+            -0.5,
+            1.5,
+            -1.5,
+            2.5,
+            0.499_999_97,
+            -0.499_999_97,
+            1e-30,
+            8_388_607.5,
+            -8_388_607.5,
+            8_388_608.0,
+            1e9,
+            f32::MAX,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+        ] {
+            same(x);
+        }
+        let mut x = 1e-3f32;
+        while x < 1e8 {
+            for x in [x, -x, x + 0.5, -x - 0.5, x.next_up(), (-x).next_down()] {
+                same(x);
+            }
+            x *= 1.013;
+        }
+    }
 
     #[test]
     fn wrap_pi_keeps_angles_in_range() {

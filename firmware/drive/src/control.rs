@@ -121,7 +121,7 @@ fn inverter_compensation(
     let (half_a, b_part) = (0.5 * i_alpha, 0.866_025_4 * i_beta);
     let phases = [i_alpha, b_part - half_a, -b_part - half_a];
     let share = |k: f32| {
-        let [a, b, c] = phases.map(|i| phase_v * mras::min_f32(mras::max_f32(i * k, -1.0), 1.0));
+        let [a, b, c] = phases.map(|i| phase_v * mras::clamp_unit_f32(i * k));
         // Amplitude-invariant Clarke; the common mode drops out.
         ((2.0 * a - b - c) * (1.0 / 3.0), (b - c) * 0.577_350_26)
     };
@@ -954,7 +954,8 @@ impl<T: Trig> ControlPeriod<T> {
             epsilon_rad: self.direction * est.epsilon_rad * self.mech_per_sensor_rad,
             omega_rad_s: self.direction * est.omega_rad_s,
             amplitude: est.amplitude,
-            sweep: self.sweep.result(),
+            sweep: None,
+            sweep_fit: self.sweep.fit(),
             ident: self.ident.status(),
             shift: self.shift_base.map(|base| ShiftReading {
                 offset_e_rad: base.offset_e_rad,

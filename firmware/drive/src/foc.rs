@@ -44,7 +44,7 @@ pub fn svpwm(v_alpha: f32, v_beta: f32, vdc_v: f32) -> ([f32; 3], bool) {
     // Inline compare-and-select (`f32::max`/`min` are `fmaxf`/`fminf` calls on the MCU).
     let offset = -0.5 * (max_f32(max_f32(a, b), c) + min_f32(min_f32(a, b), c));
     let inv = 1.0 / vdc_v;
-    let duty = [a, b, c].map(|v| ((v + offset) * inv + 0.5).clamp(0.0, 1.0));
+    let duty = [a, b, c].map(|v| mras::clamp_01_f32((v + offset) * inv + 0.5));
     (duty, limited)
 }
 

@@ -213,8 +213,11 @@ pub struct Snapshot {
     /// ω̂ in the motor's frame (the sensor's direction applied), mechanical.
     pub omega_rad_s: f32,
     pub amplitude: f32,
-    /// The alignment sweep's result, once it finished.
+    /// The alignment sweep's result, once it finished: worked out from `sweep_fit` by
+    /// [`Snapshot::merged`], outside the control interrupt and its mask.
     pub sweep: Option<SweepResult>,
+    /// The finished sweep's sums, as the control period holds them.
+    pub sweep_fit: Option<crate::align::SweepFit>,
     /// The motor's identification (Pending until one ran).
     pub ident: crate::ident::IdentStatus,
     /// The mean shift of the corrected angle against the raw one as measured so far,
@@ -260,6 +263,7 @@ impl Snapshot {
         omega_rad_s: 0.0,
         amplitude: 0.0,
         sweep: None,
+        sweep_fit: None,
         ident: crate::ident::IdentStatus::Pending,
         shift: None,
         iq_integral_a_s: 0.0,
@@ -294,14 +298,24 @@ pub struct Telemetry {
 }
 
 /// Where the control period leaves its snapshots for the supervisor (an RTIC shared
-/// resource in the firmware). A snapshot published while the supervisor is busy (a
-/// flash erase) replaces the unread one, keeping its cycle statistics.
+/// resource in the firmware).
 ///
-/// The control period writes its snapshot in place ([`TelemetrySlot::publish_with`]):
-/// built aside and moved in, it cost the control interrupt a second copy.
+/// A supervisor's period that wakes the supervisor only marks its snapshot owed
+/// ([`TelemetrySlot::owe`]); the supervisor writes it from the control period's state
+/// ([`TelemetrySlot::take_into`]). Until the next control period starts, that state is
+/// the period's own: the adaptation task between them does not touch it. A control
+/// period that finds the snapshot still owed (the supervisor preempted past it) writes
+/// it first, before anything changes that state ([`TelemetrySlot::settle_with`]); a
+/// second one written before the supervisor read the first replaces it, keeping its
+/// cycle statistics. Either way the snapshot is its period's, as if written there, but
+/// the control interrupt no longer copies it on every supervisor's period (about 190
+/// cycles off the longest of them). A tick whose supervisor is still busy (a flash
+/// erase) owes nothing: what its snapshot would have restarted (the cycle statistics,
+/// the loss of lock) runs on into the next.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TelemetrySlot {
     unread: bool,
+    owed: bool,
     snapshot: Snapshot,
 }
 
@@ -314,6 +328,7 @@ impl Default for TelemetrySlot {
 impl TelemetrySlot {
     pub const EMPTY: Self = Self {
         unread: false,
+        owed: false,
         snapshot: Snapshot::EMPTY,
     };
 
@@ -328,8 +343,42 @@ impl TelemetrySlot {
         self.unread = true;
     }
 
-    pub fn take(&mut self) -> Option<Snapshot> {
-        core::mem::take(&mut self.unread).then_some(self.snapshot)
+    /// A supervisor's period has ended: its snapshot is owed, to be written from the
+    /// control period's state before the next control period changes it.
+    #[inline(always)]
+    pub fn owe(&mut self) {
+        self.owed = true;
+    }
+
+    /// At the start of a control period, before anything else: the snapshot still owed
+    /// is written now (`write` reads the state the last period left).
+    #[inline(always)]
+    pub fn settle_with(&mut self, write: impl FnOnce(&mut Snapshot)) {
+        if self.owed {
+            self.owed = false;
+            self.publish_with(write);
+        }
+    }
+
+    /// The supervisor's read, into `out` (`false`: nothing unread, `out` untouched):
+    /// the owed snapshot written by `write` from the control period's state (which must
+    /// not have moved since the period that owed it), or else the unread one. The owed
+    /// one goes straight into `out`, not through the slot: the firmware reads it with
+    /// the control interrupt masked, and a second copy doubled that.
+    #[inline(always)]
+    pub fn take_into(&mut self, out: &mut Snapshot, write: impl FnOnce(&mut Snapshot)) -> bool {
+        if core::mem::take(&mut self.owed) {
+            write(out);
+            if core::mem::take(&mut self.unread) {
+                out.cycles.merge(&self.snapshot.cycles);
+            }
+            true
+        } else if core::mem::take(&mut self.unread) {
+            *out = self.snapshot;
+            true
+        } else {
+            false
+        }
     }
 }
 
@@ -845,4 +894,70 @@ pub fn bank_names(paths: &[mras::PathKind]) -> heapless::String<128> {
         let _ = write_path_name(*k, &mut s);
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A stand-in for the control period's state: its tick and the cycles since the
+    /// last snapshot, restarted by each snapshot written, as `write_snapshot` does.
+    struct Period {
+        ticks: u32,
+        cycles: CycleStats,
+    }
+
+    impl Period {
+        fn run(&mut self, c: u32) {
+            self.ticks += 1;
+            self.cycles.add(c);
+        }
+
+        fn write(&mut self, s: &mut Snapshot) {
+            *s = Snapshot {
+                ticks: self.ticks,
+                cycles: self.cycles,
+                ..Snapshot::EMPTY
+            };
+            self.cycles = CycleStats::EMPTY;
+        }
+    }
+
+    #[test]
+    fn the_supervisor_gets_the_owing_periods_snapshot_whoever_writes_it() {
+        let mut p = Period {
+            ticks: 0,
+            cycles: CycleStats::EMPTY,
+        };
+        let mut slot = TelemetrySlot::EMPTY;
+        let mut out = Snapshot::EMPTY;
+        // Nothing owed, nothing unread.
+        assert!(!slot.take_into(&mut out, |s| p.write(s)));
+        // Read by the supervisor before the next period: written from the state.
+        p.run(100);
+        slot.owe();
+        assert!(slot.take_into(&mut out, |s| p.write(s)));
+        assert_eq!((out.ticks, out.cycles.count), (1, 1));
+        assert!(!slot.take_into(&mut out, |s| p.write(s)));
+        // The supervisor preempted past the next period: that period writes it first,
+        // and the supervisor reads the owing period's.
+        p.run(200);
+        slot.owe();
+        slot.settle_with(|s| p.write(s));
+        p.run(300);
+        slot.settle_with(|s| p.write(s));
+        assert!(slot.take_into(&mut out, |s| p.write(s)));
+        assert_eq!((out.ticks, out.cycles.count, out.cycles.max), (2, 1, 200));
+        // Two owed before a read: the second replaces the first, keeping its cycles.
+        slot.owe();
+        slot.settle_with(|s| p.write(s));
+        p.run(400);
+        slot.owe();
+        slot.settle_with(|s| p.write(s));
+        assert!(slot.take_into(&mut out, |s| p.write(s)));
+        assert_eq!(
+            (out.ticks, out.cycles.count, out.cycles.min, out.cycles.max),
+            (4, 2, 300, 400)
+        );
+    }
 }

@@ -465,17 +465,18 @@ fn configurations_are_checked_by_field() {
     assert!(ControlPeriod::new(c, Front::new(core).unwrap()).is_err());
 }
 
-/// A receiving end that counts what it hands out (the updates the control period took).
-struct Counted<'a, R> {
-    inner: &'a mut R,
-    taken: Vec<InjectionUpdate>,
+/// A receiving end that keeps what it hands out (the updates or the plans the control
+/// period took).
+struct Counted<'a, Q, T> {
+    inner: &'a mut Q,
+    taken: Vec<T>,
 }
 
-impl<R: Receiver<InjectionUpdate>> Receiver<InjectionUpdate> for Counted<'_, R> {
-    fn peek(&self) -> Option<&InjectionUpdate> {
+impl<T: Copy, Q: Receiver<T>> Receiver<T> for Counted<'_, Q, T> {
+    fn peek(&self) -> Option<&T> {
         self.inner.peek()
     }
-    fn receive(&mut self) -> Option<InjectionUpdate> {
+    fn receive(&mut self) -> Option<T> {
         let u = self.inner.receive();
         self.taken.extend(u);
         u
@@ -721,23 +722,6 @@ fn a_phase_at_high_duty_is_reconstructed_from_the_other_two() {
     );
 }
 
-/// A plan queue that counts what the control period takes from it.
-struct CountedPlans {
-    inner: PlanQueue,
-    taken: Vec<BankPlan>,
-}
-
-impl Receiver<BankPlan> for CountedPlans {
-    fn peek(&self) -> Option<&BankPlan> {
-        self.inner.peek()
-    }
-    fn receive(&mut self) -> Option<BankPlan> {
-        let p = self.inner.receive();
-        self.taken.extend(p);
-        p
-    }
-}
-
 /// A bank from the data, over the firmware's queues: every bank a survey round puts in
 /// force reaches the control period with the plan the task made for it (its bank, made
 /// from the bank then in force), none is left over, and the last is the adapter's.
@@ -753,8 +737,9 @@ fn every_survey_bank_comes_with_its_plan() {
     let mut task = AdaptationTask::new(&core).unwrap();
     let mut handoff = Queue::<AdaptSample, HANDOFF_DEPTH>::new();
     let mut updates = Queue::<InjectionUpdate, UPDATE_DEPTH>::new();
-    let mut plans = CountedPlans {
-        inner: PlanQueue::new(),
+    let mut plan_queue = PlanQueue::new();
+    let mut plans = Counted {
+        inner: &mut plan_queue,
         taken: Vec::new(),
     };
     let cmd = Command {
@@ -779,7 +764,7 @@ fn every_survey_bank_comes_with_its_plan() {
         s.x = (s.x as f32 + off * AMPLITUDE).round() as u16;
         p.step(&s, &cmd);
         p.hand_over(&mut handoff);
-        task.run(&mut handoff, &mut updates, &mut plans.inner, None, |_| {});
+        task.run(&mut handoff, &mut updates, plans.inner, None, |_| {});
         if !task.adapter().surveying() && !banks.is_empty() && updates.is_empty() {
             break;
         }

@@ -102,6 +102,7 @@ fn telemetry(ticks: u32) -> Telemetry {
             omega_rad_s: Params::default().speed_rad_s,
             amplitude: 1.0,
             sweep: None,
+            sweep_fit: None,
             // Done at once: the identification's own tests are `ident.rs`.
             ident: drive::ident::IdentStatus::Done(IDENTIFIED),
             shift: None,

@@ -276,27 +276,30 @@ impl Injection {
         if plan.from != self.layout.packed {
             return false;
         }
+        // Indices masked to the arrays' lengths (powers of two) instead of iterators and
+        // `get`: this runs in the control interrupt, and their checks were a third of it.
+        const PATH_MASK: usize = MAX_PATHS - 1;
         let old = self.coef;
         // Orders above both degrees hold zero: clear up to the larger bank's.
-        let top = self.layout.top().max(plan.layout.top());
-        for (p, n) in self.pos.iter_mut().zip(self.neg.iter_mut()).take(top + 1) {
-            *p = Cplx::ZERO;
-            *n = Cplx::ZERO;
+        let top = self.layout.top().max(plan.layout.top()) & POWER_MASK;
+        for k in 0..top + 1 {
+            self.pos[k & POWER_MASK] = Cplx::ZERO;
+            self.neg[k & POWER_MASK] = Cplx::ZERO;
         }
         self.layout = plan.layout;
-        self.coef = [Cplx::ZERO; MAX_PATHS];
+        let len = self.layout.len.min(MAX_PATHS);
         let mut shared = false;
-        for (i, &j) in plan.keep.iter().enumerate().take(self.layout.len) {
-            if let Some(&c) = old.get(j as usize) {
-                shared |= !self.place(i, c);
+        for i in 0..MAX_PATHS {
+            let j = plan.keep[i] as usize;
+            self.coef[i] = Cplx::ZERO;
+            if i < len && j < MAX_PATHS {
+                shared |= !self.place(i, old[j & PATH_MASK]);
             }
         }
         // Paths sharing an order are summed once every term is in place.
         if shared {
-            for i in 0..self.layout.len {
-                if let Some(&c) = self.coef.get(i) {
-                    self.set(i, c);
-                }
+            for i in 0..len {
+                self.set(i, self.coef[i & PATH_MASK]);
             }
         }
         true
@@ -306,11 +309,13 @@ impl Injection {
     /// the term was stored).
     #[inline(always)]
     fn place(&mut self, path: usize, coef: Cplx) -> bool {
-        let (Some(term), Some(&s)) = (self.coef.get_mut(path), self.layout.slot.get(path)) else {
+        if path >= MAX_PATHS {
             return true;
-        };
-        *term = coef;
-        let s = s as usize;
+        }
+        // Masked, not `get`: `install` places every path of a bank in the control interrupt.
+        let path = path & (MAX_PATHS - 1);
+        self.coef[path] = coef;
+        let s = self.layout.slot[path] as usize;
         match s {
             0..32 => self.pos[s & POWER_MASK] = coef,
             32..64 => self.neg[s & POWER_MASK] = coef,

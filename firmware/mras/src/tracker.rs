@@ -326,7 +326,7 @@ impl<T: Trig> Front<T> {
         let mut est = self.estimate_of(&self.obs, amplitude, eps_e_rad, false);
         est.decoupled = zd;
         if next.periods != self.obs.periods {
-            self.mech = Self::split_periods(next.periods, n);
+            self.mech = Self::step_split(self.mech, self.obs.periods, next.periods, n);
         }
         self.obs = next;
         self.last = est;
@@ -542,6 +542,22 @@ impl<T: Trig> Front<T> {
         self.lag_rad = 0.0;
         self.restart = true;
         self.restart_amplitude = z.abs();
+    }
+
+    /// [`Self::split_periods`] of `to` from `mech`, that of `from`: a step of one
+    /// period (the observer's usual wrap) without the division, which made the period
+    /// of a wrap one of the control interrupt's longest.
+    #[inline(always)]
+    fn step_split(mech: (i32, i32), from: i32, to: i32, n: u16) -> (i32, i32) {
+        let (p, turns) = mech;
+        let n_i = (n as i32).max(1);
+        match to.checked_sub(from) {
+            Some(1) if p + 1 < n_i => (p + 1, turns),
+            Some(1) => (0, turns + 1),
+            Some(-1) if p > 0 => (p - 1, turns),
+            Some(-1) => (n_i - 1, turns - 1),
+            _ => Self::split_periods(to, n),
+        }
     }
 
     fn split_periods(periods: i32, n: u16) -> (i32, i32) {
@@ -861,4 +877,27 @@ fn angle_of_rad(x: f32) -> f32 {
 fn atan_series(t: f32) -> f32 {
     let t2 = t * t;
     t * (1.0 - t2 * (1.0 / 3.0 - t2 * 0.2))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_step_of_one_period_splits_as_the_division_does() {
+        type F = Front<crate::F32Trig>;
+        for n in [1u16, 2, 3, 7] {
+            let mut mech = F::split_periods(-40, n);
+            for to in -39..40 {
+                mech = F::step_split(mech, to - 1, to, n);
+                assert_eq!(mech, F::split_periods(to, n), "n {n}, up to {to}");
+            }
+            for to in (-40..39).rev() {
+                mech = F::step_split(mech, to + 1, to, n);
+                assert_eq!(mech, F::split_periods(to, n), "n {n}, down to {to}");
+            }
+            // Any other jump: the division.
+            assert_eq!(F::step_split(mech, -40, -37, n), F::split_periods(-37, n));
+        }
+    }
 }

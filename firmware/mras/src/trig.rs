@@ -228,9 +228,72 @@ pub fn max_f32(a: f32, b: f32) -> f32 {
     }
 }
 
+/// `x` clamped to [-1, 1] by a saturating conversion to Q31 and back: on the MCU two
+/// `vcvt`s, which saturate in hardware, where two compares each cost a flag transfer
+/// and a branch. Exact for |x| >= 2^-8; below, within 2^-31 (the Q31 step). NaN gives 0.
+#[inline(always)]
+pub fn clamp_unit_f32(x: f32) -> f32 {
+    const Q31: f32 = 2_147_483_648.0;
+    // `as` saturates (Rust's float-to-int semantics, VCVT's on the MCU).
+    ((x * Q31) as i32) as f32 * (1.0 / Q31)
+}
+
+/// `x` clamped to [0, 1] as [`clamp_unit_f32`] does to [-1, 1], through an unsigned
+/// Q32: exact for x >= 2^-9, within 2^-32 below. NaN gives 0.
+#[inline(always)]
+pub fn clamp_01_f32(x: f32) -> f32 {
+    const Q32: f32 = 4_294_967_296.0;
+    ((x * Q32) as u32) as f32 * (1.0 / Q32)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn clamps_saturate_and_keep_what_is_inside() {
+        for (x, want) in [
+            (2.5, 1.0),
+            (1.0, 1.0),
+            (-1.0, -1.0),
+            (-7e9, -1.0),
+            (f32::INFINITY, 1.0),
+            (f32::NEG_INFINITY, -1.0),
+            (0.0, 0.0),
+            (0.75, 0.75),
+            (-0.003_906_25, -0.003_906_25),
+        ] {
+            assert_eq!(clamp_unit_f32(x), want, "{x}");
+        }
+        assert_eq!(clamp_unit_f32(f32::NAN), 0.0);
+        for (x, want) in [(1.5, 1.0), (1.0, 1.0), (-0.2, 0.0), (0.0, 0.0), (0.5, 0.5)] {
+            assert_eq!(clamp_01_f32(x), want, "{x}");
+        }
+        assert_eq!(clamp_01_f32(f32::NAN), 0.0);
+        assert_eq!(
+            clamp_01_f32(1.0 - f32::EPSILON / 2.0),
+            1.0 - f32::EPSILON / 2.0
+        );
+        // Inside, bit for bit down to 2^-8, then within the Q31 step.
+        let mut x = 1.0f32;
+        while x > 1e-12 {
+            for v in [x, -x, x * 0.6, -x * 0.3] {
+                let got = clamp_unit_f32(v);
+                if v.abs() >= 1.0 / 256.0 {
+                    assert_eq!(got, v);
+                } else {
+                    assert!((got - v).abs() <= 1.0 / 2_147_483_648.0, "{v}: {got}");
+                }
+                let (got, v) = (clamp_01_f32(v.abs()), v.abs());
+                if v >= 1.0 / 512.0 {
+                    assert_eq!(got, v);
+                } else {
+                    assert!((got - v).abs() <= 1.0 / 4_294_967_296.0, "{v}: {got}");
+                }
+            }
+            x *= 0.83;
+        }
+    }
 
     #[test]
     fn inverse_square_root_is_accurate_over_the_normal_range() {

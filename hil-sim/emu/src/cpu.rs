@@ -736,9 +736,11 @@ fn on_block(uc: &mut Unicorn<'_, Machine>, addr: u32, size: u32) {
                 .most_urgent_pending()
                 .is_some_and(|(_, prio)| prio < exec);
         }
-        // The control interrupt masked by PRIMASK/BASEPRI (not by running itself), once
-        // the window is open: init runs masked by design. As of this block's start.
+        // The control interrupt masked by PRIMASK/BASEPRI (not by running itself, nor by
+        // its own locks), once the window is open: init runs masked by design. As of
+        // this block's start.
         let masked = m.stats.armed
+            && m.stats.isr_entered_at.is_none()
             && (primask || (basepri != 0 && (basepri as i16 & 0xF0) <= m.control_priority()));
         match (masked, m.stats.masked_since) {
             (true, None) => m.stats.masked_since = Some(m.instrs),

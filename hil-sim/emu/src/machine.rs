@@ -363,6 +363,12 @@ impl Machine {
             if let Some(since) = st.pending_since.take() {
                 st.latency_max = st.latency_max.max(instrs - since);
             }
+            // Taken, so no longer masked: a stretch that a lock's release ended right
+            // before this entry ends here, not after the interrupt returns (the block
+            // hook does not look at the mask inside the control interrupt).
+            if let Some(t0) = st.masked_since.take() {
+                st.masked_ended(instrs - t0, self.now);
+            }
             st.isr_entered_at = Some(instrs);
             st.isr_cycles_entered_at = Some(self.cycles);
             st.stage_now = Default::default();

@@ -2,7 +2,7 @@
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
-use drive_emu::scenarios;
+use drive_emu::scenarios::{self, pieces};
 use std::path::PathBuf;
 
 #[derive(Parser)]
@@ -57,6 +57,10 @@ enum Cmd {
         /// its Run at the plant beside the release ELF's.
         #[arg(long)]
         fast_elf: Option<PathBuf>,
+        /// Take each scenario a run of the emulator's tests left here (`DRIVE_EMU_PIECES`
+        /// when they ran) on the same ELFs, instead of running it again.
+        #[arg(long)]
+        reuse: Option<PathBuf>,
         names: Vec<String>,
     },
     /// Per firmware build: the commissioning power-up to Run, then the control
@@ -175,6 +179,7 @@ fn main() -> Result<()> {
             report,
             details,
             fast_elf,
+            reuse,
             names,
         } => {
             let (path, bytes) = read_elf(elf)?;
@@ -183,8 +188,19 @@ fn main() -> Result<()> {
             } else {
                 names
             };
-            let mut outcomes = Vec::new();
+            let (mut rows, mut sections) = (Vec::new(), String::new());
             for n in &names {
+                if let Some(dir) = &reuse {
+                    if let Some(p) = pieces::load(dir, n, &[&bytes], &["row", "details"]) {
+                        eprintln!(
+                            "drive-emu: scenario {n}: as the emulator's tests measured it on this ELF ({})",
+                            dir.display()
+                        );
+                        rows.push(p[0].clone());
+                        sections.push_str(&p[1]);
+                        continue;
+                    }
+                }
                 eprintln!("drive-emu: scenario {n} ...");
                 let o = scenarios::run(n, &bytes)?;
                 eprintln!(
@@ -197,26 +213,42 @@ fn main() -> Result<()> {
                     o.isr_cycles_max,
                     o.wall_s
                 );
-                outcomes.push(o);
+                rows.push(scenarios::report_row(&o));
+                sections.push_str(&scenarios::report_detail(&o));
             }
             let name = path.file_name().map_or_else(
                 || path.display().to_string(),
                 |n| n.to_string_lossy().into_owned(),
             );
             let note = format!("Firmware: the release `{name}` ELF of this checkout.");
+            let table = scenarios::report_table_of(&rows);
+            let mut text = format!("{sections}{note}\n");
             if report.is_none() && details.is_none() {
-                println!("{}", scenarios::report(&outcomes, &note));
+                println!("{table}\n{text}");
                 return Ok(());
             }
-            let mut text = scenarios::report_details(&outcomes, &note);
             if let Some(fast) = fast_elf {
                 let (_, fast_bytes) = read_elf(Some(fast))?;
-                eprintln!("drive-emu: Run at the plant, the release and the fast-run builds ...");
-                let low = scenarios::run_at_plant(&bytes)?;
-                let high = scenarios::run_at_plant(&fast_bytes)?;
-                text.push_str(&scenarios::modulation_report(&low, &high));
+                let elfs: [&[u8]; 2] = [&bytes, &fast_bytes];
+                let reused = reuse.as_deref().and_then(|dir| {
+                    pieces::load(dir, scenarios::AT_PLANT_PIECE, &elfs, &["modulation"])
+                });
+                match reused {
+                    Some(p) => {
+                        eprintln!("drive-emu: Run at the plant, the release and the fast-run builds: as the emulator's tests measured them");
+                        text.push_str(&p[0]);
+                    }
+                    None => {
+                        eprintln!(
+                            "drive-emu: Run at the plant, the release and the fast-run builds ..."
+                        );
+                        let low = scenarios::run_at_plant(&bytes)?;
+                        let high = scenarios::run_at_plant(&fast_bytes)?;
+                        text.push_str(&scenarios::modulation_report(&low, &high));
+                    }
+                }
             }
-            publish(report, &scenarios::report_table(&outcomes))?;
+            publish(report, &table)?;
             publish(details, &text)
         }
     }

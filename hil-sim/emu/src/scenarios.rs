@@ -1155,6 +1155,9 @@ pub fn run_at_plant(elf: &[u8]) -> Result<RunAtPlant> {
     })
 }
 
+/// The name [`modulation_report`]'s piece is saved under ([`pieces`]).
+pub const AT_PLANT_PIECE: &str = "run-at-plant";
+
 /// The details' section on Run near the voltage limit: the release build's Run and the
 /// `fast-run` build's, at the plant.
 pub fn modulation_report(low: &RunAtPlant, high: &RunAtPlant) -> String {
@@ -1228,68 +1231,133 @@ pub fn report(outcomes: &[Outcome], elf_note: &str) -> String {
 
 /// docs/performance.md's table: a row per scenario.
 pub fn report_table(outcomes: &[Outcome]) -> String {
+    let rows: Vec<String> = outcomes.iter().map(report_row).collect();
+    report_table_of(&rows)
+}
+
+/// The table around rows written by [`report_row`].
+pub fn report_table_of(rows: &[String]) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "| scenario | boots | control periods | missed periods | control interrupt, est. cycles mean / max (longest, % of the period) | longest masked stretch, instructions | adaptation task: interrupts from a sample to its return (late) | lost (stream) | rules broken |");
     let _ = writeln!(s, "|---|---:|---:|---:|---|---:|---|---|---:|");
-    for o in outcomes {
-        let _ = writeln!(
-            s,
-            "| {} | {} | {} | {} | {:.0} / {} ({:.1} %) | {} | {} ({}) | {} | {} |",
-            o.name,
-            o.boots,
-            o.control_periods,
-            o.missed_periods,
-            o.isr_cycles_mean,
-            o.isr_cycles_max,
-            100.0 * o.isr_longest_cycles as f64 / o.period_cycles.max(1) as f64,
-            o.masked_max_instrs,
-            o.task_interrupts_max,
-            o.task_deadline_misses,
-            o.losses.describe(),
-            o.violations.len()
-        );
+    for r in rows {
+        s.push_str(r);
     }
     s
 }
 
+/// One scenario's row of [`report_table`].
+pub fn report_row(o: &Outcome) -> String {
+    format!(
+        "| {} | {} | {} | {} | {:.0} / {} ({:.1} %) | {} | {} ({}) | {} | {} |\n",
+        o.name,
+        o.boots,
+        o.control_periods,
+        o.missed_periods,
+        o.isr_cycles_mean,
+        o.isr_cycles_max,
+        100.0 * o.isr_longest_cycles as f64 / o.period_cycles.max(1) as f64,
+        o.masked_max_instrs,
+        o.task_interrupts_max,
+        o.task_deadline_misses,
+        o.losses.describe(),
+        o.violations.len()
+    )
+}
+
 /// docs/emulator.md's details: per scenario, what the stream and the plant showed.
 pub fn report_details(outcomes: &[Outcome], elf_note: &str) -> String {
-    let mut s = String::new();
-    for o in outcomes {
-        let _ = writeln!(s, "### {}\n", o.name);
-        for l in o.state_lines() {
-            let _ = writeln!(s, "- {l}");
-        }
-        for e in o.events.iter().filter(|e| {
-            e.kind == "mras-fault"
-                || e.kind.contains("failed")
-                || e.kind == "mras-not-loaded"
-                || e.kind == "mras-loaded"
-                || e.kind == "mras-stored"
-        }) {
-            let _ = writeln!(s, "- boot {}: `{} {}`", e.boot + 1, e.kind, e.text);
-        }
-        for (k, v) in &o.notes {
-            let _ = writeln!(s, "- {k}: {v}");
-        }
-        for l in missed_lines(&o.missed, 3) {
-            let _ = writeln!(s, "- {l}");
-        }
-        let _ = writeln!(
-            s,
-            "- lost, as the stream counts it (the drive's drop counters, gaps in `seq`): {}",
-            o.losses.describe()
-        );
-        if o.violations.is_empty() {
-            let _ = writeln!(s, "- rules broken: none");
-        }
-        for v in &o.violations {
-            let _ = writeln!(s, "- rule broken: {v}");
-        }
-        let _ = writeln!(s);
-    }
+    let mut s: String = outcomes.iter().map(report_detail).collect();
     let _ = writeln!(s, "{elf_note}");
     s
+}
+
+/// One scenario's section of [`report_details`].
+pub fn report_detail(o: &Outcome) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "### {}\n", o.name);
+    for l in o.state_lines() {
+        let _ = writeln!(s, "- {l}");
+    }
+    for e in o.events.iter().filter(|e| {
+        e.kind == "mras-fault"
+            || e.kind.contains("failed")
+            || e.kind == "mras-not-loaded"
+            || e.kind == "mras-loaded"
+            || e.kind == "mras-stored"
+    }) {
+        let _ = writeln!(s, "- boot {}: `{} {}`", e.boot + 1, e.kind, e.text);
+    }
+    for (k, v) in &o.notes {
+        let _ = writeln!(s, "- {k}: {v}");
+    }
+    for l in missed_lines(&o.missed, 3) {
+        let _ = writeln!(s, "- {l}");
+    }
+    let _ = writeln!(
+        s,
+        "- lost, as the stream counts it (the drive's drop counters, gaps in `seq`): {}",
+        o.losses.describe()
+    );
+    if o.violations.is_empty() {
+        let _ = writeln!(s, "- rules broken: none");
+    }
+    for v in &o.violations {
+        let _ = writeln!(s, "- rule broken: {v}");
+    }
+    let _ = writeln!(s);
+    s
+}
+
+/// The report's pieces a run leaves behind for another process to assemble: the
+/// emulator's tests run every scenario of the report, and `cargo xtask ci` then builds
+/// the report from what they measured instead of emulating them all a second time.
+/// Each piece is keyed by its name and the ELFs it ran (a hash of their bytes), so a
+/// piece of another build is never taken.
+pub mod pieces {
+    use anyhow::{Context, Result};
+    use std::path::{Path, PathBuf};
+
+    /// The directory the tests write into when set (`cargo xtask ci` sets it).
+    pub const ENV: &str = "DRIVE_EMU_PIECES";
+
+    /// FNV-1a over the ELFs' bytes: a key, not a defence against a crafted file.
+    pub fn elf_key(elfs: &[&[u8]]) -> String {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        for elf in elfs {
+            for &b in elf.iter().chain((elf.len() as u64).to_le_bytes().iter()) {
+                h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+            }
+        }
+        format!("{h:016x}")
+    }
+
+    fn path(dir: &Path, name: &str, elfs: &[&[u8]], part: &str) -> PathBuf {
+        dir.join(format!("{name}.{}.{part}.md", elf_key(elfs)))
+    }
+
+    /// Writes `parts` (`(part, text)`) of `name` run on `elfs` into the directory
+    /// [`ENV`] names; nothing when it is unset.
+    pub fn save(name: &str, elfs: &[&[u8]], parts: &[(&str, &str)]) -> Result<()> {
+        let Some(dir) = std::env::var_os(ENV) else {
+            return Ok(());
+        };
+        let dir = PathBuf::from(dir);
+        std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
+        for (part, text) in parts {
+            let p = path(&dir, name, elfs, part);
+            std::fs::write(&p, text).with_context(|| p.display().to_string())?;
+        }
+        Ok(())
+    }
+
+    /// The `parts` of `name` run on `elfs` from `dir`, when every one is there.
+    pub fn load(dir: &Path, name: &str, elfs: &[&[u8]], parts: &[&str]) -> Option<Vec<String>> {
+        parts
+            .iter()
+            .map(|part| std::fs::read_to_string(path(dir, name, elfs, part)).ok())
+            .collect()
+    }
 }
 
 /// The missed periods, the first `max` in full and the rest counted by cause.

@@ -3,7 +3,7 @@
 //! (e.g. an older firmware, to see which rules it breaks).
 
 use drive_emu::budget;
-use drive_emu::scenarios::{self, Outcome, SensorBoard};
+use drive_emu::scenarios::{self, pieces, Outcome, SensorBoard};
 use drive_emu::stats::MissCause;
 
 fn elf() -> Vec<u8> {
@@ -32,9 +32,15 @@ fn fast_elf() -> Vec<u8> {
     })
 }
 
+/// The scenario `name` on the release ELF; its report's row and section left for
+/// `drive-emu scenarios --reuse` when `DRIVE_EMU_PIECES` names a directory.
 fn run(name: &str) -> Outcome {
-    let o = scenarios::run(name, &elf()).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+    let elf = elf();
+    let o = scenarios::run(name, &elf).unwrap_or_else(|e| panic!("{name}: {e:#}"));
     eprintln!("{}", scenarios::report(std::slice::from_ref(&o), ""));
+    let (row, details) = (scenarios::report_row(&o), scenarios::report_detail(&o));
+    pieces::save(name, &[&elf], &[("row", &row), ("details", &details)])
+        .unwrap_or_else(|e| panic!("{name}: {e:#}"));
     o
 }
 
@@ -422,8 +428,16 @@ fn the_control_interrupt_by_stage_adds_up_and_the_build_passes_the_gate() {
 /// in the `fast-run` build its commissioning refuses it (`InertiaOutOfRange`).
 #[test]
 fn near_the_voltage_limit_the_current_loop_keeps_its_torque_per_amp_at_the_plant() {
-    let low = scenarios::run_at_plant(&elf()).unwrap_or_else(|e| panic!("{e:#}"));
-    let high = scenarios::run_at_plant(&fast_elf()).unwrap_or_else(|e| panic!("{e:#}"));
+    let (elf, fast) = (elf(), fast_elf());
+    let low = scenarios::run_at_plant(&elf).unwrap_or_else(|e| panic!("{e:#}"));
+    let high = scenarios::run_at_plant(&fast).unwrap_or_else(|e| panic!("{e:#}"));
+    let text = scenarios::modulation_report(&low, &high);
+    pieces::save(
+        scenarios::AT_PLANT_PIECE,
+        &[&elf, &fast],
+        &[("modulation", &text)],
+    )
+    .unwrap_or_else(|e| panic!("{e:#}"));
     let mut off = Vec::new();
     let (lc, hc) = (low.current.expect("a Run window"), high.current);
     let (lm, hm) = (low.modulation.expect("bridge on in Run"), high.modulation);
