@@ -14,9 +14,9 @@
 //! 1. `supervisor` (1 kHz, pended by `control`): `drive::supervisor::Supervisor::step`
 //!    on the snapshot and the adaptation's report, the calibration flash, the watchdog,
 //!    and the RTT stream. It copies the snapshot it is owed from the control period's
-//!    state, masking `control` for the copy. It is the only runtime context that logs; defmt-rtt neither
-//!    blocks nor masks interrupts (firmware/app/Cargo.toml), so the control interrupt is
-//!    never held up by RTT.
+//!    state, masking `control` for the copy. It is the only runtime context that logs;
+//!    defmt-rtt neither blocks nor masks interrupts (firmware/app/Cargo.toml), so the
+//!    control interrupt is never held up by RTT.
 #![no_std]
 #![no_main]
 

@@ -123,7 +123,8 @@ impl Pwm {
     #[inline]
     pub fn set_duties(&self, d: [f32; 3]) {
         let arr = PWM_ARR as f32;
-        let to_ccr = |x: f32| (x.clamp(0.0, 1.0) * arr) as u32;
+        // A saturating conversion, not compares and branches (a NaN gives 0).
+        let to_ccr = |x: f32| (mras::clamp_01_f32(x) * arr) as u32;
         self.tim.ccr1().write(|w| w.ccr().set(to_ccr(d[0])));
         self.tim.ccr2().write(|w| w.ccr().set(to_ccr(d[1])));
         self.tim.ccr3().write(|w| w.ccr().set(to_ccr(d[2])));

@@ -12,8 +12,8 @@ use drive::handoff::{PlanQueue, Queue, Receiver, HANDOFF_DEPTH, UPDATE_DEPTH};
 use drive::motion::LoopMode;
 use drive::telemetry::{Command, Fault, Install};
 use mras::{
-    AdaptSample, Bank, BankPlan, Change, Coefficients, Config, Cplx, Front, InjectionUpdate,
-    PackedBank, PathKind,
+    AdaptSample, Bank, Change, Coefficients, Config, Cplx, Front, InjectionUpdate, PackedBank,
+    PathKind,
 };
 
 const T: f32 = 50e-6;
