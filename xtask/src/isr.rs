@@ -197,9 +197,9 @@ impl<'a> Scan<'a> {
                 // is the alignment padding after the last one.
                 break;
             }
-            if halfwords && entry == u32::from(THUMB_NOP) && at + size == end {
-                // A `tbh` table of an odd count of entries, padded to a word with a
-                // Thumb `nop` right before the first target: padding, not a far entry.
+            if halfwords && entry == u32::from(THUMB_NOP) && self.zeros(at + size, end) {
+                // A `tbh` table padded with a Thumb `nop` (then zeros, to the first
+                // target's alignment): padding, not a far entry.
                 break;
             }
             end = end.min(t);
@@ -209,6 +209,11 @@ impl<'a> Scan<'a> {
             return Err("no entries".into());
         }
         Ok(targets)
+    }
+
+    /// Whether the bytes from `start` to `end` are all zero (none: true).
+    fn zeros(&self, start: u32, end: u32) -> bool {
+        (start..end).all(|a| self.image.byte(a) == Some(0))
     }
 
     /// Follow every path from the queue.
@@ -714,6 +719,30 @@ mod tests {
         // tbh [pc, r0, lsl #1]; one entry (to +8) and the nop; the target calls `a`.
         let body = vec![W(0xe8df, 0xf010), H(2), H(THUMB_NOP), Bl(at(1)), BX_LR];
         let table = [(at(0) + 4, at(0) + 8)];
+        let p = image(&[("ADC1_2", 0, body), ("a", 1, vec![BX_LR])], &table);
+        let f = scan(&p, "ADC1_2").unwrap();
+        assert!(f.problems.is_empty(), "{:?}", f.problems);
+        assert_eq!(f.reachable_instructions, 3 + 1);
+    }
+
+    /// A `tbh` table padded with a `nop` and zeros to its first target's word (rustc's
+    /// layout of a table of four entries ahead of a word-aligned target): padding too.
+    #[test]
+    fn a_tbh_tables_nop_and_zero_padding_is_not_an_entry() {
+        // tbh [pc, r0, lsl #1]; four entries (to +18), a nop and two zero halfwords.
+        let body = vec![
+            W(0xe8df, 0xf010),
+            H(7),
+            H(7),
+            H(7),
+            H(7),
+            H(THUMB_NOP),
+            H(0),
+            H(0),
+            Bl(at(1)),
+            BX_LR,
+        ];
+        let table = [(at(0) + 4, at(0) + 18)];
         let p = image(&[("ADC1_2", 0, body), ("a", 1, vec![BX_LR])], &table);
         let f = scan(&p, "ADC1_2").unwrap();
         assert!(f.problems.is_empty(), "{:?}", f.problems);

@@ -281,17 +281,39 @@ fn perf(
         .iter()
         .map(|b| (b, SensorBoard::Kmz41))
         .chain(n1_builds.iter().map(|b| (b, SensorBoard::N1)));
+    let mut elfs = Vec::new();
     for (b, sensor) in all {
         let (label, path) = b
             .rsplit_once('=')
             .with_context(|| format!("`--build {b}`: expected LABEL=ELF"))?;
         let (path, bytes) = read_elf(Some(PathBuf::from(path)))?;
-        eprintln!("drive-emu: perf {label} ({}) ...", path.display());
-        let p = scenarios::perf_run(&bytes, window_s, sensor).with_context(|| label.to_string())?;
+        elfs.push((label, path, bytes, sensor));
+    }
+    // Each build on its own emulator, all at once: a run is one thread, and the machine
+    // has more than one core. The results are taken in the order given.
+    let runs: Vec<Result<scenarios::Perf>> = std::thread::scope(|s| {
+        let handles: Vec<_> = elfs
+            .iter()
+            .map(|(label, path, bytes, sensor)| {
+                eprintln!("drive-emu: perf {label} ({}) ...", path.display());
+                s.spawn(move || scenarios::perf_run(bytes, window_s, *sensor))
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| {
+                h.join()
+                    .unwrap_or_else(|_| Err(anyhow::anyhow!("the emulator's thread panicked")))
+            })
+            .collect()
+    });
+    for ((label, _, bytes, _), p) in elfs.iter().zip(runs) {
+        let label = *label;
+        let p = p.with_context(|| label.to_string())?;
         // Where the firmware was at each missed period: the inlined chain's functions.
         let mut missed_at = Vec::new();
         for (ms, _, pc) in p.missed.iter().take(5) {
-            if let Ok(c) = m4_cycles::chains_of_elf(&bytes, &[*pc]) {
+            if let Ok(c) = m4_cycles::chains_of_elf(bytes, &[*pc]) {
                 let names: Vec<String> = c
                     .get(pc)
                     .into_iter()
