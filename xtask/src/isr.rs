@@ -171,8 +171,15 @@ impl<'a> Scan<'a> {
     /// `site`: entries (bytes or halfwords) right after the instruction, each a forward
     /// offset in halfwords from there; the table ends where its data (`$d`) ends or the
     /// first target begins, whichever is first, or at its padding (an entry into the table
-    /// itself, or a `nop` halfword in the last slot before the first target).
-    fn table_targets(&self, site: u32, halfwords: bool) -> Result<Vec<u32>, String> {
+    /// itself, or a `nop` halfword followed by zeros or pointing out of `function`: rustc
+    /// pads a table to a word with a `nop`, and may place the function's literal pool
+    /// between it and the first target).
+    fn table_targets(
+        &self,
+        site: u32,
+        halfwords: bool,
+        function: core::ops::Range<u32>,
+    ) -> Result<Vec<u32>, String> {
         let table = site + 4;
         let size = if halfwords { 2 } else { 1 };
         let mut end = self.image.data_at(table).map_or(u32::MAX, |r| r.end);
@@ -197,9 +204,12 @@ impl<'a> Scan<'a> {
                 // is the alignment padding after the last one.
                 break;
             }
-            if halfwords && entry == u32::from(THUMB_NOP) && self.zeros(at + size, end) {
-                // A `tbh` table padded with a Thumb `nop` (then zeros, to the first
-                // target's alignment): padding, not a far entry.
+            if halfwords
+                && entry == u32::from(THUMB_NOP)
+                && (self.zeros(at + size, end) || !function.contains(&t))
+            {
+                // A `tbh` table padded with a Thumb `nop` (then zeros to the first
+                // target's alignment, or literals): padding, not an entry 97 KiB on.
                 break;
             }
             end = end.min(t);
@@ -289,7 +299,7 @@ impl<'a> Scan<'a> {
                 Flow::Table {
                     base: 15,
                     halfwords,
-                } => match self.table_targets(addr, halfwords) {
+                } => match self.table_targets(addr, halfwords, function.start..function.end()) {
                     Ok(targets) => {
                         for t in targets {
                             if (function.start..function.end()).contains(&t) {
@@ -739,6 +749,31 @@ mod tests {
             H(THUMB_NOP),
             H(0),
             H(0),
+            Bl(at(1)),
+            BX_LR,
+        ];
+        let table = [(at(0) + 4, at(0) + 18)];
+        let p = image(&[("ADC1_2", 0, body), ("a", 1, vec![BX_LR])], &table);
+        let f = scan(&p, "ADC1_2").unwrap();
+        assert!(f.problems.is_empty(), "{:?}", f.problems);
+        assert_eq!(f.reachable_instructions, 3 + 1);
+    }
+
+    /// A `tbh` table padded with a `nop`, then literals (a constant pool rustc placed
+    /// between the table and its first target): the `nop` is padding, the literals are
+    /// not entries.
+    #[test]
+    fn a_tbh_tables_nop_before_literals_is_not_an_entry() {
+        // tbh [pc, r0, lsl #1]; four entries (to +18), a nop and a literal word (-2π).
+        let body = vec![
+            W(0xe8df, 0xf010),
+            H(7),
+            H(7),
+            H(7),
+            H(7),
+            H(THUMB_NOP),
+            H(0x0fdb),
+            H(0xc0c9),
             Bl(at(1)),
             BX_LR,
         ];

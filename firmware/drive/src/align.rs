@@ -44,14 +44,8 @@ pub fn pole_pairs_serve(pole_pairs: u16, sensor_periods: u16) -> bool {
 /// Wrap an angle into [-π, π] (nearest whole turn removed; exact for |x| < 1e4 rad).
 #[inline]
 pub fn wrap_pi(x: f32) -> f32 {
-    let t = x * (1.0 / TAU);
-    // `as` truncates toward zero: add ±0.5 for the nearest integer.
-    let n = if t >= 0.0 {
-        (t + 0.5) as i32
-    } else {
-        (t - 0.5) as i32
-    };
-    x - n as f32 * TAU
+    // Rounded without a branch (ties to even: both ends are the same angle).
+    x - mras::round_f32_fast(x * (1.0 / TAU)) * TAU
 }
 
 /// `libm::roundf` (half away from zero), bit for bit, through an integer where `x` has a
@@ -90,8 +84,9 @@ pub fn electrical_angle(a: &Alignment, electrical_per_sensor: f32, theta_s_rad: 
 pub struct Sweep {
     t_s: f32,
     last_cmd_rad: f32,
-    /// θ̂s (absolute, [0, 2π)) and θ̂ unwrapped (mechanical) at the start.
-    start: Option<(f32, f32)>,
+    /// θ̂s (absolute, [0, 2π)) and θ̂ unwrapped (mechanical) at the start, and the
+    /// command's phase rate π/duration (rad/s; a division once, not every period).
+    start: Option<(f32, f32, f32)>,
     /// Sums weighted by the commanded angle's step (a uniform average over the
     /// commanded angle, the holds left out): the command about the sweep's middle `c`,
     /// the sensor's travel `s`, and their products.
@@ -152,16 +147,19 @@ impl Sweep {
         let hold = HOLD_FRACTION * duration_s;
         let t = self.t_s;
         self.t_s += dt_s;
-        let (s0_abs, s0_mech) = *self.start.get_or_insert((theta_e_rad, theta_unwrapped_rad));
+        let (s0_abs, s0_mech, rate_rad_s) =
+            *self
+                .start
+                .get_or_insert((theta_e_rad, theta_unwrapped_rad, PI / duration_s));
         // Sensor-electrical travel since the start.
         let s_rel = sensor_periods * (theta_unwrapped_rad - s0_mech);
         let back_start = duration_s + hold;
         let cmd = if t < duration_s {
-            0.5 * span * (1.0 - cos(PI * t / duration_s))
+            0.5 * span * (1.0 - cos(rate_rad_s * t))
         } else if t < back_start {
             span
         } else if t < back_start + duration_s {
-            0.5 * span * (1.0 + cos(PI * (t - back_start) / duration_s))
+            0.5 * span * (1.0 + cos(rate_rad_s * (t - back_start)))
         } else {
             0.0
         };
@@ -248,6 +246,17 @@ pub struct ShiftMeter {
     count: u32,
 }
 
+/// 1/√x to 5e-6 (the exponent bits' seed and two Newton steps, where
+/// [`mras::inv_sqrt_f32`] takes three): a sample's weight in the shift's mean, whose
+/// error then moves the shift by 5e-6 of itself.
+#[inline(always)]
+fn inv_sqrt_two_steps(x: f32) -> f32 {
+    let y = f32::from_bits(0x5f37_5a86_u32.wrapping_sub(x.to_bits() >> 1));
+    let h = 0.5 * x;
+    let y = y * (1.5 - h * y * y);
+    y * (1.5 - h * y * y)
+}
+
 /// Samples before the mean is reported: several sensor periods at the commissioning
 /// speed.
 const SHIFT_SAMPLES: u32 = 2000;
@@ -259,7 +268,7 @@ impl ShiftMeter {
         let cross = zd.1 * z.0 - zd.0 * z.1;
         let n2 = (zd.0 * zd.0 + zd.1 * zd.1) * (z.0 * z.0 + z.1 * z.1);
         if n2 > f32::MIN_POSITIVE {
-            self.sum += cross * mras::inv_sqrt_f32(n2);
+            self.sum += cross * inv_sqrt_two_steps(n2);
             self.count += 1;
         }
     }

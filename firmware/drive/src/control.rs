@@ -20,7 +20,7 @@
 use crate::adc::{record_scaling, scale_pair, ChannelScaling, SampleError};
 use crate::align::{electrical_angle, ShiftMeter, ShiftReading, Sweep};
 use crate::commissioning::{Adaptation, Setpoint};
-use crate::foc::{clarke, inverse_park, park, svpwm, CurrentLoop, CurrentLoopParams};
+use crate::foc::{clarke, inverse_park, park, svpwm_on, CurrentLoop, CurrentLoopParams, DcLink};
 use crate::ident::{IdentConfig, IdentStatus, Identifier};
 use crate::motion::{Angle, LoopMode, MotionLoop, MotionRef};
 use crate::ripple::{LearnSample, RippleLearner, RIPPLE_GAIN, RIPPLE_HARMONICS};
@@ -125,16 +125,29 @@ fn inverter_compensation(
         // Amplitude-invariant Clarke; the common mode drops out.
         ((2.0 * a - b - c) * (1.0 / 3.0), (b - c) * 0.577_350_26)
     };
-    // The band's voltage: |v| (to 0.2 %), at least the narrowest band's.
+    // The band's voltage: |v| (to 0.2 %), at least the narrowest band's. Its
+    // reciprocal by the same reciprocal square root, not a division (14 cycles).
     let s_floor = two_l_over_t_ohm * COMPENSATION_BAND_A;
     let m0 = va * va + vb * vb;
-    let s0 = mras::max_f32(m0 * inv_sqrt_coarse(m0), s_floor);
-    let c = share(two_l_over_t_ohm / s0);
-    // And |v + c|: the band at the mean of the two.
+    let y0 = inv_sqrt_coarse(m0);
+    let s0 = mras::max_f32(m0 * y0, s_floor);
+    let c = share(mras::min_f32(
+        two_l_over_t_ohm * y0,
+        1.0 / COMPENSATION_BAND_A,
+    ));
+    // And |v + c|: the band at the mean of the two, its reciprocal as 1/√(s²).
     let (xa, xb) = (va + c.0, vb + c.1);
     let m1 = xa * xa + xb * xb;
     let s = mras::max_f32(0.5 * (s0 + m1 * inv_sqrt_coarse(m1)), s_floor);
-    share(two_l_over_t_ohm / s)
+    share(two_l_over_t_ohm * inv_sqrt_coarse(s * s))
+}
+
+/// An alignment as bits (its offset's, the direction and the pole pairs; never
+/// `u64::MAX`): the shift's measurement restarts when they change. Compared as an
+/// `Option` of the alignment, field by field, it cost the control period 20 cycles.
+#[inline(always)]
+fn alignment_bits(a: &calib_record::Alignment) -> u64 {
+    a.offset_e_rad.to_bits() as u64 | (a.reversed as u64) << 32 | (a.pole_pairs as u64) << 33
 }
 
 /// Samples averaged for the current sensors' zero.
@@ -187,6 +200,9 @@ pub struct ControlPeriod<T: Trig> {
     /// 1/N: a sensor-electrical angle's mechanical share.
     mech_per_sensor_rad: f32,
     torque_constant_nm_a: f32,
+    /// 1/kt: the torque command becomes a current every period, where a division cost
+    /// 14 cycles. Set with kt ([`Self::set_torque_constant`]).
+    amps_per_nm: f32,
     torque_limit_nm: f32,
     current: CurrentLoop,
     speed: MotionLoop,
@@ -204,9 +220,13 @@ pub struct ControlPeriod<T: Trig> {
     inverter_phase_v: f32,
     /// 2L/T (Ω): the applied voltage per amp of PWM ripple, peak to mean.
     two_l_over_t_ohm: f32,
+    /// The configured DC link ([`MotorConfig::vdc_v`]), for the modulation.
+    dc_link: DcLink,
     shift: ShiftMeter,
     /// The offset the shift is measured against.
     shift_base: Option<calib_record::Alignment>,
+    /// Its bits ([`alignment_bits`]; `u64::MAX`: none), what each period compares.
+    shift_base_bits: u64,
     /// Torque commanded for the period under way (motor frame): next period's
     /// feed-forward to the observer, scaled by `observer_torque_scale`.
     torque_cmd_nm: f32,
@@ -363,6 +383,7 @@ impl<T: Trig> ControlPeriod<T> {
             sensor_periods: n as f32,
             mech_per_sensor_rad: 1.0 / n as f32,
             torque_constant_nm_a: kt,
+            amps_per_nm: 1.0 / kt,
             torque_limit_nm: kt * m.i_max_a,
             current: CurrentLoop::new(CurrentLoopParams {
                 r_ohm: m.r_ohm,
@@ -387,8 +408,10 @@ impl<T: Trig> ControlPeriod<T> {
             ident_frame: (0.0, 1.0),
             inverter_phase_v: 0.0,
             two_l_over_t_ohm: 2.0 * m.l_h / cfg.control_period_s,
+            dc_link: DcLink::new(m.vdc_v),
             shift: ShiftMeter::default(),
             shift_base: None,
+            shift_base_bits: u64::MAX,
             torque_cmd_nm: 0.0,
             motion: MotionConstants::NOMINAL,
             observer_torque_scale: 1.0,
@@ -481,7 +504,7 @@ impl<T: Trig> ControlPeriod<T> {
             self.install_pole_pairs(&cmd.alignment);
         }
         self.tracker
-            .set_frozen(cmd.adaptation == Adaptation::Frozen);
+            .set_frozen(matches!(cmd.adaptation, Adaptation::Frozen));
 
         // Sensor → core, with the torque in force as feed-forward (the sensor's frame).
         let sensor = match scale_pair(s.x, s.y, &self.cfg.sensor_x, &self.cfg.sensor_y) {
@@ -499,9 +522,11 @@ impl<T: Trig> ControlPeriod<T> {
             Err(SampleError::OutOfRange) => Err(Fault::AdcOutOfRange),
         };
         if cmd.measure_shift {
-            if self.shift_base != Some(cmd.alignment) {
+            let bits = alignment_bits(&cmd.alignment);
+            if self.shift_base_bits != bits {
                 self.shift = ShiftMeter::default();
                 self.shift_base = Some(cmd.alignment);
+                self.shift_base_bits = bits;
             }
             if sensor.is_ok() {
                 let zd = self.tracker.last_estimate().decoupled;
@@ -509,6 +534,7 @@ impl<T: Trig> ControlPeriod<T> {
             }
         } else {
             self.shift_base = None;
+            self.shift_base_bits = u64::MAX;
         }
         let currents = self.currents(s);
         let fault = if s.overcurrent {
@@ -527,7 +553,7 @@ impl<T: Trig> ControlPeriod<T> {
                 self.latched.get_or_insert(f);
             }
         }
-        if cmd.setpoint == Setpoint::Off && cmd.calibrate_currents {
+        if matches!(cmd.setpoint, Setpoint::Off) && cmd.calibrate_currents {
             self.measure_current_zero(s);
         }
 
@@ -554,7 +580,7 @@ impl<T: Trig> ControlPeriod<T> {
             false,
         ) = (cmd.setpoint, self.identifying)
         {
-            self.ident = Identifier::new(Self::ident_config(&self.cfg, current_a));
+            self.ident.restart(Self::ident_config(&self.cfg, current_a));
             self.ident_installed = false;
             // The rotor's d axis now, where a d current makes no torque.
             let frame = if on_rotor {
@@ -570,7 +596,7 @@ impl<T: Trig> ControlPeriod<T> {
         }
         self.identifying = identifying;
         if self.latched.is_some()
-            || cmd.setpoint == Setpoint::Off
+            || matches!(cmd.setpoint, Setpoint::Off)
             || !locked && cmd.reacquire
             || !self.pole_pairs_valid
         {
@@ -649,7 +675,7 @@ impl<T: Trig> ControlPeriod<T> {
                 (
                     theta_e,
                     id_ref,
-                    torque / self.torque_constant_nm_a,
+                    torque * self.amps_per_nm,
                     self.pole_pairs * omega,
                 )
             }
@@ -689,7 +715,7 @@ impl<T: Trig> ControlPeriod<T> {
         let (id_ahead, iq_ahead) = self.current.ahead_a();
         let (ca, cb) =
             self.inverter_compensation(inverse_park(id_ahead, iq_ahead, ahead), (va, vb));
-        let (duties, _) = svpwm(va + ca, vb + cb, self.cfg.motor.vdc_v);
+        let (duties, _) = svpwm_on(va + ca, vb + cb, self.dc_link);
         self.torque_cmd_nm = self.torque_constant_nm_a * iq_ref;
         self.duties_loaded(duties);
         Output {
@@ -727,11 +753,22 @@ impl<T: Trig> ControlPeriod<T> {
         self.pole_pairs_valid = crate::align::pole_pairs_serve(p, n);
         if let (true, Some(k)) = (self.pole_pairs_valid, p.checked_div(n)) {
             self.electrical_per_sensor = k as f32;
+            // One division for all the count changes (this runs in a control period):
+            // kt is p's at this ψ, its reciprocal 1/p's.
+            let per_p = 1.0 / p as f32;
+            self.period_per_pole_pair_s = self.cfg.control_period_s * per_p;
+            let amps_per_nm = self.amps_per_nm * self.pole_pairs * per_p;
             self.pole_pairs = p as f32;
-            self.period_per_pole_pair_s = self.cfg.control_period_s / p as f32;
-            self.torque_constant_nm_a = 1.5 * p as f32 * self.cfg.motor.flux_wb;
-            self.torque_limit_nm = self.torque_constant_nm_a * self.cfg.motor.i_max_a;
+            self.set_torque_constant(1.5 * p as f32 * self.cfg.motor.flux_wb, amps_per_nm);
         }
+    }
+
+    /// kt (N·m/A) with its reciprocal (the caller's, worked out with what else it
+    /// divides), and the torque limit the current limit makes.
+    fn set_torque_constant(&mut self, kt_nm_a: f32, amps_per_nm: f32) {
+        self.torque_constant_nm_a = kt_nm_a;
+        self.amps_per_nm = amps_per_nm;
+        self.torque_limit_nm = kt_nm_a * self.cfg.motor.i_max_a;
     }
 
     /// Put identified (or loaded) motion constants in force at electrical speed
@@ -743,27 +780,29 @@ impl<T: Trig> ControlPeriod<T> {
     fn install_motion(&mut self, m: MotionConstants, we_rad_s: f32) {
         let scale_before = self.observer_torque_scale;
         let mut fed = 1.0;
-        let motor = &mut self.cfg.motor;
         if m.flux_wb > 0.0 {
             // Keep the current the integrators hold, not their torque in the old
             // constant's units: a ψ found at a quarter of the nominal would otherwise
             // ask four times the load's current and kick a light rotor to overspeed.
-            let k = m.flux_wb / motor.flux_wb;
+            // kt is ψ's at these pole pairs: its ratio is ψ's, with no other division.
+            let amps_per_nm_before = self.amps_per_nm;
+            let kt = 1.5 * self.pole_pairs * m.flux_wb;
+            self.set_torque_constant(kt, 1.0 / kt);
+            let k = self.torque_constant_nm_a * amps_per_nm_before;
             self.speed.scale_torque(k);
             self.application.scale_torque(k);
             fed = k;
             self.current.set_flux(m.flux_wb, we_rad_s);
-            motor.flux_wb = m.flux_wb;
-            self.torque_constant_nm_a = 1.5 * self.pole_pairs * m.flux_wb;
-            self.torque_limit_nm = self.torque_constant_nm_a * motor.i_max_a;
+            self.cfg.motor.flux_wb = m.flux_wb;
         }
         if m.amps_per_accel_a_s2 > 0.0 {
-            let kt = self.torque_constant_nm_a;
-            motor.inertia_kg_m2 = m.amps_per_accel_a_s2 * kt;
-            self.speed.set_inertia(motor.inertia_kg_m2);
-            self.application.set_inertia(motor.inertia_kg_m2);
-            self.observer_torque_scale =
-                self.tracker.config().observer.inertia_kg_m2 / motor.inertia_kg_m2;
+            let j = m.amps_per_accel_a_s2 * self.torque_constant_nm_a;
+            // One division for all the new Ĵ changes (this runs in a control period).
+            let per_j = 1.0 / j;
+            self.cfg.motor.inertia_kg_m2 = j;
+            self.speed.set_inertia(j, per_j);
+            self.application.set_inertia(j, per_j);
+            self.observer_torque_scale = self.tracker.config().observer.inertia_kg_m2 * per_j;
         }
         // The observer's disturbance held what its feed-forward lacked: it takes the step.
         self.tracker
@@ -811,7 +850,7 @@ impl<T: Trig> ControlPeriod<T> {
             }
             _ => {}
         }
-        let (duties, _) = svpwm(v_alpha, v_beta, self.cfg.motor.vdc_v);
+        let (duties, _) = svpwm_on(v_alpha, v_beta, self.dc_link);
         self.torque_cmd_nm = 0.0;
         self.duties_loaded(duties);
         Output {

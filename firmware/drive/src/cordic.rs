@@ -36,39 +36,16 @@ impl<P: CordicPort> mras::Trig for CordicTrig<P> {
     }
 }
 
-/// `x_rad/π` wrapped into [-1, 1) as q1.31. The observer's angle is in [0, 2π), which
-/// needs one conditional subtraction; anything else is wrapped in general.
+/// `x_rad/π` wrapped into [-1, 1] as q1.31: the nearest even number of half-turns
+/// taken off by [`mras::round_f32_fast`], with no branch for the observer's angle in
+/// [0, 2π) nor for any other (a compare and its flag transfer cost more).
 #[inline]
 pub fn angle_to_q31(x_rad: f32) -> i32 {
-    let mut t = x_rad * FRAC_1_PI;
-    if !(-1.0..1.0).contains(&t) {
-        t = if (1.0..3.0).contains(&t) {
-            t - 2.0
-        } else {
-            t - 2.0 * floor_f32((t + 1.0) * 0.5)
-        };
-    }
-    // `as` saturates: t just below 1 may round to 2^31, which becomes i32::MAX
+    let t = x_rad * FRAC_1_PI;
+    let t = t - 2.0 * mras::round_f32_fast(0.5 * t);
+    // `as` saturates: t at or just below 1 may round to 2^31, which becomes i32::MAX
     // (1 - 2^-31, π minus 1.5e-9 rad); NaN becomes 0.
     (t * Q31_ONE) as i32
-}
-
-/// `floorf`, inline: through an integer where `x` has a fraction (|x| < 2^23), `x`
-/// itself where it has none (and NaN). Exact, as `libm::floorf`, at a fraction of its
-/// cost in the control interrupt (the motor's electrical angle is wrapped every period).
-#[inline(always)]
-fn floor_f32(x: f32) -> f32 {
-    if libm::fabsf(x) < 8_388_608.0 {
-        let i = x as i32 as f32;
-        if i > x {
-            i - 1.0
-        } else {
-            // -0.0 stays -0.0.
-            libm::copysignf(i, x)
-        }
-    } else {
-        x
-    }
 }
 
 /// q1.31 to f32.
@@ -82,40 +59,24 @@ mod tests {
     use super::*;
 
     #[test]
-    fn floor_is_libm_floor() {
-        let mut x = 3.3e9f32;
-        let edges = [
-            -8_388_608.5,
-            -8_388_607.5,
-            -2.0,
-            -1.5,
-            -1.0,
-            -0.5,
-            -0.0,
-            0.0,
-            0.5,
-            1.0,
-            8_388_607.5,
-            8_388_608.0,
-            1.0e30,
-            f32::INFINITY,
-            f32::NEG_INFINITY,
-        ];
-        for &e in &edges {
-            assert_eq!(floor_f32(e).to_bits(), libm::floorf(e).to_bits(), "{e}");
+    fn every_angle_wraps_within_a_q31_step_of_its_exact_wrap() {
+        // Against f64: x/π rounds in f32 (2^-24 of it), and the q31 step is 2^-31.
+        let mut worst: f64 = 0.0;
+        for i in -300_000..300_000 {
+            let x = i as f32 * 1.3e-3;
+            let exact = {
+                let t = x as f64 / PI;
+                t - 2.0 * (0.5 * t).round()
+            };
+            let got = angle_to_q31(x) as f64 / 2_147_483_648.0;
+            // ±1 are the same angle.
+            let d = (got - exact).abs().min(2.0 - (got - exact).abs());
+            let allowed = (x as f64 / PI).abs() * 1.2e-7 + 1e-9;
+            worst = worst.max(d / allowed);
         }
-        for i in -200_000..200_000 {
-            let x = i as f32 * 0.37;
-            assert_eq!(floor_f32(x).to_bits(), libm::floorf(x).to_bits(), "{x}");
-        }
-        for _ in 0..200 {
-            for x in [x, -x] {
-                assert_eq!(floor_f32(x).to_bits(), libm::floorf(x).to_bits(), "{x}");
-            }
-            x *= 0.77;
-        }
-        assert!(floor_f32(f32::NAN).is_nan());
+        assert!(worst <= 1.0, "worst {worst} of its allowance");
     }
+
     use core::cell::Cell;
     use core::f64::consts::PI;
     use mras::Trig;

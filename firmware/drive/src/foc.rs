@@ -29,7 +29,29 @@ pub fn inverse_park(d: f32, q: f32, (s, c): (f32, f32)) -> (f32, f32) {
 /// PWM. The vector is first limited to the linear range |v| <= Vdc/√3; the return's
 /// second element says whether it was.
 pub fn svpwm(v_alpha: f32, v_beta: f32, vdc_v: f32) -> ([f32; 3], bool) {
-    let v_max = vdc_v * INV_SQRT3;
+    svpwm_on(v_alpha, v_beta, DcLink::new(vdc_v))
+}
+
+/// A DC link's voltage with its reciprocal, worked out once: [`svpwm`]'s division ran
+/// in every control period.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DcLink {
+    pub vdc_v: f32,
+    inv_vdc: f32,
+}
+
+impl DcLink {
+    pub fn new(vdc_v: f32) -> Self {
+        Self {
+            vdc_v,
+            inv_vdc: 1.0 / vdc_v,
+        }
+    }
+}
+
+/// [`svpwm`] on a [`DcLink`], bit for bit.
+pub fn svpwm_on(v_alpha: f32, v_beta: f32, dc: DcLink) -> ([f32; 3], bool) {
+    let v_max = dc.vdc_v * INV_SQRT3;
     let mag2 = v_alpha * v_alpha + v_beta * v_beta;
     let (va, vb, limited) = if mag2 > v_max * v_max {
         let k = v_max * mras::inv_sqrt_f32(mag2);
@@ -43,7 +65,7 @@ pub fn svpwm(v_alpha: f32, v_beta: f32, vdc_v: f32) -> ([f32; 3], bool) {
     // Min-max injection centres the three phase voltages in the DC link.
     // Inline compare-and-select (`f32::max`/`min` are `fmaxf`/`fminf` calls on the MCU).
     let offset = -0.5 * (max_f32(max_f32(a, b), c) + min_f32(min_f32(a, b), c));
-    let inv = 1.0 / vdc_v;
+    let inv = dc.inv_vdc;
     let duty = [a, b, c].map(|v| mras::clamp_01_f32((v + offset) * inv + 0.5));
     (duty, limited)
 }

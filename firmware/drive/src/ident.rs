@@ -89,7 +89,7 @@ const R_RANGE_OHM: (f32, f32) = (1e-3, 100.0);
 const L_RANGE_H: (f32, f32) = (1e-6, 0.1);
 
 /// What the identification needs.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct IdentConfig {
     /// The identification level (A, peak phase current), at least: the probe's pulses
     /// end at half of it; the two levels are it and half of it, or higher where the
@@ -104,7 +104,7 @@ pub struct IdentConfig {
 }
 
 /// The identified constants.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Identified {
     pub r_ohm: f32,
     pub ld_h: f32,
@@ -152,8 +152,9 @@ impl IdentError {
 }
 
 /// Where the identification is.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub enum IdentStatus {
+    #[default]
     Pending,
     Done(Identified),
     Failed(IdentError),
@@ -191,24 +192,18 @@ fn apart(a: (f32, f32), b: (f32, f32)) -> f32 {
 }
 
 impl Window {
-    fn new(xy: (f32, f32)) -> Self {
-        Self {
-            last_xy: xy,
-            ..Self::default()
-        }
-    }
-
-    /// [`Window::new`] in place of this one: the marks past `count` are never read, so
-    /// they stay as they are (a new window built and copied in costs the control
-    /// period about 200 cycles).
+    /// Open (again) at sensor vector `xy`, in place: the marks past `count` are never
+    /// read, so they stay as they are (a new window built and copied in costs the
+    /// control period about 200 cycles).
     fn restart(&mut self, xy: (f32, f32)) {
         (self.n, self.sum_i, self.sum_v, self.count) = (0, 0.0, 0.0, 0);
         self.last_xy = xy;
     }
 
     /// One period's α current and voltage at sensor vector `xy`; the window's means
-    /// (current, voltage) once it closes.
-    fn add(&mut self, i: f32, v: f32, xy: (f32, f32), period_s: f32) -> Option<(f32, f32)> {
+    /// (current, voltage) once it closes. `least` holds the shortest windows in periods
+    /// ([`WindowPeriods`]).
+    fn add(&mut self, i: f32, v: f32, xy: (f32, f32), least: WindowPeriods) -> Option<(f32, f32)> {
         if self.n % MARK_PERIODS == 0 {
             if let Some(m) = self.marks.get_mut(self.count) {
                 *m = Mark {
@@ -227,15 +222,16 @@ impl Window {
         let same = mras::max_f32(SAME_READING, 0.6 * apart(xy, self.last_xy));
         self.last_xy = xy;
         for m in self.marks.iter_mut().take(self.count) {
+            let periods = self.n - m.n;
+            // A mark the vector left that is not yet old enough cannot close: no
+            // distance to work out (eight marks' were most of a level's period).
+            if !m.still && periods < least.moving {
+                continue;
+            }
             let d = apart(xy, m.xy);
             m.still &= d <= STILL_READING;
-            let periods = self.n - m.n;
-            let least = if m.still {
-                STILL_WINDOW_S
-            } else {
-                MIN_WINDOW_S
-            };
-            if periods as f32 * period_s >= least && d <= same {
+            let least = if m.still { least.still } else { least.moving };
+            if periods >= least && d <= same {
                 let k = 1.0 / periods as f32;
                 return Some(((self.sum_i - m.sum_i) * k, (self.sum_v - m.sum_v) * k));
             }
@@ -244,7 +240,33 @@ impl Window {
     }
 }
 
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// A window's shortest spans in periods: the fewest `p` with `p·T` at least
+/// [`MIN_WINDOW_S`] (a moving rotor) and [`STILL_WINDOW_S`] (a still one), as f32
+/// reads them; worked out once per attempt, not compared in seconds every period.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct WindowPeriods {
+    moving: u32,
+    still: u32,
+}
+
+impl WindowPeriods {
+    fn new(period_s: f32) -> Self {
+        // The first p of a few around s/T whose p·T reaches s (bounded: no loop on a
+        // period the configuration let through as 0 or NaN).
+        let fewest = |s: f32| {
+            let guess = (s / period_s) as u32;
+            (guess.saturating_sub(1)..guess.saturating_add(3))
+                .find(|&p| p as f32 * period_s >= s)
+                .unwrap_or(guess)
+        };
+        Self {
+            moving: fewest(MIN_WINDOW_S),
+            still: fewest(STILL_WINDOW_S),
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 enum Stage {
     /// A pulse of `volts` (`on`), then the current's decay.
     Probe {
@@ -262,11 +284,12 @@ enum Stage {
     /// Both currents held at zero until they have decayed: the next state's loop starts
     /// from rest (its step response is then its design's).
     Release,
+    #[default]
     Finished,
 }
 
 /// The identification's state: one per attempt.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Identifier {
     cfg: IdentConfig,
     stage: Stage,
@@ -292,8 +315,11 @@ pub struct Identifier {
     sum_xy: (f32, f32),
     last_xy: (f32, f32),
     settled: u32,
-    window: Option<Window>,
+    /// The level's window, read only while open: opened and restarted in place.
+    window: Window,
+    window_open: bool,
     window_s: f32,
+    window_periods: WindowPeriods,
     level_v: [f32; 2],
     level_a: [f32; 2],
     r_ohm: f32,
@@ -308,46 +334,69 @@ pub struct Identifier {
 
 impl Identifier {
     pub fn new(cfg: IdentConfig) -> Self {
-        Self {
-            cfg,
-            // A hundredth of a volt at first: below any dead-time voltage, so the first
-            // pulses measure nothing and the doubling finds the level from below.
-            stage: Stage::Probe {
-                volts: 0.01,
-                on: true,
-            },
-            status: IdentStatus::Pending,
-            k: 0,
-            stage_s: 0.0,
-            last_i: 0.0,
-            max_rise_a: 0.0,
-            l_bound_h: 0.0,
-            r_bound_ohm: 0.0,
-            level_target_a: 0.0,
-            pi: [Pi::default(); 2],
-            v_ab: (0.0, 0.0),
-            sum_i: 0.0,
-            sum_v: 0.0,
-            last_mean_v: f32::NAN,
-            sum_xy: (0.0, 0.0),
-            last_xy: (0.0, 0.0),
-            settled: 0,
-            window: None,
-            window_s: 0.0,
-            level_v: [0.0; 2],
-            level_a: [0.0; 2],
-            r_ohm: 0.0,
-            last_ab: (0.0, 0.0),
-            dv_v: 0.0,
-            ripple_sum: 0.0,
-            ld_h: 0.0,
-            found: Identified {
-                r_ohm: 0.0,
-                ld_h: 0.0,
-                lq_h: 0.0,
-                v_inverter_v: 0.0,
-            },
-        }
+        let mut id = Self::default();
+        id.restart(cfg);
+        id
+    }
+
+    /// [`Identifier::new`] in place, for another attempt: every field but the window's
+    /// storage, which is read only once opened. Built aside and copied in, a new
+    /// identifier cost the control period a copy of its 300 bytes.
+    pub fn restart(&mut self, cfg: IdentConfig) {
+        // Every field named: one added is a compile error here until it is restarted.
+        let Self {
+            cfg: c,
+            stage,
+            status,
+            k,
+            stage_s,
+            last_i,
+            max_rise_a,
+            l_bound_h,
+            r_bound_ohm,
+            level_target_a,
+            pi,
+            v_ab,
+            sum_i,
+            sum_v,
+            last_mean_v,
+            sum_xy,
+            last_xy,
+            settled,
+            window: _,
+            window_open,
+            window_s,
+            window_periods,
+            level_v,
+            level_a,
+            r_ohm,
+            last_ab,
+            dv_v,
+            ripple_sum,
+            ld_h,
+            found,
+        } = self;
+        *c = cfg;
+        // A hundredth of a volt at first: below any dead-time voltage, so the first
+        // pulses measure nothing and the doubling finds the level from below.
+        *stage = Stage::Probe {
+            volts: 0.01,
+            on: true,
+        };
+        *status = IdentStatus::Pending;
+        *k = 0;
+        (*stage_s, *last_i, *max_rise_a, *l_bound_h) = (0.0, 0.0, 0.0, 0.0);
+        (*r_bound_ohm, *level_target_a) = (0.0, 0.0);
+        *pi = [Pi::default(); 2];
+        *v_ab = (0.0, 0.0);
+        (*sum_i, *sum_v, *last_mean_v) = (0.0, 0.0, f32::NAN);
+        (*sum_xy, *last_xy) = ((0.0, 0.0), (0.0, 0.0));
+        *settled = 0;
+        (*window_open, *window_s) = (false, 0.0);
+        *window_periods = WindowPeriods::new(cfg.period_s);
+        (*level_v, *level_a, *r_ohm) = ([0.0; 2], [0.0; 2], 0.0);
+        (*last_ab, *dv_v, *ripple_sum, *ld_h) = ((0.0, 0.0), 0.0, 0.0, 0.0);
+        *found = Identified::default();
     }
 
     pub fn status(&self) -> IdentStatus {
@@ -477,7 +526,7 @@ impl Identifier {
         (self.sum_i, self.sum_v, self.last_mean_v) = (0.0, 0.0, f32::NAN);
         self.sum_xy = (0.0, 0.0);
         self.settled = 0;
-        self.window = None;
+        self.window_open = false;
         self.enter(Stage::Level { index });
     }
 
@@ -508,55 +557,53 @@ impl Identifier {
         let target = if index == 0 { 0.5 } else { 1.0 } * self.level_target_a;
         // The voltage of the period this sample closed.
         let v_alpha = self.v_ab.0;
-        let measured = match &mut self.window {
-            None => {
-                // A still rotor: the α current's mean within 1 % of the level, the
-                // voltage's steady and the sensor's reading the same over SETTLED_WINDOWS
-                // windows, the last window's means.
-                // A moving one: the current within 5 %, then a window between two
-                // instants the sensor reads alike (its back-EMF keeps the voltage from
-                // settling; the window's ends at one reading take it out).
-                self.sum_i += i.0;
-                self.sum_v += v_alpha;
-                self.sum_xy = (self.sum_xy.0 + xy.0, self.sum_xy.1 + xy.1);
-                let mut measured = None;
-                if self.k % WINDOW_PERIODS == 0 {
-                    let n = WINDOW_PERIODS as f32;
-                    let (mean_i, mean_v) = (self.sum_i / n, self.sum_v / n);
-                    // The window's mean reading: the sensor's noise a tenth of a sample's.
-                    let mean_xy = (self.sum_xy.0 / n, self.sum_xy.1 / n);
-                    (self.sum_i, self.sum_v, self.sum_xy) = (0.0, 0.0, (0.0, 0.0));
-                    let off = libm::fabsf(mean_i - target);
-                    let steady =
-                        libm::fabsf(mean_v - self.last_mean_v) <= 2e-3 * libm::fabsf(mean_v) + 1e-3;
-                    // (Not on the level's first window: nothing to compare with.)
-                    let moved = apart(mean_xy, self.last_xy);
-                    let moving = self.last_mean_v.is_finite() && moved > STILL_READING;
-                    self.last_mean_v = mean_v;
-                    self.last_xy = mean_xy;
-                    self.settled = if off <= 0.01 * target && steady && moved <= SAME_READING {
-                        self.settled + 1
-                    } else {
-                        0
-                    };
-                    if self.settled >= SETTLED_WINDOWS {
-                        measured = Some((mean_i, mean_v));
-                    } else if off <= 0.05 * target && moving {
-                        self.window = Some(Window::new(xy));
-                        self.window_s = 0.0;
-                    }
+        let measured = if !self.window_open {
+            // A still rotor: the α current's mean within 1 % of the level, the
+            // voltage's steady and the sensor's reading the same over SETTLED_WINDOWS
+            // windows, the last window's means.
+            // A moving one: the current within 5 %, then a window between two
+            // instants the sensor reads alike (its back-EMF keeps the voltage from
+            // settling; the window's ends at one reading take it out).
+            self.sum_i += i.0;
+            self.sum_v += v_alpha;
+            self.sum_xy = (self.sum_xy.0 + xy.0, self.sum_xy.1 + xy.1);
+            let mut measured = None;
+            if self.k % WINDOW_PERIODS == 0 {
+                let n = WINDOW_PERIODS as f32;
+                let (mean_i, mean_v) = (self.sum_i / n, self.sum_v / n);
+                // The window's mean reading: the sensor's noise a tenth of a sample's.
+                let mean_xy = (self.sum_xy.0 / n, self.sum_xy.1 / n);
+                (self.sum_i, self.sum_v, self.sum_xy) = (0.0, 0.0, (0.0, 0.0));
+                let off = libm::fabsf(mean_i - target);
+                let steady =
+                    libm::fabsf(mean_v - self.last_mean_v) <= 2e-3 * libm::fabsf(mean_v) + 1e-3;
+                // (Not on the level's first window: nothing to compare with.)
+                let moved = apart(mean_xy, self.last_xy);
+                let moving = self.last_mean_v.is_finite() && moved > STILL_READING;
+                self.last_mean_v = mean_v;
+                self.last_xy = mean_xy;
+                self.settled = if off <= 0.01 * target && steady && moved <= SAME_READING {
+                    self.settled + 1
+                } else {
+                    0
+                };
+                if self.settled >= SETTLED_WINDOWS {
+                    measured = Some((mean_i, mean_v));
+                } else if off <= 0.05 * target && moving {
+                    self.window.restart(xy);
+                    (self.window_open, self.window_s) = (true, 0.0);
                 }
-                measured
             }
-            Some(w) => {
-                let m = w.add(i.0, v_alpha, xy, c.period_s);
-                self.window_s += c.period_s;
-                if m.is_none() && self.window_s > RESTART_S {
-                    w.restart(xy);
-                    self.window_s = 0.0;
-                }
-                m
+            measured
+        } else {
+            let w = &mut self.window;
+            let m = w.add(i.0, v_alpha, xy, self.window_periods);
+            self.window_s += c.period_s;
+            if m.is_none() && self.window_s > RESTART_S {
+                w.restart(xy);
+                self.window_s = 0.0;
             }
+            m
         };
         if let Some((mean_i, mean_v)) = measured {
             // Constant indices: no bounds check in the control interrupt.
@@ -674,5 +721,30 @@ impl Identifier {
         let a = (1.0 - x) / (1.0 + x);
         let l = -self.r_ohm * self.cfg.period_s / libm::logf(a);
         (l.is_finite() && l > L_RANGE_H.0 && l < L_RANGE_H.1).then_some(l)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The window's spans in periods read as its seconds did: the first p whose p·T
+    /// reaches the span, for every rate a drive runs at.
+    #[test]
+    fn window_spans_in_periods_are_the_first_to_reach_the_seconds() {
+        let first = |s: f32, t: f32| (0..u32::MAX).find(|&p| p as f32 * t >= s).unwrap();
+        for hz in [
+            8_000.0f32, 10_000.0, 16_000.0, 20_000.0, 24_000.0, 30_000.0, 40_000.0,
+        ] {
+            for t in [
+                1.0 / hz,
+                1.0 / hz * (1.0 + f32::EPSILON),
+                1.0 / hz * (1.0 - f32::EPSILON),
+            ] {
+                let w = WindowPeriods::new(t);
+                assert_eq!(w.moving, first(MIN_WINDOW_S, t), "{hz} Hz");
+                assert_eq!(w.still, first(STILL_WINDOW_S, t), "{hz} Hz");
+            }
+        }
     }
 }

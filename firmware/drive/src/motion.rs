@@ -108,8 +108,10 @@ impl MotionLoop {
 
     /// Place the poles on another Ĵ, keeping the torque the integrator holds (its state
     /// is an acceleration): a bumpless change at speed.
-    pub fn set_inertia(&mut self, inertia_kg_m2: f32) {
-        self.integral *= self.inertia_kg_m2 / inertia_kg_m2;
+    /// `per_inertia` is 1/`inertia_kg_m2`, which the caller works out once for all it
+    /// changes.
+    pub fn set_inertia(&mut self, inertia_kg_m2: f32, per_inertia: f32) {
+        self.integral *= self.inertia_kg_m2 * per_inertia;
         self.inertia_kg_m2 = inertia_kg_m2;
     }
 

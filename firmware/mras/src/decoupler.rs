@@ -334,10 +334,18 @@ impl Injection {
 
     /// Path `path`'s new term: the polynomial coefficients it feeds are summed again over
     /// the paths sharing them (no running sums: nothing drifts over millions of updates).
+    /// A path alone at its order is placed inline: the control interrupt puts a term in
+    /// force every stride, and the call's frame was most of it.
+    #[inline(always)]
     pub(crate) fn set(&mut self, path: usize, coef: Cplx) {
-        if self.place(path, coef) {
-            return;
+        if !self.place(path, coef) {
+            self.set_shared(path);
         }
+    }
+
+    /// [`Self::set`] of a path sharing its order, its term stored: the order's sum again.
+    #[inline(never)]
+    fn set_shared(&mut self, path: usize) {
         let Some(&kind) = self.layout.kinds.get(path) else {
             return;
         };

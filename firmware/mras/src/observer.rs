@@ -155,32 +155,25 @@ impl DiscreteGains {
 /// `theta` wrapped into [0, 2π) and the period count carried, for the uncommon sample
 /// that crosses the wrap. Bounded (no loop): an absurd speed must not hang the control
 /// path; a non-finite angle lands at 0 and the caller's finiteness check rejects it.
-/// No calls (floor by conversion), so that the step function makes none.
+/// No calls and one compare before the fix-ups: the turns are floor(θ/2π), rounded
+/// without a branch (a chain of range checks made the wrap's period one of the
+/// control interrupt's longest).
 #[inline(always)]
 fn wrap(theta: f32, periods: i32) -> (f32, i32) {
-    let turns = if (TAU..2.0 * TAU).contains(&theta) {
-        1.0
-    } else if (-TAU..0.0).contains(&theta) {
-        -1.0
-    } else {
-        // floor(θ/2π); `as` saturates beyond ±2^31 turns (an absurd angle, clamped below).
-        let q = theta * (1.0 / TAU);
-        let t = q as i32 as f32;
-        if t > q {
-            t - 1.0
-        } else {
-            t
-        }
-    };
+    // Exact for |θ/2π| < 2^22; a turn too few at a whole turn, which the fix-up adds.
+    let turns = crate::trig::round_f32_fast(theta * (1.0 / TAU) - 0.5);
     let mut theta_e_rad = theta - turns * TAU;
+    // `as` saturates beyond ±2^31 turns (an absurd angle, clamped below).
     let mut periods = periods.wrapping_add(turns as i32);
-    // Rounding can leave the result exactly at TAU or a hair below 0.
+    // Rounding can leave the result a hair below 0 (a turn too few: one added back may
+    // round up to TAU itself), or at or a hair above TAU.
+    if theta_e_rad < 0.0 {
+        theta_e_rad += TAU;
+        periods = periods.wrapping_sub(1);
+    }
     if theta_e_rad >= TAU {
         theta_e_rad -= TAU;
         periods = periods.wrapping_add(1);
-    } else if theta_e_rad < 0.0 {
-        theta_e_rad += TAU;
-        periods = periods.wrapping_sub(1);
     }
     if !(0.0..TAU).contains(&theta_e_rad) {
         theta_e_rad = 0.0;
@@ -251,6 +244,41 @@ mod tests {
         let s =
             ObserverState::default().advanced(&DiscreteGains::new(&light, 1e-4, 2), 0.0, f32::MAX);
         assert!(!s.is_finite());
+    }
+
+    #[test]
+    fn wrap_keeps_the_angle_and_counts_its_turns() {
+        for i in -40_000..40_000 {
+            let theta = i as f32 * 7.3e-3;
+            if (0.0..TAU).contains(&theta) {
+                continue;
+            }
+            let (w, periods) = wrap(theta, 5);
+            assert!((0.0..TAU).contains(&w), "{theta} -> {w}");
+            let back = w as f64 + (periods - 5) as f64 * core::f64::consts::TAU;
+            // f32 rounding of turns·2π: half an ulp of θ and of the product.
+            let allowed = 1.2e-7 * theta.abs() as f64 + 1e-6;
+            assert!(
+                (back - theta as f64).abs() < allowed,
+                "{theta} -> {w}, {periods}"
+            );
+        }
+        // A hair below 0 is a hair below 2π of the turn before, or 0 of this one where
+        // 2π minus the hair rounds to 2π: never 0 of the turn before.
+        for hair in [-1e-9f32, -1e-8, -1e-7, -4e-7, -1e-6] {
+            let (w, periods) = wrap(hair, 5);
+            let back = w as f64 + (periods - 5) as f64 * core::f64::consts::TAU;
+            assert!(
+                (back - hair as f64).abs() < 1e-6,
+                "{hair} -> {w}, {periods}"
+            );
+        }
+        // Whole turns land at 0 (to the rounding of k·2π) with the turn counted.
+        for k in [-3i32, -1, 1, 2, 7] {
+            let (w, periods) = wrap(k as f32 * TAU, 0);
+            assert!(w < 1e-5 && periods == k, "{k}: {w}, {periods}");
+        }
+        assert_eq!(wrap(f32::NAN, 3).0, 0.0);
     }
 
     #[test]

@@ -124,8 +124,10 @@ struct Acquisition {
     /// A quarter of the fastest eigenvalue over N (rad/s mechanical): an observer off by
     /// this much in speed stays well inside the lock threshold while it settles.
     speed_tol_rad_s: f32,
-    /// 1/(N·T): phase advance per sample (sensor-electrical rad) to ω (rad/s mechanical).
-    per_sample_to_rad_s: f32,
+    /// 1/(N·T·window): a window's phase advance (sensor-electrical rad) to ω (rad/s
+    /// mechanical), worked out once: the window's end is a control period's, and its
+    /// other work (the decoupled angle at both ends) makes it the longest.
+    per_window_to_rad_s: f32,
 }
 
 /// Largest change of the phase advance from one sample to the next that a sensor
@@ -181,7 +183,7 @@ impl<T: Trig> Front<T> {
             reseed: false,
             speed_check: false,
             speed_tol_rad_s: 0.25 * fastest_rad_s / n,
-            per_sample_to_rad_s: 1.0 / (n * cfg.sample_period_s),
+            per_window_to_rad_s: 1.0 / (n * cfg.sample_period_s * window as f32),
         };
         Ok(Self {
             acq_left: 1,
@@ -478,7 +480,8 @@ impl<T: Trig> Front<T> {
         let corr_rad = self.decoupled_correction(z, raw);
         let a = &self.acq;
         let advance_rad = a.advance_rad + corr_rad - a.start_corr_rad;
-        let omega_rad_s = advance_rad / a.count as f32 * a.per_sample_to_rad_s;
+        // `count` is `window` here: the mean advance per sample, without a division.
+        let omega_rad_s = advance_rad * a.per_window_to_rad_s;
         // Written so that a NaN speed also restarts.
         let pulled_in = libm::fabsf(omega_rad_s - self.obs.omega_rad_s) <= a.speed_tol_rad_s;
         let restart = a.reseed || (a.speed_check && !pulled_in);

@@ -228,6 +228,15 @@ pub fn max_f32(a: f32, b: f32) -> f32 {
     }
 }
 
+/// `x` rounded to the nearest integer (ties to even) by adding and taking off
+/// 1.5·2^23, where the sum has no fraction bits left: exact for |x| < 2^22; beyond, `x`
+/// itself or an integer within one of it. NaN stays NaN.
+#[inline(always)]
+pub fn round_f32_fast(x: f32) -> f32 {
+    const SHIFTER: f32 = 12_582_912.0;
+    (x + SHIFTER) - SHIFTER
+}
+
 /// `x` clamped to [-1, 1] by a saturating conversion to Q31 and back: on the MCU two
 /// `vcvt`s, which saturate in hardware, where two compares each cost a flag transfer
 /// and a branch. Exact for |x| >= 2^-8; below, within 2^-31 (the Q31 step). NaN gives 0.
@@ -249,6 +258,22 @@ pub fn clamp_01_f32(x: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn fast_rounding_is_round_half_even_within_its_range() {
+        let mut x = 4_194_303.5f32;
+        for _ in 0..400 {
+            for x in [x, -x, x + 0.5, -x - 0.5, x + 0.25] {
+                assert_eq!(round_f32_fast(x), libm::rintf(x), "{x}");
+            }
+            x *= 0.93;
+        }
+        for i in -100_000..100_000 {
+            let x = i as f32 * 0.013;
+            assert_eq!(round_f32_fast(x), libm::rintf(x), "{x}");
+        }
+        assert!(round_f32_fast(f32::NAN).is_nan());
+    }
 
     #[test]
     fn clamps_saturate_and_keep_what_is_inside() {
