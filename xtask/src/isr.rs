@@ -721,67 +721,42 @@ mod tests {
         );
     }
 
+    /// `tbh [pc, r0, lsl #1]` with `entries` entries, then the halfwords `padding`, then
+    /// the one target (which calls `a`): the scan follows one table to one target.
+    fn padded_tbh_is_one_table(entries: u16, padding: &[u16]) {
+        let skip = entries + padding.len() as u16;
+        let mut body = vec![W(0xe8df, 0xf010)];
+        body.extend((0..entries).map(|_| H(skip)));
+        body.extend(padding.iter().map(|&h| H(h)));
+        body.extend([Bl(at(1)), BX_LR]);
+        let table = [(at(0) + 4, at(0) + 4 + 2 * u32::from(skip))];
+        let p = image(&[("ADC1_2", 0, body), ("a", 1, vec![BX_LR])], &table);
+        let f = scan(&p, "ADC1_2").unwrap();
+        assert!(f.problems.is_empty(), "{:?}", f.problems);
+        assert_eq!(f.reachable_instructions, 3 + 1);
+    }
+
     /// A `tbh` table of an odd count of entries, padded to a word with a `nop` right
     /// before its first target (as rustc lays one out): the `nop` is padding, not an
     /// entry far beyond the function.
     #[test]
     fn a_tbh_tables_nop_padding_is_not_an_entry() {
-        // tbh [pc, r0, lsl #1]; one entry (to +8) and the nop; the target calls `a`.
-        let body = vec![W(0xe8df, 0xf010), H(2), H(THUMB_NOP), Bl(at(1)), BX_LR];
-        let table = [(at(0) + 4, at(0) + 8)];
-        let p = image(&[("ADC1_2", 0, body), ("a", 1, vec![BX_LR])], &table);
-        let f = scan(&p, "ADC1_2").unwrap();
-        assert!(f.problems.is_empty(), "{:?}", f.problems);
-        assert_eq!(f.reachable_instructions, 3 + 1);
+        padded_tbh_is_one_table(1, &[THUMB_NOP]);
     }
 
     /// A `tbh` table padded with a `nop` and zeros to its first target's word (rustc's
     /// layout of a table of four entries ahead of a word-aligned target): padding too.
     #[test]
     fn a_tbh_tables_nop_and_zero_padding_is_not_an_entry() {
-        // tbh [pc, r0, lsl #1]; four entries (to +18), a nop and two zero halfwords.
-        let body = vec![
-            W(0xe8df, 0xf010),
-            H(7),
-            H(7),
-            H(7),
-            H(7),
-            H(THUMB_NOP),
-            H(0),
-            H(0),
-            Bl(at(1)),
-            BX_LR,
-        ];
-        let table = [(at(0) + 4, at(0) + 18)];
-        let p = image(&[("ADC1_2", 0, body), ("a", 1, vec![BX_LR])], &table);
-        let f = scan(&p, "ADC1_2").unwrap();
-        assert!(f.problems.is_empty(), "{:?}", f.problems);
-        assert_eq!(f.reachable_instructions, 3 + 1);
+        padded_tbh_is_one_table(4, &[THUMB_NOP, 0, 0]);
     }
 
     /// A `tbh` table padded with a `nop`, then literals (a constant pool rustc placed
-    /// between the table and its first target): the `nop` is padding, the literals are
-    /// not entries.
+    /// between the table and its first target, here -2π): the `nop` is padding, the
+    /// literals are not entries.
     #[test]
     fn a_tbh_tables_nop_before_literals_is_not_an_entry() {
-        // tbh [pc, r0, lsl #1]; four entries (to +18), a nop and a literal word (-2π).
-        let body = vec![
-            W(0xe8df, 0xf010),
-            H(7),
-            H(7),
-            H(7),
-            H(7),
-            H(THUMB_NOP),
-            H(0x0fdb),
-            H(0xc0c9),
-            Bl(at(1)),
-            BX_LR,
-        ];
-        let table = [(at(0) + 4, at(0) + 18)];
-        let p = image(&[("ADC1_2", 0, body), ("a", 1, vec![BX_LR])], &table);
-        let f = scan(&p, "ADC1_2").unwrap();
-        assert!(f.problems.is_empty(), "{:?}", f.problems);
-        assert_eq!(f.reachable_instructions, 3 + 1);
+        padded_tbh_is_one_table(4, &[THUMB_NOP, 0x0fdb, 0xc0c9]);
     }
 
     /// A `tbb` table: its entries are followed, the table bytes are data; an entry out

@@ -246,17 +246,6 @@ pub struct ShiftMeter {
     count: u32,
 }
 
-/// 1/√x to 5e-6 (the exponent bits' seed and two Newton steps, where
-/// [`mras::inv_sqrt_f32`] takes three): a sample's weight in the shift's mean, whose
-/// error then moves the shift by 5e-6 of itself.
-#[inline(always)]
-fn inv_sqrt_two_steps(x: f32) -> f32 {
-    let y = f32::from_bits(0x5f37_5a86_u32.wrapping_sub(x.to_bits() >> 1));
-    let h = 0.5 * x;
-    let y = y * (1.5 - h * y * y);
-    y * (1.5 - h * y * y)
-}
-
 /// Samples before the mean is reported: several sensor periods at the commissioning
 /// speed.
 const SHIFT_SAMPLES: u32 = 2000;
@@ -268,7 +257,8 @@ impl ShiftMeter {
         let cross = zd.1 * z.0 - zd.0 * z.1;
         let n2 = (zd.0 * zd.0 + zd.1 * zd.1) * (z.0 * z.0 + z.1 * z.1);
         if n2 > f32::MIN_POSITIVE {
-            self.sum += cross * inv_sqrt_two_steps(n2);
+            // Two Newton steps: the weight to 5e-6, which moves the shift by 5e-6 of itself.
+            self.sum += cross * mras::inv_sqrt_steps_f32::<2>(n2);
             self.count += 1;
         }
     }

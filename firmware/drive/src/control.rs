@@ -82,14 +82,6 @@ pub struct DriveConfig {
 /// (A): the sampled current's noise.
 pub const COMPENSATION_BAND_A: f32 = 0.2;
 
-/// 1/√x to 0.2 % (the exponent bits' seed and one Newton step; finite at 0), for the
-/// inverter compensation's band.
-#[inline(always)]
-fn inv_sqrt_coarse(x: f32) -> f32 {
-    let y = f32::from_bits(0x5f37_5a86_u32.wrapping_sub(x.to_bits() >> 1));
-    y * (1.5 - 0.5 * x * y * y)
-}
-
 /// The voltage `phase_v` an inverter loses per phase against its current, put back (αβ,
 /// V) for the αβ current `(i_alpha, i_beta)` under the voltage `(va, vb)`: each phase's
 /// share with its current's sign, linear across the band in which the PWM ripple takes
@@ -129,7 +121,7 @@ fn inverter_compensation(
     // reciprocal by the same reciprocal square root, not a division (14 cycles).
     let s_floor = two_l_over_t_ohm * COMPENSATION_BAND_A;
     let m0 = va * va + vb * vb;
-    let y0 = inv_sqrt_coarse(m0);
+    let y0 = mras::inv_sqrt_steps_f32::<1>(m0);
     let s0 = mras::max_f32(m0 * y0, s_floor);
     let c = share(mras::min_f32(
         two_l_over_t_ohm * y0,
@@ -138,8 +130,8 @@ fn inverter_compensation(
     // And |v + c|: the band at the mean of the two, its reciprocal as 1/√(s²).
     let (xa, xb) = (va + c.0, vb + c.1);
     let m1 = xa * xa + xb * xb;
-    let s = mras::max_f32(0.5 * (s0 + m1 * inv_sqrt_coarse(m1)), s_floor);
-    share(two_l_over_t_ohm * inv_sqrt_coarse(s * s))
+    let s = mras::max_f32(0.5 * (s0 + m1 * mras::inv_sqrt_steps_f32::<1>(m1)), s_floor);
+    share(two_l_over_t_ohm * mras::inv_sqrt_steps_f32::<1>(s * s))
 }
 
 /// An alignment as bits (its offset's, the direction and the pole pairs; never

@@ -39,6 +39,6 @@ pub use decoupler::{
 pub use health::{Fault, Faults};
 pub use tracker::{Estimate, Front, Tracker};
 pub use trig::{
-    clamp_01_f32, clamp_unit_f32, inv_sqrt_f32, max_f32, min_f32, round_f32_fast, sin_cos_f32,
-    sqrt_f32, F32Trig, LibmTrig, Trig,
+    clamp_01_f32, clamp_unit_f32, inv_sqrt_f32, inv_sqrt_steps_f32, max_f32, min_f32,
+    round_f32_fast, sin_cos_f32, sqrt_f32, F32Trig, LibmTrig, Trig,
 };
