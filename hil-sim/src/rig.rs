@@ -22,7 +22,7 @@ use anyhow::anyhow;
 use calib_record::{FlashSlots, RamFlash, RamFlashError, Slot};
 use drive::adaptation::{AdaptReport, AdaptationTask};
 use drive::control::{ControlPeriod, DriveConfig, MotorConfig, Output};
-use drive::handoff::{PlanQueue, Queue, HANDOFF_DEPTH, UPDATE_DEPTH};
+use drive::handoff::{BankQueue, Queue, SpareQueue, HANDOFF_DEPTH, UPDATE_DEPTH};
 use drive::motion::{Angle, LoopMode, MotionRef};
 use drive::supervisor::{NamedError, Supervisor};
 use drive::telemetry::{Command, Fault, Install, Line, Snapshot, TelemetrySlot};
@@ -263,7 +263,8 @@ pub struct Rig<T: Trig = F32Trig, const H: usize = HANDOFF_DEPTH, const U: usize
     adaptation: AdaptationTask,
     handoff: Queue<AdaptSample, H>,
     updates: Queue<InjectionUpdate, U>,
-    plans: PlanQueue,
+    banks: BankQueue,
+    spares: SpareQueue,
     report: AdaptReport,
     /// The task is pended (a sample was handed over since it last ran).
     adapt_pended: bool,
@@ -292,7 +293,8 @@ impl<T: Trig> Rig<T> {
                 .expect("the control period validated this configuration"),
             handoff: Queue::new(),
             updates: Queue::new(),
-            plans: Queue::new(),
+            banks: Queue::new(),
+            spares: Queue::new(),
             report: AdaptReport::EMPTY,
             adapt_pended: false,
             adapt_every: 1,
@@ -324,7 +326,8 @@ impl<T: Trig, const H: usize, const U: usize> Rig<T, H, U> {
             adaptation: self.adaptation,
             handoff: Queue::new(),
             updates: Queue::new(),
-            plans: Queue::new(),
+            banks: Queue::new(),
+            spares: Queue::new(),
             report: self.report,
             adapt_pended: false,
             adapt_every: self.adapt_every,
@@ -415,7 +418,8 @@ impl<T: Trig, const H: usize, const U: usize> Rig<T, H, U> {
             // the period that owed it is written first.
             let period = &mut self.period;
             self.telemetry.settle_with(|s| period.write_snapshot(s));
-            self.period.apply_due(&mut self.updates, &mut self.plans);
+            self.period
+                .apply_due(&mut self.updates, &mut self.banks, &mut self.spares);
             let out = self.period.step(&sample, &self.command);
             self.adapt_pended |= self.period.hand_over(&mut self.handoff);
             // As the firmware's control interrupt: a supervisor still busy skips the tick.
@@ -429,7 +433,8 @@ impl<T: Trig, const H: usize, const U: usize> Rig<T, H, U> {
                 self.adaptation.run(
                     &mut self.handoff,
                     &mut self.updates,
-                    &mut self.plans,
+                    &mut self.banks,
+                    &mut self.spares,
                     self.mailbox.take(),
                     |r| *report = *r,
                 );
@@ -511,6 +516,8 @@ impl<T: Trig, const H: usize, const U: usize> Rig<T, H, U> {
     }
 
     fn publish(&mut self, t: f64, out: drive::supervisor::Output) {
+        // As the firmware's supervisor: its motion constants in force with the command.
+        self.period.put_motion(&out.command.motion);
         self.command = out.command;
         if out.install.is_some() {
             self.mailbox = out.install;

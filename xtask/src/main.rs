@@ -25,11 +25,13 @@ const QEMU_IMAGE: &str = "mras-qemu";
 /// host profile ([`HOST_PROFILE`]).
 pub(crate) const EMULATOR: &str = "drive-emu";
 /// Budgets of the size report: growth is a decision, not an accident. The part has
-/// 256 KiB in the bank the code runs from (memory.x); 112 KiB leaves room for the
+/// 256 KiB in the bank the code runs from (memory.x); 120 KiB leaves room for the
 /// application beside a core that chooses its bank from the data and a drive that
 /// identifies its motor (the motor's identification took the firmware past the 96 KiB
-/// of the budget before; the size today: docs/figures/size.md, `cargo xtask size`).
-const FLASH_BUDGET_BYTES: u64 = 112 * 1024;
+/// of the budget before; the N = 1 build's deadlines at 40 kHz past 112 KiB: a new bank
+/// built in the adaptation task and swapped in, the survey's end a phase a run; the
+/// size today: docs/figures/size.md, `cargo xtask size`).
+const FLASH_BUDGET_BYTES: u64 = 120 * 1024;
 const RAM_BUDGET_BYTES: u64 = 16 * 1024;
 
 const HELP: &str = "\

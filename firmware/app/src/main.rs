@@ -51,12 +51,14 @@ mod app {
     use drive::adaptation::{AdaptReport, AdaptationTask};
     use drive::commissioning::Cause;
     use drive::control::ControlPeriod;
-    use drive::handoff::{HandoffQueue, PlanQueue, HANDOFF_DEPTH, PLAN_DEPTH};
+    use drive::handoff::{
+        BankQueue, HandoffQueue, Prepared, SpareQueue, BANK_DEPTH, HANDOFF_DEPTH,
+    };
     use drive::motion::MotionRef;
     use drive::supervisor::Supervisor;
     use drive::telemetry::{self, Command, Install, TelemetrySlot};
     use heapless::spsc::{Consumer, Producer, Queue};
-    use mras::{AdaptSample, BankPlan, Front, InjectionUpdate};
+    use mras::{AdaptSample, Front, Injection, InjectionUpdate};
     use stm32g4xx_hal::independent_watchdog::IndependentWatchdog;
     use stm32g4xx_hal::stm32::Interrupt;
 
@@ -70,7 +72,7 @@ mod app {
         telemetry: TelemetrySlot,
         /// The control period: `control`'s, read by `supervisor` for the snapshot a
         /// supervisor's period owes (a copy, with `control` masked).
-        period: ControlPeriod<CoreTrig>,
+        period: ControlPeriod<CoreTrig, &'static mut Injection>,
         /// Coefficients loaded from flash, for `adapt` to install.
         mailbox: Option<Install>,
         /// Adaptation → supervisor, after each snapshot period.
@@ -81,14 +83,17 @@ mod app {
     struct Local {
         adcs: Adcs,
         pwm: Pwm,
-        /// Accepted samples to `adapt`, and its updates and bank plans back.
+        /// Accepted samples to `adapt`, and its updates and new banks' decoupling
+        /// vectors back; the vectors they replaced to `adapt` again.
         handoff_tx: Producer<'static, AdaptSample, HANDOFF_DEPTH>,
         updates_rx: Consumer<'static, InjectionUpdate, UPDATES>,
-        plans_rx: Consumer<'static, BankPlan, PLAN_DEPTH>,
-        adaptation: AdaptationTask,
+        banks_rx: Consumer<'static, Prepared<&'static mut Injection>, BANK_DEPTH>,
+        spares_tx: Producer<'static, &'static mut Injection, BANK_DEPTH>,
+        adaptation: AdaptationTask<&'static mut Injection>,
         handoff_rx: Consumer<'static, AdaptSample, HANDOFF_DEPTH>,
         updates_tx: Producer<'static, InjectionUpdate, UPDATES>,
-        plans_tx: Producer<'static, BankPlan, PLAN_DEPTH>,
+        banks_tx: Producer<'static, Prepared<&'static mut Injection>, BANK_DEPTH>,
+        spares_rx: Consumer<'static, &'static mut Injection, BANK_DEPTH>,
         /// The previous control interrupt's cycle count (DWT CYCCNT).
         last_cycles: u32,
         supervisor: Supervisor,
@@ -108,7 +113,10 @@ mod app {
     #[init(local = [
         handoff: HandoffQueue = Queue::new(),
         updates: Queue<InjectionUpdate, UPDATES> = Queue::new(),
-        plans: PlanQueue = Queue::new(),
+        banks: BankQueue<&'static mut Injection> = Queue::new(),
+        spares: SpareQueue<&'static mut Injection> = Queue::new(),
+        // The decoupling vector in force and the one a new bank is built in.
+        injections: [Injection; 2] = [Injection::EMPTY; 2],
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
         let mut cp = cx.core;
@@ -116,17 +124,19 @@ mod app {
         let (pwm, trig) = (hw.pwm, hw.trig);
 
         let cfg = board::core_config();
-        let tracker = match Front::with_trig(cfg, trig) {
+        let [in_force, spare] = cx.local.injections;
+        let tracker = match Front::with_store(cfg, trig, in_force) {
             Ok(t) => t,
             Err(e) => defmt::panic!("core configuration: {=str}: {=str}", e.field, e.problem),
         };
         // Validated by `Front::with_trig` just above: cannot fail.
-        let Ok(adaptation) = AdaptationTask::new(&cfg) else {
+        let Ok(adaptation) = AdaptationTask::with_spare(&cfg, spare) else {
             defmt::panic!("core configuration")
         };
         let (handoff_tx, handoff_rx) = cx.local.handoff.split();
         let (updates_tx, updates_rx) = cx.local.updates.split();
-        let (plans_tx, plans_rx) = cx.local.plans.split();
+        let (banks_tx, banks_rx) = cx.local.banks.split();
+        let (spares_tx, spares_rx) = cx.local.spares.split();
         let Some(drive_cfg) = board::drive_config() else {
             defmt::panic!("board sensor scaling out of range (board.rs)")
         };
@@ -191,11 +201,13 @@ mod app {
                 pwm,
                 handoff_tx,
                 updates_rx,
-                plans_rx,
+                banks_rx,
+                spares_tx,
                 adaptation,
                 handoff_rx,
                 updates_tx,
-                plans_tx,
+                banks_tx,
+                spares_rx,
                 last_cycles: 0,
                 supervisor,
                 flash: hw.flash,
@@ -217,7 +229,7 @@ mod app {
 
     /// The control period: highest priority, bound to the end of the injected sequence.
     #[task(binds = ADC1_2, priority = 3,
-           local = [adcs, pwm, last_cycles, handoff_tx, updates_rx, plans_rx],
+           local = [adcs, pwm, last_cycles, handoff_tx, updates_rx, banks_rx, spares_tx],
            shared = [command, telemetry, period])]
     fn control(cx: control::Context) {
         let t0 = DWT::cycle_count();
@@ -232,7 +244,7 @@ mod app {
             // The snapshot of a supervisor's period the supervisor did not take (busy,
             // or preempted past it): written before anything changes that state.
             telemetry.lock(|t| t.settle_with(|s| period.write_snapshot(s)));
-            period.apply_due(l.updates_rx, l.plans_rx);
+            period.apply_due(l.updates_rx, l.banks_rx, l.spares_tx);
             // Read where it lies (a copy cost about 30 cycles): at its ceiling here.
             let out = command.lock(|command| period.step(&sample, command));
             l.pwm.apply(&out);
@@ -259,7 +271,7 @@ mod app {
 
     /// The MRAS adaptation on every sample `control` handed over (USART3's vector, which
     /// no peripheral raises here, pended by `control`).
-    #[task(binds = USART3, priority = 2, local = [adaptation, handoff_rx, updates_tx, plans_tx],
+    #[task(binds = USART3, priority = 2, local = [adaptation, handoff_rx, updates_tx, banks_tx, spares_rx],
            shared = [mailbox, report])]
     fn adapt(mut cx: adapt::Context) {
         let l = cx.local;
@@ -270,10 +282,14 @@ mod app {
             .mailbox
             .lock(|m| if m.is_some() { m.take() } else { None });
         let mut report = cx.shared.report;
-        l.adaptation
-            .run(l.handoff_rx, l.updates_tx, l.plans_tx, install, |r| {
-                report.lock(|x| *x = *r)
-            });
+        l.adaptation.run(
+            l.handoff_rx,
+            l.updates_tx,
+            l.banks_tx,
+            l.spares_rx,
+            install,
+            |r| report.lock(|x| *x = *r),
+        );
     }
 
     /// From `control`'s supervisor tick to the supervisor's return: a tick meanwhile is
@@ -306,7 +322,16 @@ mod app {
         }
         let tm = snapshot.merged(&cx.shared.report.lock(|r| *r));
         let out = l.supervisor.step(&tm, l.flash);
-        cx.shared.command.lock(|c| *c = out.command);
+        // New motion constants in force here, in the hold that writes the command that
+        // carries them (about 130 cycles with `control` held off): in the control
+        // interrupt they took its period past half a 40 kHz one.
+        let command = &mut cx.shared.command;
+        cx.shared.period.lock(|p| {
+            command.lock(|c| {
+                p.put_motion(&out.command.motion);
+                *c = out.command;
+            })
+        });
         if out.install.is_some() {
             cx.shared.mailbox.lock(|m| *m = out.install);
         }

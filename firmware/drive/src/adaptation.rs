@@ -18,11 +18,12 @@
 //! follows with its next update), so the control period never applies a term to another
 //! bank than the adapter's, and never runs on the old bank once there is room.
 
-use crate::handoff::Sender;
+use crate::handoff::{Prepared, Receiver, Sender};
 use crate::telemetry::{Install, InstallAck, Snapshot, Telemetry};
+use core::borrow::BorrowMut;
 use mras::{
-    AdaptSample, Adapter, Bank, BankPlan, Change, Coefficients, ConfigError, Cplx, InjectionUpdate,
-    MAX_PATHS, UPDATE_LATENCY_PERIODS,
+    AdaptSample, Adapter, Bank, Change, Coefficients, ConfigError, Convergence, Cplx, Injection,
+    InjectionUpdate, MAX_PATHS, UPDATE_LATENCY_PERIODS,
 };
 
 /// What the adaptation reports to the supervisor (merged into its [`Telemetry`]).
@@ -58,11 +59,22 @@ impl Default for AdaptReport {
     }
 }
 
-/// The adaptation task's state.
+/// The adaptation task's state; `S` holds the decoupling vector it builds a new bank
+/// in ([`crate::handoff`]).
 #[derive(Clone, Debug)]
-pub struct AdaptationTask {
+pub struct AdaptationTask<S: BorrowMut<Injection> = Injection> {
     adapter: Adapter,
+    /// The control period's decoupling vector as of every update queued to it, each in
+    /// force here as it was queued: a new bank's vector is built from it.
+    mirror: Injection,
+    /// The buffer the next bank is built in (`None`: handed over, not back yet).
+    spare: Option<S>,
+    /// A survey round's bank, queued by the next run (or step): the step that makes it
+    /// moves the adapter over to it, building its vector would make that run too long.
+    deferred: Option<InjectionUpdate>,
     report: AdaptReport,
+    /// The adapter's convergence measures, written in place at each report.
+    convergence: Convergence,
     /// The period of the last sample adapted on.
     last_index: u32,
     owed: Owed,
@@ -95,9 +107,20 @@ impl Owed {
 
 impl AdaptationTask {
     pub fn new(cfg: &mras::Config) -> Result<Self, ConfigError> {
+        Self::with_spare(cfg, Injection::EMPTY)
+    }
+}
+
+impl<S: BorrowMut<Injection>> AdaptationTask<S> {
+    /// The task, `spare` the buffer it builds the first new bank's decoupling vector in.
+    pub fn with_spare(cfg: &mras::Config, spare: S) -> Result<Self, ConfigError> {
         let adapter = Adapter::new(cfg)?;
         let mut a = Self {
             report: AdaptReport::EMPTY,
+            convergence: Convergence::EMPTY,
+            mirror: Injection::new(cfg.paths()),
+            spare: Some(spare),
+            deferred: None,
             adapter,
             last_index: 0,
             owed: Owed::NONE,
@@ -107,21 +130,21 @@ impl AdaptationTask {
         Ok(a)
     }
 
-    /// One handed-over sample; its update, if one is due, goes to `updates`, and a new
-    /// bank's plan to `plans` ahead of it.
+    /// One handed-over sample; its update, if one is due, goes to `updates` (a new
+    /// bank's decoupling vector to `banks` ahead of it).
     pub fn step(
         &mut self,
         s: &AdaptSample,
         updates: &mut impl Sender<InjectionUpdate>,
-        plans: &mut impl Sender<BankPlan>,
+        banks: &mut impl Sender<Prepared<S>>,
     ) {
+        self.send_deferred(updates, banks);
         self.last_index = s.index;
         let (_, update) = self.adapter.step(s);
-        if let Some(u) = update {
-            if matches!(u.change, Change::Bank(_)) {
-                self.send_plan(plans);
-            }
-            self.send(u, updates);
+        match update {
+            Some(u) if matches!(u.change, Change::Bank(_)) => self.deferred = Some(u),
+            Some(u) => self.send(u, updates, banks),
+            None => {}
         }
         if s.has(AdaptSample::REPORT) {
             self.measure();
@@ -136,7 +159,7 @@ impl AdaptationTask {
         &mut self,
         i: &Install,
         updates: &mut impl Sender<InjectionUpdate>,
-        plans: &mut impl Sender<BankPlan>,
+        banks: &mut impl Sender<Prepared<S>>,
     ) {
         let before = Bank::new(self.adapter.config().paths());
         let accepted = self.adapter.set_coefficients(&i.coefficients).is_ok();
@@ -146,16 +169,15 @@ impl AdaptationTask {
             // bank first (the front follows the adapter's every change), then every term.
             let bank = Bank::new(self.adapter.config().paths());
             if bank != before {
-                self.send_plan(plans);
                 let change = Change::Bank(bank.into());
-                self.send(InjectionUpdate { apply_at, change }, updates);
+                self.send(InjectionUpdate { apply_at, change }, updates, banks);
             }
             for (path, (_, value)) in i.coefficients.iter().enumerate() {
                 let change = Change::Term {
                     path: path as u8,
                     value,
                 };
-                self.send(InjectionUpdate { apply_at, change }, updates);
+                self.send(InjectionUpdate { apply_at, change }, updates, banks);
             }
         }
         self.report.install = Some(InstallAck {
@@ -165,23 +187,69 @@ impl AdaptationTask {
         self.measure();
     }
 
-    /// The plan of the bank the adapter just changed to, if it made one. A plan the
-    /// queue cannot take is dropped: the control period then works the bank out itself.
-    fn send_plan(&mut self, plans: &mut impl Sender<BankPlan>) {
-        if let Some(p) = self.adapter.take_plan() {
-            let _ = plans.send(p);
+    /// The bank a step deferred, queued (its vector built) ahead of anything after it.
+    pub(crate) fn send_deferred(
+        &mut self,
+        updates: &mut impl Sender<InjectionUpdate>,
+        banks: &mut impl Sender<Prepared<S>>,
+    ) {
+        if let Some(u) = self.deferred.take() {
+            self.send(u, updates, banks);
+        }
+    }
+
+    /// A decoupling vector the control period handed back, as the spare.
+    pub(crate) fn take_spare(&mut self, spares: &mut impl Receiver<S>) {
+        if self.spare.is_none() {
+            self.spare = spares.receive();
         }
     }
 
     /// Queue `u` behind whatever is owed, or owe it.
-    fn send(&mut self, u: InjectionUpdate, updates: &mut impl Sender<InjectionUpdate>) {
-        let refused = match self.send_owed(updates) {
-            true => updates.send(u).err(),
-            false => Some(u),
-        };
-        if let Some(u) = refused {
+    fn send(
+        &mut self,
+        u: InjectionUpdate,
+        updates: &mut impl Sender<InjectionUpdate>,
+        banks: &mut impl Sender<Prepared<S>>,
+    ) {
+        let queued = self.send_owed(updates, banks) && self.enqueue(u, updates, banks);
+        if !queued {
             self.updates_dropped = self.updates_dropped.saturating_add(1);
             self.owe(u);
+        }
+    }
+
+    /// Queue `u` (`false`: no room), and put it in force in the mirror. A new bank's
+    /// decoupling vector goes to `banks` ahead of it when the spare is at hand.
+    fn enqueue(
+        &mut self,
+        u: InjectionUpdate,
+        updates: &mut impl Sender<InjectionUpdate>,
+        banks: &mut impl Sender<Prepared<S>>,
+    ) -> bool {
+        if !updates.ready() {
+            return false;
+        }
+        self.mirror.apply(&u.change, self.adapter.plan());
+        if matches!(u.change, Change::Bank(_)) {
+            self.hand_over_bank(u.apply_at, banks);
+        }
+        // Cannot be refused: ready, and this task is the queue's only producer.
+        updates.send(u).is_ok()
+    }
+
+    /// The mirror, a new bank in force in it, copied into the spare for the bank's
+    /// update due at `apply_at`.
+    #[inline(never)]
+    fn hand_over_bank(&mut self, apply_at: u32, banks: &mut impl Sender<Prepared<S>>) {
+        if let Some(mut injection) = self.spare.take() {
+            *injection.borrow_mut() = self.mirror;
+            if let Err(p) = banks.send(Prepared {
+                apply_at,
+                injection,
+            }) {
+                self.spare = Some(p.injection);
+            }
         }
     }
 
@@ -207,36 +275,39 @@ impl AdaptationTask {
     }
 
     /// Send what is owed, the bank first; true when nothing is owed any more.
-    pub(crate) fn send_owed(&mut self, updates: &mut impl Sender<InjectionUpdate>) -> bool {
-        let owed = &mut self.owed;
-        if let Some(b) = owed.bank {
-            if updates.send(b).is_err() {
+    pub(crate) fn send_owed(
+        &mut self,
+        updates: &mut impl Sender<InjectionUpdate>,
+        banks: &mut impl Sender<Prepared<S>>,
+    ) -> bool {
+        if let Some(b) = self.owed.bank {
+            if !self.enqueue(b, updates, banks) {
                 return false;
             }
-            owed.bank = None;
+            self.owed.bank = None;
         }
         for k in 0..MAX_PATHS {
-            if owed.paths == 0 {
+            if self.owed.paths == 0 {
                 break;
             }
-            let i = (owed.next + k) % MAX_PATHS;
-            let Some(&(apply_at, value)) = owed.terms.get(i) else {
+            let i = (self.owed.next + k) % MAX_PATHS;
+            let Some(&(apply_at, value)) = self.owed.terms.get(i) else {
                 break;
             };
-            if owed.paths & (1 << i) == 0 {
+            if self.owed.paths & (1 << i) == 0 {
                 continue;
             }
             let change = Change::Term {
                 path: i as u8,
                 value,
             };
-            if updates.send(InjectionUpdate { apply_at, change }).is_err() {
-                owed.next = i;
+            if !self.enqueue(InjectionUpdate { apply_at, change }, updates, banks) {
+                self.owed.next = i;
                 return false;
             }
-            owed.paths &= !(1 << i);
+            self.owed.paths &= !(1 << i);
         }
-        owed.paths == 0
+        self.owed.paths == 0
     }
 
     /// The report as of the last snapshot sample (or install).
@@ -254,20 +325,23 @@ impl AdaptationTask {
         self.updates_dropped
     }
 
+    /// The report from the adapter, written where it lies (once a supervisor period, in
+    /// the run of a sample: building it aside and copying it cost as much again).
     fn measure(&mut self) {
-        let conv = self.adapter.convergence();
-        self.report = AdaptReport {
-            converged: conv.converged,
-            revs: conv.revs_adapted,
-            residual_max_rad: conv
-                .residual_rad
-                .iter()
-                .take(conv.len as usize)
-                .fold(0.0f32, |a, b| a.max(*b)),
-            coefficients: self.adapter.coefficients(),
-            install: self.report.install,
-            updates_dropped: self.updates_dropped,
-        };
+        self.adapter.convergence_into(&mut self.convergence);
+        let c = &self.convergence;
+        let r = &mut self.report;
+        r.converged = c.converged;
+        r.revs = c.revs_adapted;
+        // A comparison, not `f32::max` (a library call here); a NaN is skipped by both.
+        r.residual_max_rad = 0.0;
+        for &x in c.residual_rad.iter().take(c.len as usize) {
+            if x > r.residual_max_rad {
+                r.residual_max_rad = x;
+            }
+        }
+        self.adapter.coefficients_into(&mut r.coefficients);
+        r.updates_dropped = self.updates_dropped;
     }
 }
 

@@ -25,7 +25,8 @@ use crate::ident::{IdentConfig, IdentStatus, Identifier};
 use crate::motion::{Angle, LoopMode, MotionLoop, MotionRef};
 use crate::ripple::{LearnSample, RippleLearner, RIPPLE_GAIN, RIPPLE_HARMONICS};
 use crate::telemetry::{Command, CycleStats, Fault, MotionConstants, Snapshot};
-use mras::{AdaptSample, BankPlan, ConfigError, Cplx, Estimate, Front, InjectionUpdate, Trig};
+use core::borrow::BorrowMut;
+use mras::{AdaptSample, ConfigError, Cplx, Estimate, Front, Injection, InjectionUpdate, Trig};
 
 /// The motor as the controller knows it.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -175,11 +176,11 @@ pub struct Output {
     pub supervisor_due: bool,
 }
 
-/// The control period and its state.
+/// The control period and its state; `S` holds its decoupling vector ([`Front`]).
 #[derive(Clone, Debug)]
-pub struct ControlPeriod<T: Trig> {
+pub struct ControlPeriod<T: Trig, S: BorrowMut<Injection> = Injection> {
     cfg: DriveConfig,
-    tracker: Front<T>,
+    tracker: Front<T, S>,
     /// Electrical periods per sensor period, p/N, with p the count in force: the
     /// configured one until the alignment in force carries another (the sweep's).
     electrical_per_sensor: f32,
@@ -227,6 +228,12 @@ pub struct ControlPeriod<T: Trig> {
     /// fed gives it the rotor's acceleration.
     motion: MotionConstants,
     observer_torque_scale: f32,
+    /// Its reciprocal, and the observer's 1/Ĵ: a change of J scales the disturbance
+    /// without a division.
+    per_observer_torque_scale: f32,
+    per_observer_inertia: f32,
+    /// 1/p of the count in force: with ψ's reciprocal, 1/kt without a division.
+    per_pole_pairs: f32,
     /// The running integrals of the motion's identification ([`crate::spin`]), and the
     /// control period over the pole pairs (the back-EMF's `∫(v − R·i − jωe·L·i)/p dt`
     /// per period).
@@ -235,6 +242,9 @@ pub struct ControlPeriod<T: Trig> {
     period_per_pole_pair_s: f32,
     /// The sensor's direction of the command in force (+1 / -1).
     direction: f32,
+    /// The electrical speed the current loop last ran at (0 when it did not): where
+    /// motion constants put in force between periods take the back-EMF's step.
+    we_rad_s: f32,
     /// The torque ripple fixed to the shaft angle, learned in Run, and its torque at θ̂s
     /// of the last estimate (where the next period's observer step starts).
     ripple: RippleLearner,
@@ -361,8 +371,8 @@ impl DriveConfig {
     }
 }
 
-impl<T: Trig> ControlPeriod<T> {
-    pub fn new(cfg: DriveConfig, tracker: Front<T>) -> Result<Self, ConfigError> {
+impl<T: Trig, S: BorrowMut<Injection>> ControlPeriod<T, S> {
+    pub fn new(cfg: DriveConfig, tracker: Front<T, S>) -> Result<Self, ConfigError> {
         cfg.validate(tracker.config())?;
         let m = &cfg.motor;
         let kt = 1.5 * m.pole_pairs as f32 * m.flux_wb;
@@ -407,10 +417,14 @@ impl<T: Trig> ControlPeriod<T> {
             torque_cmd_nm: 0.0,
             motion: MotionConstants::NOMINAL,
             observer_torque_scale: 1.0,
+            per_observer_torque_scale: 1.0,
+            per_observer_inertia: 1.0 / tracker.config().observer.inertia_kg_m2,
+            per_pole_pairs: 1.0 / m.pole_pairs as f32,
             iq_integral_a_s: 0.0,
             flux_angle_wb_rad: [0.0; 2],
             period_per_pole_pair_s: cfg.control_period_s / m.pole_pairs as f32,
             direction: 1.0,
+            we_rad_s: 0.0,
             ripple: RippleLearner::new(
                 RIPPLE_HARMONICS as u8,
                 RIPPLE_GAIN,
@@ -466,22 +480,33 @@ impl<T: Trig> ControlPeriod<T> {
     /// ([`Snapshot::updates_late`]).
     #[inline(always)]
     pub fn apply(&mut self, u: &InjectionUpdate) -> bool {
-        self.apply_planned(u, None)
-    }
-
-    /// [`Self::apply`] with a new bank's plan ([`mras::Front::apply_planned`]).
-    #[inline(always)]
-    pub fn apply_planned(&mut self, u: &InjectionUpdate, plan: Option<&BankPlan>) -> bool {
-        // The front's own test (`due_in(coming) <= 0`), strict.
-        let late = u.due_in(self.tracker.index().wrapping_add(1)) < 0;
-        let applied = self.tracker.apply_planned(u, plan);
+        let late = self.is_late(u);
+        let applied = self.tracker.apply(u);
         self.updates_late = self.updates_late.saturating_add((applied && late) as u32);
         applied
+    }
+
+    /// A new bank's update `u`, due (the caller checked), put in force with `next`: its
+    /// decoupling vector built whole where there is time, in place of the one in force,
+    /// which is returned.
+    #[inline(always)]
+    pub fn swap_bank(&mut self, u: &InjectionUpdate, next: S) -> S {
+        let late = self.is_late(u);
+        self.updates_late = self.updates_late.saturating_add(late as u32);
+        self.tracker.swap_injection(next)
+    }
+
+    /// Due before the coming period: the front's own test (`due_in(coming) <= 0`), strict.
+    #[inline(always)]
+    fn is_late(&self, u: &InjectionUpdate) -> bool {
+        u.due_in(self.tracker.index().wrapping_add(1)) < 0
     }
 
     /// One period.
     pub fn step(&mut self, s: &Sample, cmd: &Command) -> Output {
         self.ticks = self.ticks.wrapping_add(1);
+        // Until the current loop runs this period.
+        self.we_rad_s = 0.0;
         if s.cycles != 0 {
             self.cycles.add(s.cycles);
         }
@@ -502,9 +527,12 @@ impl<T: Trig> ControlPeriod<T> {
         let sensor = match scale_pair(s.x, s.y, &self.cfg.sensor_x, &self.cfg.sensor_y) {
             Ok((x, y)) => {
                 self.last_xy = (x, y);
-                self.tracker
-                    .step(x, y, self.observer_torque_nm())
-                    .map_err(Fault::Sensor)
+                // Only whether it was accepted: the estimate stays in the core (moved out
+                // through `map_err` it cost about 40 cycles a period).
+                match self.tracker.step(x, y, self.observer_torque_nm()) {
+                    Ok(_) => Ok(()),
+                    Err(e) => Err(Fault::Sensor(e)),
+                }
             }
             // The core holds its estimate through the period, as for a sample it refuses.
             Err(SampleError::Railed) => Err(Fault::Sensor(
@@ -521,7 +549,7 @@ impl<T: Trig> ControlPeriod<T> {
                 self.shift_base_bits = bits;
             }
             if sensor.is_ok() {
-                let zd = self.tracker.last_estimate().decoupled;
+                let zd = self.tracker.last_decoupled();
                 self.shift.add(self.last_xy, (zd.re, zd.im));
             }
         } else {
@@ -677,18 +705,22 @@ impl<T: Trig> ControlPeriod<T> {
             self.speed.reset();
             self.application.reset();
         }
-        if cmd.motion.generation != self.motion.generation {
-            self.install_motion(cmd.motion, we);
-        }
+        self.we_rad_s = we;
+        self.put_motion(&cmd.motion);
 
         let trig = self.tracker.trig();
         let (i_alpha, i_beta) = clarke(ia, ib);
         let (id, iq) = park(i_alpha, i_beta, trig.sin_cos(theta_e));
         let (vd, vq, _) = self.current.step((id_ref, iq_ref), (id, iq), we, t);
-        if matches!(
-            cmd.setpoint,
-            Setpoint::Speed { .. } | Setpoint::Torque { .. } | Setpoint::Coast { .. }
-        ) {
+        // The motion's integrals, for the states that identify it; not while the shift
+        // is measured (Verify: nothing reads them there, and its meter takes their place
+        // in the period, which at 40 kHz has no room for both).
+        if !cmd.measure_shift
+            && matches!(
+                cmd.setpoint,
+                Setpoint::Speed { .. } | Setpoint::Torque { .. } | Setpoint::Coast { .. }
+            )
+        {
             if !matches!(cmd.setpoint, Setpoint::Coast { .. }) {
                 self.iq_integral_a_s += iq * t;
             }
@@ -748,6 +780,7 @@ impl<T: Trig> ControlPeriod<T> {
             // One division for all the count changes (this runs in a control period):
             // kt is p's at this ψ, its reciprocal 1/p's.
             let per_p = 1.0 / p as f32;
+            self.per_pole_pairs = per_p;
             self.period_per_pole_pair_s = self.cfg.control_period_s * per_p;
             let amps_per_nm = self.amps_per_nm * self.pole_pairs * per_p;
             self.pole_pairs = p as f32;
@@ -763,6 +796,16 @@ impl<T: Trig> ControlPeriod<T> {
         self.torque_limit_nm = kt_nm_a * self.cfg.motor.i_max_a;
     }
 
+    /// Motion constants `m` in force if they are another generation than those in force:
+    /// the supervisor's, between two periods (the firmware's supervisor holds the
+    /// control interrupt off for it, and writes the command with them in the same
+    /// hold), or at the first period that carries them.
+    pub fn put_motion(&mut self, m: &MotionConstants) {
+        if m.generation != self.motion.generation {
+            self.install_motion(*m, self.we_rad_s);
+        }
+    }
+
     /// Put identified (or loaded) motion constants in force at electrical speed
     /// `we_rad_s`: ψ in the torque constant, its limit and the current loop's back-EMF
     /// feed-forward (its integrator gives back what the feed-forward adds, so the voltage
@@ -770,16 +813,17 @@ impl<T: Trig> ControlPeriod<T> {
     /// The motion loops' integrators keep the current they ask for across both.
     #[inline(never)]
     fn install_motion(&mut self, m: MotionConstants, we_rad_s: f32) {
-        let scale_before = self.observer_torque_scale;
+        let per_scale_before = self.per_observer_torque_scale;
         let mut fed = 1.0;
         if m.flux_wb > 0.0 {
             // Keep the current the integrators hold, not their torque in the old
             // constant's units: a ψ found at a quarter of the nominal would otherwise
             // ask four times the load's current and kick a light rotor to overspeed.
-            // kt is ψ's at these pole pairs: its ratio is ψ's, with no other division.
+            // 1/kt from 1/p and 1/ψ, worked out where each changed.
             let amps_per_nm_before = self.amps_per_nm;
             let kt = 1.5 * self.pole_pairs * m.flux_wb;
-            self.set_torque_constant(kt, 1.0 / kt);
+            let per_kt = (2.0 / 3.0) * self.per_pole_pairs * m.per_flux_per_wb;
+            self.set_torque_constant(kt, per_kt);
             let k = self.torque_constant_nm_a * amps_per_nm_before;
             self.speed.scale_torque(k);
             self.application.scale_torque(k);
@@ -789,16 +833,17 @@ impl<T: Trig> ControlPeriod<T> {
         }
         if m.amps_per_accel_a_s2 > 0.0 {
             let j = m.amps_per_accel_a_s2 * self.torque_constant_nm_a;
-            // One division for all the new Ĵ changes (this runs in a control period).
-            let per_j = 1.0 / j;
+            // No division in a control period: 1/J from kt/J and 1/kt.
+            let per_j = m.accel_per_amp_rad_a_s2 * self.amps_per_nm;
             self.cfg.motor.inertia_kg_m2 = j;
             self.speed.set_inertia(j, per_j);
             self.application.set_inertia(j, per_j);
             self.observer_torque_scale = self.tracker.config().observer.inertia_kg_m2 * per_j;
+            self.per_observer_torque_scale = j * self.per_observer_inertia;
         }
         // The observer's disturbance held what its feed-forward lacked: it takes the step.
         self.tracker
-            .scale_disturbance(fed * self.observer_torque_scale / scale_before);
+            .scale_disturbance(fed * self.observer_torque_scale * per_scale_before);
         self.motion = m;
     }
 
@@ -1020,7 +1065,7 @@ impl<T: Trig> ControlPeriod<T> {
         )
     }
 
-    pub fn tracker(&self) -> &Front<T> {
+    pub fn tracker(&self) -> &Front<T, S> {
         &self.tracker
     }
 

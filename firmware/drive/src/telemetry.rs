@@ -68,6 +68,10 @@ pub struct MotionConstants {
     pub amps_per_accel_a_s2: f32,
     /// The permanent magnet's flux linkage ψ (Wb).
     pub flux_wb: f32,
+    /// 1/ψ and kt/J, worked out by [`Self::changed`] (0 where their constant is not
+    /// positive): the control period puts the constants in force without a division.
+    pub per_flux_per_wb: f32,
+    pub accel_per_amp_rad_a_s2: f32,
 }
 
 impl MotionConstants {
@@ -75,13 +79,19 @@ impl MotionConstants {
         generation: 0,
         amps_per_accel_a_s2: 0.0,
         flux_wb: 0.0,
+        per_flux_per_wb: 0.0,
+        accel_per_amp_rad_a_s2: 0.0,
     };
 
-    /// `self` with `change` applied and a new generation.
+    /// `self` with `change` applied, the reciprocals worked out again, and a new
+    /// generation.
     #[must_use]
     pub fn changed(self, change: impl FnOnce(&mut Self)) -> Self {
         let mut m = self;
         change(&mut m);
+        let per = |v: f32| if v > 0.0 { 1.0 / v } else { 0.0 };
+        m.per_flux_per_wb = per(m.flux_wb);
+        m.accel_per_amp_rad_a_s2 = per(m.amps_per_accel_a_s2);
         m.generation = self.generation.wrapping_add(1);
         m
     }

@@ -8,12 +8,14 @@ use drive::adaptation::AdaptationTask;
 use drive::adc::ChannelScaling;
 use drive::commissioning::{Adaptation, Setpoint};
 use drive::control::{ControlPeriod, CurrentSensing, DriveConfig, MotorConfig, Sample};
-use drive::handoff::{PlanQueue, Queue, Receiver, HANDOFF_DEPTH, UPDATE_DEPTH};
+use drive::handoff::{
+    BankQueue, Prepared, Queue, Receiver, SpareQueue, HANDOFF_DEPTH, UPDATE_DEPTH,
+};
 use drive::motion::LoopMode;
 use drive::telemetry::{Command, Fault, Install};
 use mras::{
-    AdaptSample, Bank, Change, Coefficients, Config, Cplx, Front, InjectionUpdate, PackedBank,
-    PathKind,
+    AdaptSample, Bank, Change, Coefficients, Config, Cplx, Front, Injection, InjectionUpdate,
+    PackedBank, PathKind,
 };
 
 const T: f32 = 50e-6;
@@ -312,7 +314,7 @@ fn installs_are_acknowledged_with_their_generation() {
             coefficients: good,
         },
         &mut queue,
-        &mut PlanQueue::new(),
+        &mut BankQueue::new(),
     );
     let sent = drain(&mut queue);
     let ack = task.report().install.unwrap();
@@ -341,7 +343,7 @@ fn installs_are_acknowledged_with_their_generation() {
             coefficients: other,
         },
         &mut queue,
-        &mut PlanQueue::new(),
+        &mut BankQueue::new(),
     );
     let sent = drain(&mut queue);
     let ack = task.report().install.unwrap();
@@ -378,7 +380,7 @@ fn an_installed_bank_from_the_data_goes_to_the_control_period_first() {
             coefficients: record,
         },
         &mut queue,
-        &mut PlanQueue::new(),
+        &mut BankQueue::new(),
     );
     let sent = drain(&mut queue);
     assert!(task.report().install.unwrap().accepted);
@@ -465,8 +467,7 @@ fn configurations_are_checked_by_field() {
     assert!(ControlPeriod::new(c, Front::new(core).unwrap()).is_err());
 }
 
-/// A receiving end that keeps what it hands out (the updates or the plans the control
-/// period took).
+/// A receiving end that keeps what it hands out (the updates the control period took).
 struct Counted<'a, Q, T> {
     inner: &'a mut Q,
     taken: Vec<T>,
@@ -518,7 +519,7 @@ fn a_late_adaptation_task_shows_as_late_updates_and_dropped_samples() {
         let mut task = AdaptationTask::new(&core).unwrap();
         let mut handoff = Queue::<AdaptSample, HANDOFF_DEPTH>::new();
         let mut updates = Queue::<InjectionUpdate, UPDATE_DEPTH>::new();
-        let mut plans = PlanQueue::new();
+        let (mut banks, mut spares) = (BankQueue::new(), SpareQueue::new());
         let mut taken = 0usize;
         let periods = 4000u32;
         for k in 1..=periods {
@@ -526,12 +527,19 @@ fn a_late_adaptation_task_shows_as_late_updates_and_dropped_samples() {
                 inner: &mut updates,
                 taken: Vec::new(),
             };
-            p.apply_due(&mut counted, &mut plans);
+            p.apply_due(&mut counted, &mut banks, &mut spares);
             taken += counted.taken.len();
             p.step(&sample(0.05 * k as f32), &running());
             p.hand_over(&mut handoff);
             if k % every == 0 {
-                task.run(&mut handoff, &mut updates, &mut plans, None, |_| {});
+                task.run(
+                    &mut handoff,
+                    &mut updates,
+                    &mut banks,
+                    &mut spares,
+                    None,
+                    |_| {},
+                );
             }
         }
         let s = p.snapshot();
@@ -586,7 +594,7 @@ fn a_bank_change_the_queue_cannot_take_goes_first_once_there_is_room() {
     // updates (one per stride, 8 samples with this bank) come late, and at times two at
     // once, which the queue cannot take.
     let mut updates = Queue::<InjectionUpdate, 2>::new();
-    let mut plans = PlanQueue::new();
+    let (mut banks, mut spares) = (BankQueue::new(), SpareQueue::new());
     let mut taken = Vec::new();
     let (mut installed_at, mut owing) = (None, false);
     for k in 1..=600u32 {
@@ -594,7 +602,7 @@ fn a_bank_change_the_queue_cannot_take_goes_first_once_there_is_room() {
             inner: &mut updates,
             taken: Vec::new(),
         };
-        p.apply_due(&mut counted, &mut plans);
+        p.apply_due(&mut counted, &mut banks, &mut spares);
         taken.extend(counted.taken.iter().map(|u| (k, *u)));
         p.step(&sample(0.05 * k as f32), &Command::OFF);
         p.hand_over(&mut handoff);
@@ -606,7 +614,14 @@ fn a_bank_change_the_queue_cannot_take_goes_first_once_there_is_room() {
                 installed_at = Some(k);
             }
             let before = task.updates_dropped();
-            task.run(&mut handoff, &mut updates, &mut plans, now, |_| {});
+            task.run(
+                &mut handoff,
+                &mut updates,
+                &mut banks,
+                &mut spares,
+                now,
+                |_| {},
+            );
             owing = task.updates_dropped() > before;
         }
     }
@@ -722,11 +737,31 @@ fn a_phase_at_high_duty_is_reconstructed_from_the_other_two() {
     );
 }
 
+/// The banks' decoupling vectors the control period took (each one's bank).
+struct BanksTaken<'a> {
+    inner: &'a mut BankQueue,
+    taken: Vec<PackedBank>,
+}
+
+impl Receiver<Prepared<Injection>> for BanksTaken<'_> {
+    fn peek(&self) -> Option<&Prepared<Injection>> {
+        self.inner.peek()
+    }
+    fn receive(&mut self) -> Option<Prepared<Injection>> {
+        let p = self.inner.receive();
+        self.taken.extend(p.as_ref().map(|p| *p.injection.bank()));
+        p
+    }
+}
+
 /// A bank from the data, over the firmware's queues: every bank a survey round puts in
-/// force reaches the control period with the plan the task made for it (its bank, made
-/// from the bank then in force), none is left over, and the last is the adapter's.
+/// force, and then a record's bank, reach the control period built whole by the task and
+/// are swapped in (the second in the vector the first replaced); none is left over, none
+/// is late, and at every
+/// period the decoupling vector in force is bit for bit that of a control period given
+/// the same updates alone, which builds each bank in place.
 #[test]
-fn every_survey_bank_comes_with_its_plan() {
+fn every_survey_bank_comes_built_and_equals_the_bank_built_in_place() {
     let mut core = Config {
         sample_period_s: T,
         paths_from_data: true,
@@ -734,19 +769,30 @@ fn every_survey_bank_comes_with_its_plan() {
     };
     core.set_paths(&mras::survey::FIRST_STAGE).unwrap();
     let mut p = ControlPeriod::new(config(), Front::new(core).unwrap()).unwrap();
+    let mut in_place = ControlPeriod::new(config(), Front::new(core).unwrap()).unwrap();
     let mut task = AdaptationTask::new(&core).unwrap();
     let mut handoff = Queue::<AdaptSample, HANDOFF_DEPTH>::new();
     let mut updates = Queue::<InjectionUpdate, UPDATE_DEPTH>::new();
-    let mut plan_queue = PlanQueue::new();
-    let mut plans = Counted {
-        inner: &mut plan_queue,
+    let mut bank_queue = BankQueue::new();
+    let mut built = BanksTaken {
+        inner: &mut bank_queue,
         taken: Vec::new(),
     };
+    let mut spares = SpareQueue::new();
     let cmd = Command {
         adaptation: Adaptation::Commissioning,
         ..running()
     };
     let mut banks = Vec::new();
+    let bank = [
+        PathKind::Offset,
+        PathKind::AmplitudeQuadrature,
+        PathKind::Harmonic(-5),
+    ];
+    let mut record = Coefficients::zeros(&bank);
+    record.set(PathKind::Offset, Cplx::new(0.03, -0.01));
+    record.set(PathKind::Harmonic(-5), Cplx::new(0.01, 0.002));
+    let mut installed_at = None;
     // A sensor with an offset and a third harmonic, for the survey to find.
     let x = |th: f32| (th + 0.02 * libm::sinf(3.0 * th), 0.03);
     for k in 1..=40_000u32 {
@@ -754,7 +800,18 @@ fn every_survey_bank_comes_with_its_plan() {
             inner: &mut updates,
             taken: Vec::new(),
         };
-        p.apply_due(&mut counted, &mut plans);
+        p.apply_due(&mut counted, &mut built, &mut spares);
+        for u in &counted.taken {
+            assert!(
+                in_place.apply(u),
+                "period {k}: {u:?} taken before it was due"
+            );
+        }
+        assert_eq!(
+            p.tracker().injection(),
+            in_place.tracker().injection(),
+            "period {k}"
+        );
         banks.extend(counted.taken.iter().filter_map(|u| match u.change {
             Change::Bank(b) => Some(b),
             _ => None,
@@ -763,24 +820,35 @@ fn every_survey_bank_comes_with_its_plan() {
         let mut s = sample(th);
         s.x = (s.x as f32 + off * AMPLITUDE).round() as u16;
         p.step(&s, &cmd);
+        in_place.step(&s, &cmd);
         p.hand_over(&mut handoff);
-        task.run(&mut handoff, &mut updates, plans.inner, None, |_| {});
-        if !task.adapter().surveying() && !banks.is_empty() && updates.is_empty() {
+        // Once the survey's bank is in force, a record of another bank (from flash):
+        // built in the vector the survey's bank replaced.
+        let surveyed = !task.adapter().surveying() && !banks.is_empty() && updates.is_empty();
+        let install = (surveyed && installed_at.is_none()).then(|| {
+            installed_at = Some(k);
+            Install {
+                generation: 1,
+                coefficients: record,
+            }
+        });
+        task.run(
+            &mut handoff,
+            &mut updates,
+            built.inner,
+            &mut spares,
+            install,
+            |_| {},
+        );
+        if installed_at.is_some_and(|i| k > i + 10) {
             break;
         }
     }
-    assert!(
-        !banks.is_empty(),
-        "no survey round grew the bank: {:?} {:?}",
-        task.adapter().convergence(),
-        p.snapshot()
-    );
+    assert!(task.report().install.unwrap().accepted);
+    assert_eq!(banks.len(), 2, "{:?}", p.snapshot());
     assert!(!task.adapter().surveying());
-    let taken: Vec<_> = plans.taken.iter().map(|p| p.bank()).collect();
-    assert_eq!(taken, banks);
-    assert!(plans.inner.is_empty());
-    assert_eq!(
-        PackedBank::from(Bank::new(task.adapter().config().paths())),
-        *banks.last().unwrap()
-    );
+    assert_eq!(built.taken, banks);
+    assert!(built.inner.is_empty());
+    assert_eq!(p.snapshot().updates_late, 0);
+    assert_eq!(banks[1], Bank::new(&bank).into());
 }

@@ -4,14 +4,15 @@
 //! below the control interrupt; [`crate::Tracker`] runs it inline.
 
 use crate::coefficients::{CoefficientsError, Convergence};
+use crate::complex::Cplx;
 use crate::config::{Bank, Config, ConfigError, PathKind};
 use crate::decoupler::{AdaptSample, BankPlan, Change, InjectionUpdate, PackedBank, PathBank};
 use crate::observer::ObserverGains;
 use crate::survey::{
-    min_rad_of, next_round, ErrorSpectrum, ErrorSurvey, SurveyOutcome, FIRST_STAGE_MAX_REVS,
+    min_rad_of, ErrorSpectrum, ErrorSurvey, NextRound, SurveyOutcome, FIRST_STAGE_MAX_REVS,
     SURVEY_PERIODS,
 };
-use crate::{Coefficients, MAX_PATHS, UPDATE_LATENCY_PERIODS};
+use crate::{Coefficients, UPDATE_LATENCY_PERIODS};
 
 #[derive(Clone, Debug)]
 pub struct Adapter {
@@ -28,6 +29,20 @@ pub struct Adapter {
     survey: Option<SurveyOutcome>,
     /// The last bank change worked out against the bank before it, for the front.
     plan: Option<BankPlan>,
+    /// The bank in use, packed.
+    packed: PackedBank,
+    /// The configuration with a survey round's bank, worked out once for its steps.
+    next_cfg: Config,
+}
+
+/// The bank of `banks` a survey round builds aside while `active` is in use.
+fn spare(banks: &mut [PathBank; 2], active: usize) -> &mut PathBank {
+    let [a, b] = banks;
+    if active & 1 == 0 {
+        b
+    } else {
+        a
+    }
 }
 
 /// Where a bank from the data is ([`Config::paths_from_data`]): rounds of adapting the
@@ -47,10 +62,14 @@ enum Stage {
 }
 
 /// The steps of a survey's end.
+// One at a time, worked in place: no allocator to box the largest.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug)]
 enum EndRound {
-    /// The spectrum is measured: the next sample chooses the paths.
+    /// The spectrum is measured: the next sample starts choosing the paths.
     Measured(ErrorSpectrum),
+    /// The paths being chosen, a phase a sample.
+    Choosing(NextRound),
     /// The paths are chosen; the next samples work the bank's steps.
     Chosen(RoundChoice, Next),
 }
@@ -63,15 +82,23 @@ struct RoundChoice {
     complete: bool,
     /// The bank differs from the one in use.
     grown: bool,
+    /// `bank` packed, once its plan is made.
+    packed: PackedBank,
 }
 
 /// The next step of a chosen bank.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Next {
-    /// Its plan against the bank in use.
-    Plan,
-    /// Its adaptation, built aside.
-    Build,
+    /// Its plan against the bank in use, in three steps: the bank packed, its layout,
+    /// and the terms it keeps.
+    Pack,
+    Layout,
+    Keep,
+    /// Its adaptation, built aside in three steps: the paths' state, the rest, the
+    /// law's constants and the transient gate.
+    BuildState,
+    BuildRest,
+    BuildLaw,
     /// In force, on the next sample free for an update.
     PutInForce,
 }
@@ -97,6 +124,8 @@ impl Adapter {
             },
             survey: None,
             plan: None,
+            packed: Bank::new(cfg.paths()).into(),
+            next_cfg: *cfg,
         })
     }
 
@@ -191,42 +220,62 @@ impl Adapter {
                     unobserved: heapless::Vec::new(),
                     rounds: 0,
                 });
-                let (bank, complete, unobserved) =
-                    next_round(&spectrum, self.cfg.paths(), outcome.min_rad);
-                outcome.rounds = outcome.rounds.saturating_add(1);
-                outcome.bank = bank;
-                outcome.unobserved = unobserved;
-                let grown = bank.as_slice() != self.cfg.paths();
-                let choice = RoundChoice {
-                    bank,
-                    complete,
-                    grown,
-                };
-                self.stage = Stage::EndRound(EndRound::Chosen(choice, Next::Plan));
+                let round = NextRound::new(spectrum, Bank::new(self.cfg.paths()), outcome.min_rad);
+                self.stage = Stage::EndRound(EndRound::Choosing(round));
+                return None;
+            }
+            EndRound::Choosing(_) => {
+                self.choose_step();
                 return None;
             }
             &EndRound::Chosen(choice, next) => (choice, next),
         };
+        let mut choice = choice;
         let RoundChoice {
             bank,
             complete,
             grown,
+            packed,
         } = choice;
         let after = match next {
-            Next::Plan => {
+            Next::Pack => {
                 if grown {
-                    self.plan = Some(BankPlan::new(self.cfg.paths(), bank.as_slice()));
-                }
-                Next::Build
-            }
-            Next::Build => {
-                if grown {
-                    let mut cfg = self.cfg;
+                    choice.packed = bank.into();
+                    self.next_cfg = self.cfg;
                     // `bank` holds at most MAX_PATHS kinds, so this cannot fail.
-                    let _ = cfg.set_paths(bank.as_slice());
-                    let [a, b] = &mut self.banks;
-                    let spare = if self.active & 1 == 0 { b } else { a };
-                    spare.renew(&cfg, &self.gains);
+                    let _ = self.next_cfg.set_paths(bank.as_slice());
+                }
+                Next::Layout
+            }
+            Next::Layout => {
+                if grown {
+                    self.plan
+                        .get_or_insert(BankPlan::EMPTY)
+                        .lay_out(bank.as_slice(), packed);
+                }
+                Next::Keep
+            }
+            Next::Keep => {
+                if let (true, Some(plan)) = (grown, &mut self.plan) {
+                    plan.keep_from(self.cfg.paths(), self.packed);
+                }
+                Next::BuildState
+            }
+            Next::BuildState => {
+                if grown {
+                    spare(&mut self.banks, self.active).renew_state();
+                }
+                Next::BuildRest
+            }
+            Next::BuildRest => {
+                if grown {
+                    spare(&mut self.banks, self.active).renew_rest(&self.next_cfg);
+                }
+                Next::BuildLaw
+            }
+            Next::BuildLaw => {
+                if grown {
+                    spare(&mut self.banks, self.active).renew_law(&self.next_cfg, &self.gains);
                 }
                 Next::PutInForce
             }
@@ -234,7 +283,6 @@ impl Adapter {
                 if !free {
                     return None;
                 }
-                let packed: PackedBank = bank.into();
                 if grown {
                     self.put_built(bank, packed);
                 }
@@ -249,8 +297,38 @@ impl Adapter {
                 });
             }
         };
-        self.stage = Stage::EndRound(EndRound::Chosen(choice, after));
+        // In place: a new stage written whole copied the largest of its kinds.
+        if let Stage::EndRound(EndRound::Chosen(c, n)) = &mut self.stage {
+            c.packed = choice.packed;
+            *n = after;
+        }
         None
+    }
+
+    /// A phase of the paths' choice; the last records the round and moves on to the
+    /// chosen bank's steps.
+    #[inline(never)]
+    fn choose_step(&mut self) {
+        let Stage::EndRound(EndRound::Choosing(round)) = &mut self.stage else {
+            return;
+        };
+        if !round.step() {
+            return;
+        }
+        let (&bank, complete, unobserved) = round.chosen();
+        if let Some(outcome) = &mut self.survey {
+            outcome.rounds = outcome.rounds.saturating_add(1);
+            outcome.bank = bank;
+            outcome.unobserved = unobserved.clone();
+        }
+        let grown = bank.as_slice() != self.cfg.paths();
+        let choice = RoundChoice {
+            bank,
+            complete,
+            grown,
+            packed: PackedBank::EMPTY,
+        };
+        self.stage = Stage::EndRound(EndRound::Chosen(choice, Next::Pack));
     }
 
     /// The bank in use.
@@ -274,7 +352,8 @@ impl Adapter {
     /// [`Self::rebank`] with its plan made.
     #[inline(never)]
     fn rebank_planned(&mut self, bank: Bank) {
-        self.plan_for(bank, bank.into());
+        self.packed = bank.into();
+        self.plan_for(bank, self.packed);
         // `bank` holds at most MAX_PATHS kinds, so this cannot fail.
         let _ = self.cfg.set_paths(bank.as_slice());
         if let Some(plan) = &self.plan {
@@ -287,6 +366,7 @@ impl Adapter {
     #[inline(never)]
     fn put_built(&mut self, bank: Bank, packed: PackedBank) {
         self.plan_for(bank, packed);
+        self.packed = packed;
         let _ = self.cfg.set_paths(bank.as_slice());
         if let Some(plan) = &self.plan {
             let [a, b] = &mut self.banks;
@@ -304,10 +384,10 @@ impl Adapter {
     }
 
     /// The plan of the last bank change this adapter made (a survey's round, or
-    /// coefficients of another bank), for the front that follows it
-    /// ([`crate::Front::apply_planned`]); taken once.
-    pub fn take_plan(&mut self) -> Option<BankPlan> {
-        self.plan.take()
+    /// coefficients of another bank), for the copy of the front's decoupling vector the
+    /// task keeps ([`crate::Injection::apply`]).
+    pub fn plan(&self) -> Option<&BankPlan> {
+        self.plan.as_ref()
     }
 
     /// What the surveys chose so far (`None` with a fixed bank, before the first survey,
@@ -329,16 +409,19 @@ impl Adapter {
 
     /// Snapshot of the persistent coefficients (proportional parts excluded).
     pub fn coefficients(&self) -> Coefficients {
-        let mut c = Coefficients::zeros(self.cfg.paths());
-        // `take`, not `[..len]`: no panic path.
-        for (v, s) in c
-            .values
-            .iter_mut()
-            .zip(self.bank().state.iter().take(self.bank().len))
-        {
-            *v = s.coef;
-        }
+        let mut c = Coefficients::EMPTY;
+        self.coefficients_into(&mut c);
         c
+    }
+
+    /// [`Self::coefficients`] written into `out` (no 200-byte value to build and copy).
+    pub fn coefficients_into(&self, out: &mut Coefficients) {
+        out.set_kinds(self.cfg.paths());
+        // `take`, not `[..len]`: no panic path.
+        let mut states = self.bank().state.iter().take(self.bank().len);
+        for v in out.values.iter_mut() {
+            *v = states.next().map_or(Cplx::ZERO, |s| s.coef);
+        }
     }
 
     /// Check coefficients (e.g. from flash) and start from them. Refused unless the paths
@@ -379,40 +462,50 @@ impl Adapter {
     /// Convergence measures and the `converged` judgement: never converged while a bank
     /// from the data is still being chosen.
     pub fn convergence(&self) -> Convergence {
-        let mut c = self.judge();
-        c.converged &= !self.surveying();
+        let mut c = Convergence::EMPTY;
+        self.convergence_into(&mut c);
         c
+    }
+
+    /// [`Self::convergence`] written into `out` (the adaptation task's report, once a
+    /// supervisor period: no 140-byte value to build and copy).
+    pub fn convergence_into(&self, out: &mut Convergence) {
+        self.judge_into(out);
+        out.converged &= !self.surveying();
     }
 
     /// The measures and judgement of the bank in use.
     fn judge(&self) -> Convergence {
+        let mut c = Convergence::EMPTY;
+        self.judge_into(&mut c);
+        c
+    }
+
+    /// [`Self::judge`] into `out`; entries beyond the bank are left as they were.
+    fn judge_into(&self, out: &mut Convergence) {
         let cc = &self.cfg.convergence;
-        let mut out = Convergence {
-            residual_rad: [0.0; MAX_PATHS],
-            change_per_rev: [0.0; MAX_PATHS],
-            len: self.bank().len as u8,
-            revs_adapted: self.bank().revs_adapted,
-            unseen_paths: 0,
-            converged: false,
-        };
+        let bank = self.bank();
+        let revs = bank.revs_adapted;
+        out.len = bank.len as u8;
+        out.revs_adapted = revs;
+        let mut unseen = 0;
         let mut all_small = true;
         let per_path = out
             .residual_rad
             .iter_mut()
             .zip(out.change_per_rev.iter_mut());
-        let revs = self.bank().revs_adapted;
-        let states = self.bank().state.iter().take(self.bank().len);
-        for (i, (s, (residual, change))) in states.zip(per_path).enumerate() {
+        for (i, (s, (residual, change))) in
+            bank.state.iter().take(bank.len).zip(per_path).enumerate()
+        {
             *residual = s.residual.abs();
             *change = s.change_last_rev;
             all_small &= *residual < cc.residual_rad && *change < cc.change_per_rev;
             if s.visible_rev.is_none_or(|r| r.saturating_add(1) < revs) {
-                out.unseen_paths |= 1 << i;
+                unseen |= 1 << i;
             }
         }
-        out.converged =
-            all_small && out.unseen_paths == 0 && self.bank().revs_adapted >= cc.min_revs as u32;
-        out
+        out.unseen_paths = unseen;
+        out.converged = all_small && unseen == 0 && revs >= cc.min_revs as u32;
     }
 
     pub fn config(&self) -> &Config {

@@ -35,16 +35,21 @@ impl Coefficients {
 
     /// All-zero coefficients for a path list (at most [`MAX_PATHS`] are kept).
     pub fn zeros(paths: &[PathKind]) -> Self {
-        let mut kinds = [PathKind::Offset; MAX_PATHS];
+        let mut c = Self::EMPTY;
+        c.set_kinds(paths);
+        c
+    }
+
+    /// The first [`MAX_PATHS`] of `paths` as the kinds (the values stay).
+    pub(crate) fn set_kinds(&mut self, paths: &[PathKind]) {
         let len = paths.len().min(MAX_PATHS);
-        for (k, p) in kinds.iter_mut().zip(paths) {
+        for (k, p) in self.kinds.iter_mut().zip(paths) {
             *k = *p;
         }
-        Self {
-            kinds,
-            values: [Cplx::ZERO; MAX_PATHS],
-            len: len as u8,
+        for k in self.kinds.iter_mut().skip(len) {
+            *k = PathKind::Offset;
         }
+        self.len = len as u8;
     }
 
     /// The paths' kinds, in path order.
@@ -124,6 +129,18 @@ pub struct Convergence {
     /// `revs_adapted >= min_revs`, no unseen path, and every residual and change below
     /// its threshold (`ConvergenceConfig`).
     pub converged: bool,
+}
+
+impl Convergence {
+    /// No path measured.
+    pub const EMPTY: Self = Self {
+        residual_rad: [0.0; MAX_PATHS],
+        change_per_rev: [0.0; MAX_PATHS],
+        len: 0,
+        revs_adapted: 0,
+        unseen_paths: 0,
+        converged: false,
+    };
 }
 
 // A bit of `Convergence::unseen_paths` per path.

@@ -101,14 +101,25 @@ pub(crate) fn coef_delta(kind: PathKind, g: Cplx, scale: f32) -> Cplx {
 /// order: the offset to `pos[0]`, d_h to `pos[h]` or `neg[|h|]`, and the X-only
 /// `C·cos θ + D·sin θ` to `pos[1] = (C - jD)/2` and `neg[1] = (C + jD)/2`.
 /// Orders above both degrees hold zero.
+///
+/// The control period holds one; a new bank is built whole in the adaptation task and
+/// handed over in another, so that putting it in force swaps two pointers
+/// (`drive::handoff`).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct Injection {
+pub struct Injection {
     layout: Layout,
     /// `coef + coef_p` of each path, as last set.
     coef: [Cplx; MAX_PATHS],
-    pos: Powers,
-    neg: Powers,
+    pos: Orders,
+    neg: Orders,
 }
+
+/// Orders a path's term goes to: |h| <= 15 (`PathKind::validate`).
+const ORDERS: usize = 16;
+/// An order masked with it indexes [`Orders`] without a bounds check.
+const ORDER_MASK: usize = ORDERS - 1;
+/// A polynomial's coefficients, by order.
+type Orders = [Cplx; ORDERS];
 
 /// A bank's paths as the polynomials see them: kinds, degrees, and where each path's
 /// term goes.
@@ -128,6 +139,10 @@ struct Layout {
     /// (the N = 1 bank: 1, 14 and 15): `D` then steps between them by powers of `ū`
     /// instead of through every order. 0: Horner's scheme through all of them.
     neg_sparse: u32,
+    /// Those orders, highest first (at most four: more are not sparse), and how many:
+    /// read in turn, where finding each by its bit cost the control period 20 cycles.
+    neg_orders: [u8; 4],
+    neg_count: u8,
 }
 
 /// [`Layout::slot`] of a C/D path alone at order 1.
@@ -136,17 +151,38 @@ const SLOT_CD: u8 = 64;
 const SLOT_SHARED: u8 = u8::MAX;
 
 impl Layout {
-    /// Kinds, orders and degrees of `paths`, linear in the paths.
-    fn of(paths: &[PathKind]) -> Self {
-        let mut l = Self {
-            kinds: [PathKind::Offset; MAX_PATHS],
+    /// No path. All zero bytes, so that a buffer of it costs no flash (`.bss`): its
+    /// slots are never read, [`Self::fill`] sets them.
+    const EMPTY: Self = Self {
+        kinds: [PathKind::Offset; MAX_PATHS],
+        len: 0,
+        packed: PackedBank::EMPTY,
+        slot: [0; MAX_PATHS],
+        pos_degree: 0,
+        neg_degree: 0,
+        neg_sparse: 0,
+        neg_orders: [0; 4],
+        neg_count: 0,
+    };
+
+    /// Kinds, orders and degrees of `paths` (`packed`, the same bank packed), linear in
+    /// the paths.
+    fn of(paths: &[PathKind], packed: PackedBank) -> Self {
+        let mut l = Self::EMPTY;
+        l.fill(paths, packed);
+        l
+    }
+
+    /// [`Self::of`] written in place (a plan's, in the adaptation task: returned whole
+    /// and copied twice, it cost as much again).
+    fn fill(&mut self, paths: &[PathKind], packed: PackedBank) {
+        *self = Self {
             len: paths.len().min(MAX_PATHS),
-            packed: Bank::new(paths).into(),
+            packed,
             slot: [SLOT_SHARED; MAX_PATHS],
-            pos_degree: 0,
-            neg_degree: 0,
-            neg_sparse: 0,
+            ..Self::EMPTY
         };
+        let l = self;
         for (k, p) in l.kinds.iter_mut().zip(paths) {
             *k = *p;
         }
@@ -189,13 +225,22 @@ impl Layout {
         if 3 * l.neg_sparse.count_ones() as usize >= l.neg_degree {
             l.neg_sparse = 0;
         }
+        let mut orders = l.neg_sparse;
+        for o in l.neg_orders.iter_mut() {
+            if orders == 0 {
+                break;
+            }
+            let k = 31 - orders.leading_zeros();
+            *o = k as u8;
+            orders &= !(1 << k);
+            l.neg_count += 1;
+        }
         for (slot, [a, b]) in l.slot.iter_mut().zip(fed).take(l.len) {
             let once = |o: usize| uses.get(o).is_some_and(|&u| u == 1);
             if once(a) && once(b) {
                 *slot = if a == b { a as u8 } else { SLOT_CD };
             }
         }
-        l
     }
 
     fn kinds(&self) -> &[PathKind] {
@@ -203,14 +248,14 @@ impl Layout {
     }
 
     fn top(&self) -> usize {
-        self.pos_degree.max(self.neg_degree) & POWER_MASK
+        self.pos_degree.max(self.neg_degree) & ORDER_MASK
     }
 }
 
 /// Another bank for the decoupling vector, worked out against the bank in force where
-/// there is time (the adaptation task, [`crate::Adapter::take_plan`]): its layout and
-/// which of the old terms each new path keeps. Putting it in force
-/// ([`crate::Front::apply_planned`]) then moves terms only, in the control interrupt.
+/// there is time (the adaptation, [`crate::Adapter::plan`]): its layout and which of the
+/// old terms each new path keeps. Putting it in force ([`Injection::apply`]) then moves
+/// terms only.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BankPlan {
     /// The bank it was worked out from: a plan for another is refused.
@@ -224,6 +269,36 @@ impl BankPlan {
     /// From bank `from` to bank `to`: the terms of kinds in both are kept, the others
     /// start at zero.
     pub fn new(from: &[PathKind], to: &[PathKind]) -> Self {
+        let mut plan = Self::laid_out(to, Bank::new(to).into());
+        plan.keep_from(from, Bank::new(from).into());
+        plan
+    }
+
+    /// [`Self::new`]'s first half, `to` packed given: its layout (in the adaptation task,
+    /// a step of a survey's end of its own).
+    pub(crate) fn laid_out(to: &[PathKind], packed: PackedBank) -> Self {
+        let mut plan = Self::EMPTY;
+        plan.lay_out(to, packed);
+        plan
+    }
+
+    /// No bank to none.
+    pub(crate) const EMPTY: Self = Self {
+        from: PackedBank::EMPTY,
+        layout: Layout::EMPTY,
+        keep: [u8::MAX; MAX_PATHS],
+    };
+
+    /// [`Self::laid_out`] in place.
+    pub(crate) fn lay_out(&mut self, to: &[PathKind], packed: PackedBank) {
+        self.from = PackedBank::EMPTY;
+        self.layout.fill(to, packed);
+        self.keep = [u8::MAX; MAX_PATHS];
+    }
+
+    /// [`Self::new`]'s second half, `from` packed given: which of its terms each path
+    /// keeps.
+    pub(crate) fn keep_from(&mut self, from: &[PathKind], packed: PackedBank) {
         let mut old_at = [u8::MAX; 32];
         for (i, &k) in from.iter().enumerate().take(MAX_PATHS) {
             if let Some(slot) = old_at.get_mut(PackedBank::code(k) as usize) {
@@ -232,19 +307,13 @@ impl BankPlan {
                 }
             }
         }
-        let layout = Layout::of(to);
-        let mut keep = [u8::MAX; MAX_PATHS];
-        for (k, &kind) in keep.iter_mut().zip(layout.kinds()) {
+        for (k, &kind) in self.keep.iter_mut().zip(self.layout.kinds()) {
             *k = old_at
                 .get(PackedBank::code(kind) as usize)
                 .copied()
                 .unwrap_or(u8::MAX);
         }
-        Self {
-            from: Bank::new(from).into(),
-            layout,
-            keep,
-        }
+        self.from = packed;
     }
 
     /// The bank this plan puts in force.
@@ -254,12 +323,45 @@ impl BankPlan {
 }
 
 impl Injection {
-    pub(crate) fn new(paths: &[PathKind]) -> Self {
+    /// No path: what a buffer holds before it is given a bank.
+    pub const EMPTY: Self = Self {
+        layout: Layout::EMPTY,
+        coef: [Cplx::ZERO; MAX_PATHS],
+        pos: [Cplx::ZERO; ORDERS],
+        neg: [Cplx::ZERO; ORDERS],
+    };
+
+    /// The bank `paths`, every term zero.
+    pub fn new(paths: &[PathKind]) -> Self {
         Self {
-            layout: Layout::of(paths),
-            coef: [Cplx::ZERO; MAX_PATHS],
-            pos: [Cplx::ZERO; 32],
-            neg: [Cplx::ZERO; 32],
+            layout: Layout::of(paths, Bank::new(paths).into()),
+            ..Self::EMPTY
+        }
+    }
+
+    /// The bank in force.
+    #[inline(always)]
+    pub fn bank(&self) -> &PackedBank {
+        &self.layout.packed
+    }
+
+    /// `change` in force, as the front puts it ([`crate::Front::apply`]): a path's term,
+    /// or a new bank (with its plan when there is one for it: the same result, faster).
+    pub fn apply(&mut self, change: &Change, plan: Option<&BankPlan>) {
+        match *change {
+            Change::Term { path, value } => self.set(path as usize, value),
+            Change::Bank(b) => self.put_bank(&b, plan),
+        }
+    }
+
+    /// Bank `b` in force, with `plan` if it was worked out for it from the bank in force
+    /// (then only terms move), else worked out here: the same result.
+    #[cold]
+    #[inline(never)]
+    pub(crate) fn put_bank(&mut self, b: &PackedBank, plan: Option<&BankPlan>) {
+        let planned = plan.is_some_and(|p| p.bank() == *b && self.install(p));
+        if !planned {
+            self.rebank(b.unpack().as_slice());
         }
     }
 
@@ -270,21 +372,21 @@ impl Injection {
     }
 
     /// Put `plan` in force (`false`, nothing changed: it was worked out from another
-    /// bank). Only moves terms: it runs in the control interrupt.
+    /// bank). Only moves terms: it runs in a step of the adaptation task.
     #[inline(never)]
     pub(crate) fn install(&mut self, plan: &BankPlan) -> bool {
         if plan.from != self.layout.packed {
             return false;
         }
         // Indices masked to the arrays' lengths (powers of two) instead of iterators and
-        // `get`: this runs in the control interrupt, and their checks were a third of it.
+        // `get`: their checks were a third of it.
         const PATH_MASK: usize = MAX_PATHS - 1;
         let old = self.coef;
         // Orders above both degrees hold zero: clear up to the larger bank's.
-        let top = self.layout.top().max(plan.layout.top()) & POWER_MASK;
+        let top = self.layout.top().max(plan.layout.top()) & ORDER_MASK;
         for k in 0..top + 1 {
-            self.pos[k & POWER_MASK] = Cplx::ZERO;
-            self.neg[k & POWER_MASK] = Cplx::ZERO;
+            self.pos[k & ORDER_MASK] = Cplx::ZERO;
+            self.neg[k & ORDER_MASK] = Cplx::ZERO;
         }
         self.layout = plan.layout;
         let len = self.layout.len.min(MAX_PATHS);
@@ -312,13 +414,13 @@ impl Injection {
         if path >= MAX_PATHS {
             return true;
         }
-        // Masked, not `get`: `install` places every path of a bank in the control interrupt.
+        // Masked, not `get`: `install` places every path of a bank.
         let path = path & (MAX_PATHS - 1);
         self.coef[path] = coef;
         let s = self.layout.slot[path] as usize;
         match s {
-            0..32 => self.pos[s & POWER_MASK] = coef,
-            32..64 => self.neg[s & POWER_MASK] = coef,
+            0..32 => self.pos[s & ORDER_MASK] = coef,
+            32..64 => self.neg[s & ORDER_MASK] = coef,
             64 => {
                 self.pos[1] = coef.conj().scale(0.5);
                 self.neg[1] = coef.scale(0.5);
@@ -328,7 +430,7 @@ impl Injection {
         true
     }
 
-    pub(crate) fn kinds(&self) -> &[PathKind] {
+    pub fn kinds(&self) -> &[PathKind] {
         self.layout.kinds()
     }
 
@@ -349,7 +451,7 @@ impl Injection {
         let Some(&kind) = self.layout.kinds.get(path) else {
             return;
         };
-        let order = kind.sequence().unsigned_abs() as usize & POWER_MASK;
+        let order = kind.sequence().unsigned_abs() as usize & ORDER_MASK;
         match kind {
             PathKind::AmplitudeQuadrature => {
                 self.pos[1] = self.sum_at(1, true);
@@ -390,24 +492,25 @@ impl Injection {
     /// `D(θ)` for `u = e^{jθ}`.
     #[inline(always)]
     pub(crate) fn vector(&self, u: Cplx) -> Cplx {
-        // Plain countdowns with masked indices: an iterator's bounds arithmetic would
-        // double the loop's cost.
-        let mut k = self.layout.pos_degree & POWER_MASK;
+        // Plain countdowns from a masked degree (an iterator's bounds arithmetic would
+        // double the loop's cost); the index below it needs no mask (masked again, the
+        // mask stayed in the unrolled loop).
+        let mut k = self.layout.pos_degree & ORDER_MASK;
         let mut d = self.pos[k];
         while k > 0 {
             k -= 1;
-            d = d * u + self.pos[k & POWER_MASK];
+            d = d * u + self.pos[k];
         }
         if self.layout.neg_sparse != 0 {
             return d + self.sparse_negative(u.conj());
         }
-        let mut k = self.layout.neg_degree & POWER_MASK;
+        let mut k = self.layout.neg_degree & ORDER_MASK;
         if k > 0 {
             let v = u.conj();
             let mut n = self.neg[k];
             while k > 1 {
                 k -= 1;
-                n = n * v + self.neg[k & POWER_MASK];
+                n = n * v + self.neg[k];
             }
             d += n * v;
         }
@@ -420,14 +523,15 @@ impl Injection {
     /// negative): Horner's scheme from order to order, a power of `v` for each gap.
     #[inline(always)]
     fn sparse_negative(&self, v: Cplx) -> Cplx {
-        let mut orders = self.layout.neg_sparse;
-        let mut k = 31 - orders.leading_zeros();
-        let mut n = self.neg[k as usize & POWER_MASK];
-        orders &= !(1 << k);
-        while orders != 0 {
-            let j = 31 - orders.leading_zeros();
-            n = n * power(v, k - j) + self.neg[j as usize & POWER_MASK];
-            orders &= !(1 << j);
+        let [top, lower @ ..] = self.layout.neg_orders;
+        let mut k = top as u32;
+        let mut n = self.neg[k as usize & ORDER_MASK];
+        for &j in lower
+            .iter()
+            .take((self.layout.neg_count as usize).saturating_sub(1))
+        {
+            let j = j as u32;
+            n = n * power(v, k - j) + self.neg[j as usize & ORDER_MASK];
             k = j;
         }
         n * power(v, k)
@@ -538,7 +642,7 @@ const NO_KIND: u8 = 31;
 
 const _: () = assert!(PACKED_BYTES == 10, "PackedBank::eq compares ten bytes");
 
-/// Two words, not a `memcmp` call: the control interrupt checks a bank plan with it.
+/// Two words, not a `memcmp` call: the control interrupt checks a built bank with it.
 impl PartialEq for PackedBank {
     fn eq(&self, o: &Self) -> bool {
         let words = |b: &[u8; PACKED_BYTES]| {
@@ -553,6 +657,12 @@ impl PartialEq for PackedBank {
 }
 
 impl PackedBank {
+    /// No path (what `Bank::new(&[])` packs to).
+    pub const EMPTY: Self = Self {
+        bits: [0; PACKED_BYTES],
+        len: 0,
+    };
+
     /// Offset 0, C/D 1, h = -1..=-15 as 2..=16, h = 4..=15 as 17..=28.
     pub(crate) fn code(k: PathKind) -> u8 {
         match k {
@@ -815,19 +925,85 @@ impl PathBank {
     /// copy of the builder in flash (1.7 kB): the rustc of today does not build a
     /// returned bank straight into `*self`.
     #[inline(never)]
-    pub fn renew(&mut self, cfg: &Config, gains: &ObserverGains) {
-        *self = Self::build(cfg, gains);
+    /// [`Self::new`] in place, first step: the paths' state cleared. A survey round
+    /// builds its bank aside a step a run of the adaptation task; built whole and copied
+    /// in, it took more than a 40 kHz control period of the task's time.
+    pub fn renew_state(&mut self) {
+        self.state = [PathState::default(); MAX_PATHS];
+        self.acc = [Cplx::ZERO; MAX_PATHS];
+        self.pw = [Cplx::ONE; 32];
     }
 
-    /// (Not inlined: built at init and at a record's rebank; [`Self::renew`] holds the
-    /// other copy of the builder.)
-    #[inline(never)]
-    pub fn new(cfg: &Config, gains: &ObserverGains) -> Self {
-        Self::build(cfg, gains)
+    /// [`Self::new`] in place, second step: every other field as it sets it but the
+    /// law's constants and the transient gate ([`Self::renew_law`]; the pattern names
+    /// each field, so that a field added later must be renewed too).
+    pub fn renew_rest(&mut self, cfg: &Config) {
+        let Self {
+            kinds,
+            state: _,
+            len,
+            m,
+            acc: _,
+            pw: _,
+            max_m,
+            m_n,
+            stride,
+            block,
+            inv_block,
+            inv_stride,
+            phase,
+            slot,
+            open_run,
+            adapted_samples,
+            omega_sum,
+            amplitude_sum,
+            net_torque_sum,
+            smooth,
+            speed_ok,
+            omega_window,
+            sweep_ok,
+            k: _,
+            angle_this_rev_rad,
+            revs_adapted,
+            transient: _,
+        } = self;
+        let paths = cfg.paths();
+        let (orders, top, freqs) = Self::orders(cfg);
+        let (s, b) = Self::strides(paths.len());
+        *kinds = cfg.paths;
+        *len = paths.len();
+        *m = orders;
+        *max_m = top;
+        *m_n = freqs;
+        *stride = s;
+        *block = b;
+        *inv_block = 1.0 / b as f32;
+        *inv_stride = 1.0 / s as f32;
+        *phase = 0;
+        *slot = 0;
+        *open_run = 0;
+        *adapted_samples = 0;
+        *omega_sum = 0.0;
+        *amplitude_sum = 0.0;
+        *net_torque_sum = 0.0;
+        *smooth = Smoothed::reset(0.0, 1.0);
+        *speed_ok = false;
+        *omega_window = [0.0; 2];
+        *sweep_ok = true;
+        *angle_this_rev_rad = 0.0;
+        *revs_adapted = 0;
     }
 
-    #[inline(always)]
-    fn build(cfg: &Config, gains: &ObserverGains) -> Self {
+    /// [`Self::new`] in place, last step (after [`Self::renew_rest`]): the law's
+    /// constants and the transient gate.
+    pub fn renew_law(&mut self, cfg: &Config, gains: &ObserverGains) {
+        let compensated = matches!(cfg.law, AdaptationLaw::Compensated { .. });
+        self.k = Constants::new(cfg, gains, self.stride);
+        self.transient = TransientGate::new(cfg, compensated);
+    }
+
+    /// Each path's error harmonic m, the largest, and m·N as f32.
+    fn orders(cfg: &Config) -> ([u8; MAX_PATHS], usize, [f32; MAX_PATHS]) {
         let paths = cfg.paths();
         let mut m = [0; MAX_PATHS];
         let max_m = paths
@@ -836,12 +1012,31 @@ impl PathBank {
             .max()
             .unwrap_or(0);
         let mut m_n = [0.0; MAX_PATHS];
-        for (i, p) in paths.iter().enumerate() {
-            m[i] = p.error_harmonic();
-            m_n[i] = p.error_harmonic() as f32 * cfg.sensor_periods as f32;
+        for ((mi, fi), p) in m.iter_mut().zip(m_n.iter_mut()).zip(paths) {
+            *mi = p.error_harmonic();
+            *fi = p.error_harmonic() as f32 * cfg.sensor_periods as f32;
         }
-        let stride = (BLOCK_SAMPLES / paths.len().max(1) as u32).max(MIN_STRIDE);
-        let block = stride * paths.len().max(1) as u32;
+        (m, max_m.min(POWER_MASK), m_n)
+    }
+
+    /// Samples between two path updates, and per block, for `len` paths.
+    fn strides(len: usize) -> (u32, u32) {
+        let stride = (BLOCK_SAMPLES / len.max(1) as u32).max(MIN_STRIDE);
+        (stride, stride * len.max(1) as u32)
+    }
+
+    /// (Not inlined: built at init and at a record's rebank; a survey round's bank is
+    /// built in place, [`Self::renew_state`] and the steps after it.)
+    #[inline(never)]
+    pub fn new(cfg: &Config, gains: &ObserverGains) -> Self {
+        Self::build(cfg, gains)
+    }
+
+    #[inline(always)]
+    fn build(cfg: &Config, gains: &ObserverGains) -> Self {
+        let paths = cfg.paths();
+        let (m, max_m, m_n) = Self::orders(cfg);
+        let (stride, block) = Self::strides(paths.len());
         Self {
             kinds: cfg.paths,
             state: [PathState::default(); MAX_PATHS],
@@ -849,7 +1044,7 @@ impl PathBank {
             m,
             acc: [Cplx::ZERO; MAX_PATHS],
             pw: [Cplx::ONE; 32],
-            max_m: max_m.min(POWER_MASK),
+            max_m,
             m_n,
             stride,
             block,
@@ -1274,6 +1469,47 @@ mod tests {
             let expect = powers_of(u)[e as usize];
             assert!((super::power(u, e) - expect).abs() < 1e-6, "u^{e}");
         }
+    }
+
+    /// A bank renewed in place, in its three steps, for another configuration is the bank
+    /// built new for it, whatever it held before (it had adapted: its state is not zero).
+    #[test]
+    fn a_bank_renewed_in_place_is_the_bank_built_new() {
+        let first = crate::Config::default();
+        let gains = |c: &crate::Config| {
+            ObserverGains::from_eigenvalues(c.observer.eigenvalues_hz, c.observer.inertia_kg_m2)
+        };
+        let mut bank = PathBank::new(&first, &gains(&first));
+        let x = AdaptSample {
+            flags: AdaptSample::LOCKED,
+            u: Cplx::new(0.6, 0.8),
+            eps_e_rad: 0.01,
+            omega_rad_s: 100.0,
+            amplitude: 1.0,
+            ..Default::default()
+        };
+        for i in 0..5000 {
+            bank.step(&AdaptSample { index: i, ..x });
+        }
+        assert_ne!(bank, PathBank::new(&first, &gains(&first)));
+        let mut other = first;
+        other.sensor_periods = 1;
+        other
+            .set_paths(&[
+                PathKind::Offset,
+                PathKind::AmplitudeQuadrature,
+                PathKind::Harmonic(7),
+                PathKind::Harmonic(-14),
+            ])
+            .unwrap();
+        other.law = AdaptationLaw::PaperLiteral {
+            k1_per_s: 20.0,
+            k2: 0.5,
+        };
+        bank.renew_state();
+        bank.renew_rest(&other);
+        bank.renew_law(&other, &gains(&other));
+        assert_eq!(bank, PathBank::new(&other, &gains(&other)));
     }
 
     /// A bank grown to the full 16 paths of an N = 1 survey and shrunk again: each path

@@ -34,7 +34,7 @@ pub use config::{
     ObserverConfig, PathKind, MAX_PATHS,
 };
 pub use decoupler::{
-    AdaptSample, BankPlan, Change, InjectionUpdate, PackedBank, UPDATE_LATENCY_PERIODS,
+    AdaptSample, BankPlan, Change, Injection, InjectionUpdate, PackedBank, UPDATE_LATENCY_PERIODS,
 };
 pub use health::{Fault, Faults};
 pub use tracker::{Estimate, Front, Tracker};

@@ -161,38 +161,98 @@ pub struct Allocation {
 
 /// The `max_paths` (≤ [`MAX_PATHS`]) largest harmonics that clear their noise floor and
 /// `min_rad` (rad, sensor electrical), each given its path.
-#[inline(never)]
 pub fn allocate(spectrum: &ErrorSpectrum, max_paths: usize, min_rad: f32) -> Allocation {
-    // Masked, not checked: no panic path in the adaptation task, and m is 1..=16.
-    const _: () = assert!(SURVEY_HARMONICS.is_power_of_two());
-    let amp = |m: u8| spectrum.amplitude_rad[(m as usize).wrapping_sub(1) & (SURVEY_HARMONICS - 1)];
-    // The harmonics that clear both floors, largest first: sorted after the others are
-    // dropped (a stable sort keeps their order as among all sixteen).
-    let mut order: heapless::Vec<u8, SURVEY_HARMONICS> = heapless::Vec::new();
-    for m in 1..=SURVEY_HARMONICS as u8 {
-        if amp(m) > spectrum.floor_rad && amp(m) > min_rad {
-            // Sixteen at most, room for each.
-            let _ = order.push(m);
+    let mut a = Allocator::new(max_paths, min_rad);
+    while !a.step(spectrum) {}
+    a.out
+}
+
+/// [`allocate`] a phase at a time ([`Allocator::step`]): in the adaptation task each
+/// phase is a run of its own, so that none spans a control period.
+#[derive(Clone, Debug)]
+struct Allocator {
+    max_paths: usize,
+    min_rad: f32,
+    /// The harmonics that clear both floors (largest first once sorted).
+    order: heapless::Vec<u8, SURVEY_HARMONICS>,
+    chosen: heapless::Vec<u8, MAX_PATHS>,
+    phase: AllocPhase,
+    out: Allocation,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum AllocPhase {
+    Candidates,
+    Sort,
+    Split,
+    Paths,
+    Done,
+}
+
+impl Allocator {
+    fn new(max_paths: usize, min_rad: f32) -> Self {
+        Self {
+            max_paths,
+            min_rad,
+            order: heapless::Vec::new(),
+            chosen: heapless::Vec::new(),
+            phase: AllocPhase::Candidates,
+            out: Allocation {
+                paths: heapless::Vec::new(),
+                unobserved: heapless::Vec::new(),
+            },
         }
     }
-    insertion_sort_by(&mut order, |a, b| amp(a) > amp(b));
-    let mut chosen: heapless::Vec<u8, MAX_PATHS> = heapless::Vec::new();
-    let mut unobserved = heapless::Vec::new();
-    for m in order {
-        if chosen.len() < max_paths.min(MAX_PATHS) {
-            let _ = chosen.push(m);
-        } else {
-            let _ = unobserved.push(m);
+
+    /// The next phase on `spectrum` (the same every call); true once the allocation is
+    /// complete.
+    #[inline(never)]
+    fn step(&mut self, spectrum: &ErrorSpectrum) -> bool {
+        // Masked, not checked: no panic path in the adaptation task, and m is 1..=16.
+        const _: () = assert!(SURVEY_HARMONICS.is_power_of_two());
+        let amp =
+            |m: u8| spectrum.amplitude_rad[(m as usize).wrapping_sub(1) & (SURVEY_HARMONICS - 1)];
+        match self.phase {
+            AllocPhase::Candidates => {
+                for m in 1..=SURVEY_HARMONICS as u8 {
+                    if amp(m) > spectrum.floor_rad && amp(m) > self.min_rad {
+                        // Sixteen at most, room for each.
+                        let _ = self.order.push(m);
+                    }
+                }
+                self.phase = AllocPhase::Sort;
+            }
+            AllocPhase::Sort => {
+                // Largest first, sorted after the others are dropped (a stable sort keeps
+                // their order as among all sixteen).
+                insertion_sort_by(&mut self.order, |a, b| amp(a) > amp(b));
+                self.phase = AllocPhase::Split;
+            }
+            AllocPhase::Split => {
+                let room = self.max_paths.min(MAX_PATHS);
+                for &m in &self.order {
+                    if self.chosen.len() < room {
+                        let _ = self.chosen.push(m);
+                    } else {
+                        let _ = self.out.unobserved.push(m);
+                    }
+                }
+                // In order of m (not `sort_unstable`: its code is kilobytes in the
+                // firmware).
+                insertion_sort_by(&mut self.chosen, |a, b| a < b);
+                insertion_sort_by(&mut self.out.unobserved, |a, b| a < b);
+                self.phase = AllocPhase::Paths;
+            }
+            AllocPhase::Paths => {
+                for k in self.chosen.iter().filter_map(|&m| path_for(m)) {
+                    let _ = self.out.paths.push(k);
+                }
+                self.phase = AllocPhase::Done;
+            }
+            AllocPhase::Done => {}
         }
+        self.phase == AllocPhase::Done
     }
-    // In order of m (not `sort_unstable`: its code is kilobytes in the firmware).
-    insertion_sort_by(&mut chosen, |a, b| a < b);
-    insertion_sort_by(&mut unobserved, |a, b| a < b);
-    let mut paths = heapless::Vec::new();
-    for k in chosen.iter().filter_map(|&m| path_for(m)) {
-        let _ = paths.push(k);
-    }
-    Allocation { paths, unobserved }
 }
 
 /// A round gives paths only to harmonics at least this share of the largest one still
@@ -220,46 +280,128 @@ pub struct SurveyOutcome {
 /// without a path, as many as it has room for. Returns the new bank, whether it is
 /// complete (nothing added, or full), and, when complete, the harmonics above the
 /// floors left without a path.
-#[inline(never)]
 pub fn next_round(
     spectrum: &ErrorSpectrum,
     bank: &[PathKind],
     min_rad: f32,
 ) -> (Bank, bool, heapless::Vec<u8, SURVEY_HARMONICS>) {
-    let mut rest = *spectrum;
-    for p in bank {
-        if let Some(a) = rest
-            .amplitude_rad
-            .get_mut((p.error_harmonic() as usize).wrapping_sub(1))
-        {
-            *a = 0.0;
+    let mut round = NextRound::new(*spectrum, Bank::new(bank), min_rad);
+    while !round.step() {}
+    (round.bank, round.complete, round.unobserved)
+}
+
+/// [`next_round`] a phase at a time ([`NextRound::step`]): in the adaptation task each
+/// phase is a run of its own (all at once it spanned two 40 kHz control periods).
+#[derive(Clone, Debug)]
+pub struct NextRound {
+    /// The spectrum with the bank's harmonics removed.
+    rest: ErrorSpectrum,
+    min_rad: f32,
+    /// The bank so far, then the new one.
+    bank: Bank,
+    alloc: Option<Allocator>,
+    complete: bool,
+    unobserved: heapless::Vec<u8, SURVEY_HARMONICS>,
+    phase: RoundPhase,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum RoundPhase {
+    Rest,
+    Allocate,
+    Bank,
+    Unobserved,
+    Done,
+}
+
+impl NextRound {
+    pub fn new(spectrum: ErrorSpectrum, bank: Bank, min_rad: f32) -> Self {
+        Self {
+            rest: spectrum,
+            min_rad,
+            bank,
+            alloc: None,
+            complete: false,
+            unobserved: heapless::Vec::new(),
+            phase: RoundPhase::Rest,
         }
     }
-    let largest = rest.amplitude_rad.iter().fold(0.0f32, |a, &b| a.max(b));
-    let room = MAX_PATHS.saturating_sub(bank.len());
-    let chosen = allocate(&rest, room, min_rad.max(ROUND_SHARE * largest));
-    let mut kinds: heapless::Vec<PathKind, MAX_PATHS> = heapless::Vec::new();
-    for k in bank.iter().chain(&chosen.paths) {
-        let _ = kinds.push(*k);
-    }
-    let complete = chosen.paths.is_empty() || kinds.len() >= MAX_PATHS;
-    let mut unobserved = heapless::Vec::new();
-    if complete {
-        // The kinds in the bank as a set of their codes (a search per harmonic took a
-        // control period's worth of the task's time).
-        let in_bank = kinds
-            .iter()
-            .fold(0u32, |set, &k| set | 1 << (PackedBank::code(k) & 31));
-        for (i, &a) in rest.amplitude_rad.iter().enumerate() {
-            let m = i as u8 + 1;
-            let pathed =
-                path_for(m).is_some_and(|k| in_bank & 1 << (PackedBank::code(k) & 31) != 0);
-            if a > spectrum.floor_rad && a > min_rad && !pathed {
-                let _ = unobserved.push(m);
+
+    /// The next phase; true once the round is chosen ([`Self::chosen`]).
+    #[inline(never)]
+    pub fn step(&mut self) -> bool {
+        match self.phase {
+            RoundPhase::Rest => {
+                for p in self.bank.as_slice() {
+                    if let Some(a) = self
+                        .rest
+                        .amplitude_rad
+                        .get_mut((p.error_harmonic() as usize).wrapping_sub(1))
+                    {
+                        *a = 0.0;
+                    }
+                }
+                let largest = self
+                    .rest
+                    .amplitude_rad
+                    .iter()
+                    .fold(0.0f32, |a, &b| a.max(b));
+                let room = MAX_PATHS.saturating_sub(self.bank.as_slice().len());
+                self.alloc = Some(Allocator::new(
+                    room,
+                    self.min_rad.max(ROUND_SHARE * largest),
+                ));
+                self.phase = RoundPhase::Allocate;
             }
+            RoundPhase::Allocate => {
+                let done = match &mut self.alloc {
+                    Some(a) => a.step(&self.rest),
+                    None => true,
+                };
+                if done {
+                    self.phase = RoundPhase::Bank;
+                }
+            }
+            RoundPhase::Bank => {
+                let mut kinds: heapless::Vec<PathKind, MAX_PATHS> = heapless::Vec::new();
+                let added = self.alloc.as_ref().map_or(&[][..], |a| &a.out.paths[..]);
+                for k in self.bank.as_slice().iter().chain(added) {
+                    let _ = kinds.push(*k);
+                }
+                self.complete = added.is_empty() || kinds.len() >= MAX_PATHS;
+                self.bank = Bank::new(&kinds);
+                self.phase = RoundPhase::Unobserved;
+            }
+            RoundPhase::Unobserved => {
+                if self.complete {
+                    // The kinds in the bank as a set of their codes (a search per
+                    // harmonic took a control period's worth of the task's time).
+                    let in_bank = self
+                        .bank
+                        .as_slice()
+                        .iter()
+                        .fold(0u32, |set, &k| set | 1 << (PackedBank::code(k) & 31));
+                    for (i, &a) in self.rest.amplitude_rad.iter().enumerate() {
+                        let m = i as u8 + 1;
+                        let pathed = path_for(m)
+                            .is_some_and(|k| in_bank & 1 << (PackedBank::code(k) & 31) != 0);
+                        if a > self.rest.floor_rad && a > self.min_rad && !pathed {
+                            let _ = self.unobserved.push(m);
+                        }
+                    }
+                }
+                self.phase = RoundPhase::Done;
+            }
+            RoundPhase::Done => {}
         }
+        self.phase == RoundPhase::Done
     }
-    (Bank::new(&kinds), complete, unobserved)
+
+    /// The new bank, whether it is complete, and the harmonics left without a path (as
+    /// [`next_round`] returns them), once [`Self::step`] returned true.
+    pub fn chosen(&self) -> (&Bank, bool, &heapless::Vec<u8, SURVEY_HARMONICS>) {
+        (&self.bank, self.complete, &self.unobserved)
+    }
 }
 
 /// The share-of-the-largest floor of a first round's spectrum ([`MIN_SHARE`]).

@@ -6,11 +6,12 @@ use crate::adapter::Adapter;
 use crate::coefficients::{CoefficientsError, Convergence};
 use crate::complex::Cplx;
 use crate::config::{Config, ConfigError};
-use crate::decoupler::{AdaptSample, BankPlan, Change, Injection, InjectionUpdate};
+use crate::decoupler::{AdaptSample, Change, Injection, InjectionUpdate};
 use crate::health::{Fault, Faults};
 use crate::observer::{DiscreteGains, ObserverGains, ObserverState};
 use crate::trig::{inv_sqrt_f32, sin_cos_f32, F32Trig, Trig};
 use crate::Coefficients;
+use core::borrow::BorrowMut;
 use core::f32::consts::{PI, TAU};
 
 /// What the observer knows after one sample.
@@ -48,8 +49,12 @@ impl Estimate {
 /// The part of the core that runs on every sample: observer, decoupling vector and health
 /// monitor. Every accepted sample leaves an [`AdaptSample`] for the [`Adapter`], whose
 /// [`InjectionUpdate`]s come back through [`Front::apply`].
+///
+/// `S` holds the decoupling vector: by value, or a pointer the control period swaps for
+/// another when a new bank comes in force ([`Self::swap_injection`]; the firmware's
+/// `&'static mut Injection`).
 #[derive(Clone, Debug)]
-pub struct Front<T: Trig = F32Trig> {
+pub struct Front<T: Trig = F32Trig, S: BorrowMut<Injection> = Injection> {
     cfg: Config,
     trig: T,
     gains: ObserverGains,
@@ -59,7 +64,7 @@ pub struct Front<T: Trig = F32Trig> {
     /// when the period count changes, to keep integer division out of most samples.
     mech: (i32, i32),
     /// The decoupling vector's terms (eq. 9, 16), as the adaptation last updated them.
-    inject: Injection,
+    inject: S,
     /// Periods stepped (wrapping): the clock of [`InjectionUpdate::apply_at`].
     index: u32,
     /// The last accepted sample for the adaptation, and whether it is this period's.
@@ -160,7 +165,16 @@ impl Front<F32Trig> {
 impl<T: Trig> Front<T> {
     /// A front with a given trigonometry implementation (e.g. the CORDIC).
     pub fn with_trig(cfg: Config, trig: T) -> Result<Self, ConfigError> {
+        Front::with_store(cfg, trig, Injection::EMPTY)
+    }
+}
+
+impl<T: Trig, S: BorrowMut<Injection>> Front<T, S> {
+    /// [`Front::with_trig`], its decoupling vector kept in `store` (given the
+    /// configured bank, every term zero).
+    pub fn with_store(cfg: Config, trig: T, mut store: S) -> Result<Self, ConfigError> {
         cfg.validate()?;
+        *store.borrow_mut() = Injection::new(cfg.paths());
         let gains = ObserverGains::from_eigenvalues(
             cfg.observer.eigenvalues_hz,
             cfg.observer.inertia_kg_m2,
@@ -189,7 +203,7 @@ impl<T: Trig> Front<T> {
             acq_left: 1,
             acq,
             accepted_index: 0,
-            inject: Injection::new(cfg.paths()),
+            inject: store,
             index: 0,
             handoff: AdaptSample::default(),
             handed: false,
@@ -275,7 +289,7 @@ impl<T: Trig> Front<T> {
         let u_sensor = u * Cplx::new(1.0 - 0.5 * lag * lag, lag);
 
         // Decoupled vector and the cross-product error, normalised by |Zd|.
-        let zd = z + self.inject.vector(u_sensor);
+        let zd = z + self.inject.borrow().vector(u_sensor);
         let zd2 = zd.norm_sqr();
         if zd2 < 0.25 * self.amplitude2_band[0] {
             // Coefficients plus input cancel the vector: nothing to track on.
@@ -435,7 +449,7 @@ impl<T: Trig> Front<T> {
     fn decoupled_step(&self, z: Cplx, raw: f32, c: f32) -> f32 {
         let (s, co) = self.trig.sin_cos(raw + c);
         let u = Cplx::new(co, s);
-        let w = (z + self.inject.vector(u)) * u.conj();
+        let w = (z + self.inject.borrow().vector(u)) * u.conj();
         c + atan_series(w.im / w.re)
     }
 
@@ -592,6 +606,13 @@ impl<T: Trig> Front<T> {
         self.last
     }
 
+    /// [`Estimate::decoupled`] of the last sample, read where it lies (the whole estimate
+    /// copied cost the control period 20 cycles for the one field).
+    #[inline(always)]
+    pub fn last_decoupled(&self) -> Cplx {
+        self.last.decoupled
+    }
+
     /// The observer's internal state (for logging and state-held checks).
     pub fn observer_state(&self) -> ObserverState {
         self.obs
@@ -657,41 +678,25 @@ impl<T: Trig> Front<T> {
     }
 
     /// Put an update in force if it is due at the coming period (`false`: not yet, keep
-    /// it). A late one (its task missed the deadline) is applied at once.
+    /// it). A late one (its task missed the deadline) is applied at once. A new bank is
+    /// worked out here (the firmware swaps in one built by its task instead:
+    /// [`Self::swap_injection`]).
     #[inline(always)]
     pub fn apply(&mut self, u: &InjectionUpdate) -> bool {
-        self.apply_planned(u, None)
+        let due = self.is_due(u);
+        if due {
+            match u.change {
+                Change::Term { path, value } => self.inject.borrow_mut().set(path as usize, value),
+                Change::Bank(b) => self.inject.borrow_mut().put_bank(&b, None),
+            }
+        }
+        due
     }
 
     /// Whether `u` is in force from the coming period (or was due earlier: late).
     #[inline(always)]
     pub fn is_due(&self, u: &InjectionUpdate) -> bool {
         u.due_in(self.index.wrapping_add(1)) <= 0
-    }
-
-    /// [`Self::apply`], with the plan of a new bank if the adaptation worked one out
-    /// ([`crate::Adapter::take_plan`]): then putting the bank in force only moves terms.
-    /// Without one, or with one for another bank, the bank is worked out here.
-    #[inline(always)]
-    pub fn apply_planned(&mut self, u: &InjectionUpdate, plan: Option<&BankPlan>) -> bool {
-        let due = self.is_due(u);
-        if due {
-            match u.change {
-                Change::Term { path, value } => self.inject.set(path as usize, value),
-                Change::Bank(b) => self.apply_bank(&b, plan),
-            }
-        }
-        due
-    }
-
-    /// A new bank (a few times per commissioning): kept out of the common path.
-    #[cold]
-    #[inline(never)]
-    fn apply_bank(&mut self, b: &crate::PackedBank, plan: Option<&BankPlan>) {
-        let planned = plan.is_some_and(|p| p.bank() == *b && self.inject.install(p));
-        if !planned {
-            self.inject.rebank(b.unpack().as_slice());
-        }
     }
 
     /// Put in force, in order, the updates at the front of `pending` that are due at the
@@ -710,12 +715,25 @@ impl<T: Trig> Front<T> {
     /// the [`Adapter`] has validated).
     pub fn load_injection(&mut self, c: &Coefficients) {
         let kinds = c.kinds();
-        if kinds != self.inject.kinds() {
-            self.inject.rebank(kinds);
+        let inject = self.inject.borrow_mut();
+        if kinds != inject.kinds() {
+            inject.rebank(kinds);
         }
         for (i, (_, v)) in c.iter().enumerate() {
-            self.inject.set(i, v);
+            inject.set(i, v);
         }
+    }
+
+    /// The decoupling vector in force.
+    pub fn injection(&self) -> &Injection {
+        self.inject.borrow()
+    }
+
+    /// `next` in force in place of the decoupling vector, which is returned: a new bank
+    /// built whole where there is time (the caller checks it is the bank due).
+    #[inline(always)]
+    pub fn swap_injection(&mut self, next: S) -> S {
+        core::mem::replace(&mut self.inject, next)
     }
 }
 
