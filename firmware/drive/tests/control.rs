@@ -852,3 +852,85 @@ fn every_survey_bank_comes_built_and_equals_the_bank_built_in_place() {
     assert_eq!(p.snapshot().updates_late, 0);
     assert_eq!(banks[1], Bank::new(&bank).into());
 }
+
+/// A bank's update whose vector was not built (no spare was at hand) is built in place,
+/// and a vector queued for a later update is not taken for it: the later update swaps
+/// it in, and the vector it replaced goes back. A vector of another bank for the same
+/// period is not taken either.
+#[test]
+fn a_bank_without_its_vector_is_built_in_place_and_a_later_ones_vector_waits() {
+    let core = Config {
+        sample_period_s: T,
+        ..Config::default()
+    };
+    let first = [
+        PathKind::Offset,
+        PathKind::AmplitudeQuadrature,
+        PathKind::Harmonic(5),
+    ];
+    let second = [PathKind::Offset, PathKind::Harmonic(-4)];
+    let bank = |paths: &[PathKind], at: u32| InjectionUpdate {
+        apply_at: at,
+        change: Change::Bank(Bank::new(paths).into()),
+    };
+    let term = |at: u32| InjectionUpdate {
+        apply_at: at,
+        change: Change::Term {
+            path: 1,
+            value: Cplx::new(0.01, -0.02),
+        },
+    };
+    let mut updates = Queue::<InjectionUpdate, UPDATE_DEPTH>::new();
+    let mut banks = BankQueue::new();
+    let mut spares = SpareQueue::new();
+
+    // Another bank's vector at the first's period: refused by its bank.
+    let mut p = period();
+    p.step(&sample(0.0), &Command::OFF);
+    let now = p.tracker().index();
+    let mut other = Injection::new(core.paths());
+    other.apply(&bank(&second, now + 1).change, None);
+    let other = Prepared {
+        apply_at: now + 1,
+        injection: other,
+    };
+    banks.enqueue(other).unwrap();
+    updates.enqueue(bank(&first, now + 1)).unwrap();
+    p.apply_due(&mut updates, &mut banks, &mut spares);
+    assert_eq!(p.tracker().injection().kinds(), &first[..]);
+    assert_eq!(banks.len(), 1);
+    assert!(spares.is_empty());
+
+    // A later update's vector (the same bank again, with a term) queued ahead of the
+    // first bank's update: the first is built in place, the later one swapped in at
+    // its own period.
+    let mut p = period();
+    p.step(&sample(0.0), &Command::OFF);
+    let now = p.tracker().index();
+    let mut built = Injection::new(core.paths());
+    for u in [bank(&first, now + 1), bank(&first, now + 2), term(now + 2)] {
+        built.apply(&u.change, None);
+    }
+    let mut banks = BankQueue::new();
+    banks
+        .enqueue(Prepared {
+            apply_at: now + 2,
+            injection: built,
+        })
+        .unwrap();
+    for u in [bank(&first, now + 1), bank(&first, now + 2), term(now + 2)] {
+        updates.enqueue(u).unwrap();
+    }
+    p.apply_due(&mut updates, &mut banks, &mut spares);
+    let mut in_place = Injection::new(core.paths());
+    in_place.apply(&bank(&first, now + 1).change, None);
+    assert_eq!(p.tracker().injection(), &in_place);
+    assert_eq!((banks.len(), updates.len()), (1, 2));
+    p.step(&sample(0.05), &Command::OFF);
+    p.apply_due(&mut updates, &mut banks, &mut spares);
+    assert_eq!(p.tracker().injection(), &built);
+    assert!(banks.is_empty() && updates.is_empty());
+    // The vector the swap replaced is the first bank's, built in place.
+    assert_eq!(spares.dequeue().unwrap().kinds(), &first[..]);
+    assert_eq!(p.snapshot().updates_late, 0);
+}
